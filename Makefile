@@ -1,0 +1,25 @@
+# make demo : install what is missing, then run the main job on the built-in default system
+# make test : install what is missing (bpy included), then run the whole test suite
+VENV   := .venv
+PY     := $(VENV)/bin/python
+OUT    ?= out/demo
+
+.PHONY: demo test install install-test bench clean
+
+install:
+	@scripts/bootstrap.sh
+
+install-test:
+	@WITH_BPY=1 scripts/bootstrap.sh
+
+demo: install
+	@$(VENV)/bin/calib demo -o $(OUT)
+
+test: install-test
+	@$(PY) -m pytest -q
+
+bench: install
+	@$(PY) -m bench
+
+clean:
+	rm -rf out .pytest_cache
