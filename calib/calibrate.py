@@ -140,6 +140,11 @@ def run_calibration(obs: Observations, config: BAConfig | None = None) -> Calibr
     if config.mode == "joint" and len(devices) < 2:
         raise ObservationError(f"joint calibration needs camera and projector observations; only {devices} "
                                "given (use mode='single')")
+    for d in devices:
+        n_ok = sum(1 for v in obs.views if v.seen(d).sum() >= 6)
+        if n_ok < 3:
+            raise ObservationError(f"{d}: {n_ok} view(s) with >= 6 observed points; at least 3 views in "
+                                   "different orientations are needed")
     seeds = {}
     for d in devices:
         views = [v for v in obs.views if v.seen(d).sum() >= 6]
