@@ -226,8 +226,8 @@ def solve(problem: BAProblem) -> BAResult:
         r_plain, _ = ev(theta, R0, np.ones(P), jacobian=False)
         e_plain = _point_norms(r_plain)
         changed = False
-        # device weights from the inlier residual RMS of each device (joint mode)
-        if cfg.mode == "joint" and cfg.reweight_devices and len(devices) > 1:
+        # device weights from the inlier residual RMS of each device (each device its own noise)
+        if cfg.reweight_devices and len(devices) > 1:
             new_dev_w = np.ones(P)
             for d in devices:
                 m = (problem.point_device == d) & inlier

@@ -99,7 +99,7 @@ class BAConfig:
     loss: str = "linear"
     loss_scale: float = 3.0            # in normalised units (sigma of a point)
     outlier_threshold: float | None = 5.0   # robust sigmas; None: no rejection
-    reweight_devices: bool = True      # joint mode: weight each device by its residual RMS
+    reweight_devices: bool = True      # two devices: weight each by its own residual RMS
     max_iterations: int = 300
     tolerance: float = 1e-15           # relative cost decrease that counts as converged
     progress: object = None            # callable(str) or None

@@ -15,6 +15,7 @@ import sys
 #: A CLI module must import only light modules at top level (heavy ones inside ``run``).
 COMMANDS = [
     ("run", "calib.cli_run", "calibrate camera + projector from point observations (seed + bundle adjustment)"),
+    ("reconstruct", "calib.cli_reconstruct", "absolute phase + calibration -> point cloud (PLY)"),
 ]
 
 
