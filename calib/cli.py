@@ -14,6 +14,8 @@ import sys
 #: (sub-command, module, one-line help). Modules are imported only when their command runs.
 #: A CLI module must import only light modules at top level (heavy ones inside ``run``).
 COMMANDS = [
+    ("twin", "twin_mapping.cli", "calibration -> digital-twin parameters (+ Blender scene script)"),
+    ("demo", "calib.demo", "the main job on the built-in default system"),
 ]
 
 

@@ -41,6 +41,6 @@ if [ "${WITH_BPY:-0}" = 1 ]; then
 fi
 site=$("$VENV/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
 ln -sfn /usr/lib/python3/dist-packages/mrcal "$site/mrcal"
-pip_install --no-deps --no-build-isolation -e .
+pip_install --no-deps --no-build-isolation --config-settings editable_mode=compat -e .
 "$VENV/bin/python" -c 'import mrcal, numpy, cv2, casadi, torch, kornia, h5py; print("[bootstrap] ok: mrcal", mrcal.__version__ if hasattr(mrcal, "__version__") else "", "numpy", numpy.__version__, "torch", torch.__version__)'
 echo "$want" > "$VENV/.sltwin-stamp"

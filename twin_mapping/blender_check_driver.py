@@ -1,5 +1,6 @@
-"""Run inside a Python that has bpy: build the exported twin scene, then project points through
-Blender's own cameras. Usage: python blender_projection_driver.py SCENE.py POINTS.json OUT.json
+"""Run inside a Python that has bpy (never imported by the toolkit): build the exported twin scene,
+then project points through Blender's own cameras.
+Usage: python blender_check_driver.py SCENE.py POINTS.json OUT.json [SAVE.blend]
 
 POINTS.json: {"camera": [[x, y, z], ...], "projector": [...]} in mm (world frame).
 OUT.json: per device, Blender's read-back camera settings and the projected pixels (OpenCV
@@ -10,6 +11,7 @@ import json
 import sys
 
 scene_script, points_path, out_path = sys.argv[1:4]
+save_blend = sys.argv[4] if len(sys.argv) > 4 else None
 sys.argv = [scene_script]
 namespace = {"__name__": "__main__"}
 exec(compile(open(scene_script).read(), scene_script, "exec"), namespace)
@@ -47,3 +49,6 @@ light = bpy.data.objects["Projector"]
 out["projector_light"] = {"matrix_world": np.array(light.matrix_world).tolist(), "type": light.data.type,
                           "spot_size": light.data.spot_size, "shadow_soft_size": light.data.shadow_soft_size}
 json.dump(out, open(out_path, "w"))
+if save_blend:
+    namespace["use_camera"](bpy.data.objects["Camera"], twin["camera"])
+    bpy.ops.wm.save_as_mainfile(filepath=save_blend)
