@@ -15,6 +15,7 @@ import sys
 #: A CLI module must import only light modules at top level (heavy ones inside ``run``).
 COMMANDS = [
     ("twin", "twin_mapping.cli", "calibration -> digital-twin parameters (+ Blender scene script)"),
+    ("report", "reports.cli", "twin-equivalence report (HTML + Markdown)"),
     ("demo", "calib.demo", "the main job on the built-in default system"),
 ]
 
