@@ -136,9 +136,9 @@ def _finish(xp, Phi, k, prior, ok, frequency, method, levels):
     in_range = (k >= 0) & (k <= kmax)
     valid = ok & in_range
     nan = math.nan
-    phase = xp.where(valid, Phi, nan + 0.0 * Phi)
-    order = xp.to_int32(xp.where(valid, k, -1.0 + 0.0 * k))
-    prior = xp.where(ok, prior, nan + 0.0 * prior)
+    phase = xp.where(valid, Phi, nan)
+    order = xp.to_int32(xp.where(valid, k, -1.0))
+    prior = xp.where(ok, prior, nan)
     return Unwrapped(phase, order, valid, prior, float(frequency), method, levels)
 
 
