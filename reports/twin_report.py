@@ -149,11 +149,26 @@ def build_twin_report(real: CalibrationRecord, twin: CalibrationRecord, *, extra
     return sections, summary
 
 
-def write_twin_report(real_paths, twin_paths, out_dir, *, title="Twin-equivalence report", extra_sections=()) -> dict:
-    """Read both calibrations, build the report, write report.html, report.md and summary.json."""
+def write_twin_report(real_paths, twin_paths, out_dir, *, title="Twin-equivalence report", extra_sections=(),
+                      phases: dict | None = None, frequency: float = 96.0) -> dict:
+    """Read both calibrations, build the report, write report.html, report.md and summary.json.
+
+    ``phases``: optional ``{"real": path, "twin": path}`` absolute phase maps of the same sphere
+    (vertical fringes, ``frequency`` periods): adds the paper's Fig. 3 cross-reconstruction matrix.
+    """
     real = load_calibration_record(real_paths, "real")
     twin = load_calibration_record(twin_paths, "twin")
-    sections, summary = build_twin_report(real, twin, extra_sections=extra_sections)
+    extra = list(extra_sections)
+    sphere_rows = None
+    if phases:
+        from .sphere_matrix import load_phase, sphere_section
+        check_comparable(real, twin)
+        maps = {k: load_phase(v) for k, v in phases.items()}
+        sphere_rows, blocks = sphere_section({"real": real.system, "twin": twin.system}, maps, frequency)
+        extra.insert(0, ("Cross reconstruction of the ball (Fig. 3)", blocks))
+    sections, summary = build_twin_report(real, twin, extra_sections=extra)
+    if sphere_rows is not None:
+        summary["sphere_matrix"] = sphere_rows
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "report.html").write_text(to_html(title, sections))

@@ -125,3 +125,25 @@ def test_the_browser_check_sees_a_broken_image(tmp_path):
     attrs, console_errors = _browse(page)
     assert attrs == {"ok": "1", "total": "2"}
     assert any("broken images: missing" in line for line in console_errors)
+
+
+def test_fig3_real_phase_with_real_calibration_reproduces_with_the_papers_linear_method(tmp_path):
+    d = shared_data("dp-tpu")
+    summary = write_twin_report([d / "CamCalibResult_real.mat", d / "PrjCalibResult_real.mat"],
+                                [d / "CamCalibResult_sim.mat", d / "PrjCalibResult_sim.mat"], tmp_path,
+                                phases={"real": d / "standardball_phase_real.mat", "twin": d / "standardball_phase_sim.mat"})
+    cells = {(r["phase"], r["calibration"], r["method"]): r for r in summary["sphere_matrix"]}
+    assert len(cells) == 8
+    rr = cells[("real", "real", "linear")]
+    assert rr["rms_um"] == pytest.approx(58.541, rel=0.01) and rr["radius_mm"] == pytest.approx(25.2, abs=0.1)
+    # every linear cell within 20 % of the paper's Fig. 3
+    for (phase, cal, method), r in cells.items():
+        if method == "linear":
+            assert abs(r["rms_um"] / r["paper_um"] - 1) < 0.2, (phase, cal, r["rms_um"], r["paper_um"])
+    assert "Fig. 3" in (tmp_path / "report.md").read_text()
+
+
+def test_phase_map_of_the_wrong_size_is_refused(tmp_path):
+    from reports.sphere_matrix import sphere_rms_um
+    with pytest.raises(ReportError, match="does not match the camera image"):
+        sphere_rms_um(default_system(), np.ones((100, 100)), 96.0)
