@@ -16,6 +16,9 @@ import sys
 COMMANDS = [
     ("run", "calib.cli_run", "calibrate camera + projector from point observations (seed + bundle adjustment)"),
     ("reconstruct", "calib.cli_reconstruct", "absolute phase + calibration -> point cloud (PLY)"),
+    ("twin", "twin_mapping.cli", "calibration -> digital-twin parameters (+ Blender scene script)"),
+    ("report", "reports.cli", "twin-equivalence report (HTML + Markdown)"),
+    ("demo", "calib.demo", "the main job on the built-in default system"),
 ]
 
 
