@@ -88,19 +88,21 @@ def _from_json(path: Path, label) -> CalibrationRecord:
         if kind in ("camera", "projector") and isinstance(s, dict):
             std[kind] = {k: float(v) for k, v in s.items() if isinstance(v, (int, float))}
     rms = {}
-    res = d.get("residuals") or {}
+    per_view = (d.get("residuals") or {}).get("views") or []  # calib run: residuals.views[i][device].rms_px
     for kind in ("camera", "projector"):
-        per_view = (res.get(kind) or {}).get("rms_per_view_px") if isinstance(res.get(kind), dict) else None
-        if per_view:
-            rms[kind] = [float(v) for v in per_view]
+        values = [v[kind]["rms_px"] for v in per_view if isinstance(v.get(kind), dict) and "rms_px" in v[kind]]
+        if values:
+            rms[kind] = [float(x) for x in values]
     files = {str(path): sha256(path)}
     views = []
     obs = path.with_name("observations.json")
     if obs.exists():
+        from calib.observations import read_observations_json
+
         files[str(obs)] = sha256(obs)
-        for i, v in enumerate(json.loads(obs.read_text()).get("views", [])):
-            pix = {k: np.asarray(v[k], dtype=np.float64) for k in ("camera", "projector") if k in v}
-            views.append(ViewObservations(v.get("name", f"view {i + 1}"), np.asarray(v["board_points"], dtype=np.float64), pix))
+        for v in read_observations_json(obs).views:
+            views.append(ViewObservations(v.name, np.asarray(v.points_board, dtype=np.float64),
+                                          {k: np.asarray(q, dtype=np.float64) for k, q in v.q.items()}))
     return CalibrationRecord(label, system, std, views, rms, files, "calibration.json")
 
 
