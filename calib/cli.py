@@ -14,6 +14,8 @@ import sys
 #: (sub-command, module, one-line help). Modules are imported only when their command runs.
 #: A CLI module must import only light modules at top level (heavy ones inside ``run``).
 COMMANDS = [
+    ("unwrap", "unwrap.cli", "absolute phase, fringe order and masks of a fringe capture (HDF5 + PNG)"),
+    ("plan-fringes", "unwrap.cli_plan", "predicted fringe-order error rate vs number of images"),
 ]
 
 
