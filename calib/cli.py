@@ -19,6 +19,8 @@ COMMANDS = [
     ("twin", "twin_mapping.cli", "calibration -> digital-twin parameters (+ Blender scene script)"),
     ("report", "reports.cli", "twin-equivalence report (HTML + Markdown)"),
     ("demo", "calib.demo", "the main job on the built-in default system"),
+    ("unwrap", "unwrap.cli", "absolute phase, fringe order and masks of a fringe capture (HDF5 + PNG)"),
+    ("plan-fringes", "unwrap.cli_plan", "predicted fringe-order error rate vs number of images"),
 ]
 
 

@@ -140,17 +140,18 @@ def _design(folder: Path, pose) -> Capture:
     for o, width in (("v", W), ("h", H)):
         sets = []
         for f, n in zip(freqs, steps):
-            files = []
+            files, missing = [], []
             for j in range(n):
                 hits = sorted(frames_dir.glob(f"{o}_f{int(round(f)):03d}_n{j:02d}.*"))
-                if not hits:
-                    break
-                files.append(hits[0])
+                if hits:
+                    files.append(hits[0])
+                else:
+                    missing.append(f"{o}_f{int(round(f)):03d}_n{j:02d}")
             if len(files) == 0:
                 break
-            if len(files) != n:
+            if missing:
                 raise UnwrapError(f"{frames_dir}: orientation {o}, frequency {f:g}: found {len(files)} "
-                                  f"of {n} frames {o}_f{int(round(f)):03d}_nNN")
+                                  f"of {n} frames {o}_f{int(round(f)):03d}_nNN; missing {missing}")
             sets.append(FringeSet(f, files, 2 * math.pi * np.arange(n) / n))
         if sets:
             if len(sets) != len(freqs):

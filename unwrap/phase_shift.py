@@ -210,14 +210,16 @@ def _frame_masks(flat, saturation, valid_range, xp_any, xp_all, isfinite):
 def _finish(xp, C, S, A, min_modulation, saturated, out_of_range, fill_invalid):
     """Phase, B and masks from the fitted [A, C, S] (shared by both backends)."""
     B_raw = xp.hypot(C, S)
-    defined = B_raw > 0
+    # below 1e-9 of the background the fit's rounding dominates: B is zero, the phase undefined
+    defined = B_raw > 1e-9 * xp.abs(A)
+    defined = defined & (B_raw > 0)
     if out_of_range is not None:
         defined = defined & ~out_of_range
     C_safe = xp.where(defined, C, 1.0 + 0.0 * C)  # keeps atan2/hypot gradients finite
     S_safe = xp.where(defined, S, 0.0 * S)
     phase = xp.atan2(S_safe, C_safe)
     B = xp.where(defined, xp.hypot(C_safe, S_safe), 0.0 * C)
-    low = ~(B_raw > 0)
+    low = ~defined
     if min_modulation:
         low = low | (B < min_modulation)
     if out_of_range is not None:

@@ -52,6 +52,14 @@ def phase_error_pdf(e, sigma_phi: float):
             * (1.0 + erf(math.sqrt(rho) * c)))
 
 
+def _cumulative(x, p):
+    """Left and right cumulative trapezoid integrals of p on grid x."""
+    seg = 0.5 * (p[1:] + p[:-1]) * np.diff(x)
+    left = np.concatenate([[0.0], np.cumsum(seg)])
+    right = np.concatenate([np.cumsum(seg[::-1])[::-1], [0.0]])
+    return left, right
+
+
 class _Dist:
     """Density and CDF of one phase error on a grid over its support."""
 
@@ -59,13 +67,18 @@ class _Dist:
         L = min(math.pi, 14.0 * sigma_phi)
         self.x = np.linspace(-L, L, _GRID)
         p = phase_error_pdf(self.x, sigma_phi)
-        cdf = np.concatenate([[0.0], np.cumsum(0.5 * (p[1:] + p[:-1]) * np.diff(self.x))])
-        total = cdf[-1]
-        self.p = p / total
-        self.cdf = cdf / total
+        self.p = p
+        self.cdf, self.sf = _cumulative(self.x, p)
+        total = self.cdf[-1]
+        self.p, self.cdf, self.sf = p / total, self.cdf / total, self.sf / total
 
     def F(self, v):
+        """P(e < v)."""
         return np.interp(v, self.x, self.cdf, left=0.0, right=1.0)
+
+    def S(self, v):
+        """P(e > v), summed from the right (no cancellation in the tail)."""
+        return np.interp(v, self.x, self.sf, left=1.0, right=0.0)
 
     def integrate(self, values):
         return float(np.trapz(self.p * values, self.x))
@@ -82,22 +95,25 @@ def mf_error_rate(frequencies, sigma_phi) -> float:
     """Probability that hierarchical MF over ``frequencies`` gives a wrong final k."""
     f = np.asarray(frequencies, dtype=np.float64)
     s = _sigmas(sigma_phi, f.size)
-    d_prev = _Dist(s[0])
-    g_x, g_p = d_prev.x, d_prev.p  # density of the current absolute-phase error, restricted to "no failure so far"
+    d0 = _Dist(s[0])
+    g_x, g_p = d0.x, d0.p  # density of the current absolute-phase error on "no failure so far"
+    fail = 0.0
     for i in range(1, f.size):
         r = f[i] / f[i - 1]
         d = _Dist(s[i])
-        G = np.concatenate([[0.0], np.cumsum(0.5 * (g_p[1:] + g_p[:-1]) * np.diff(g_x))])
-        hi = np.interp((d.x + math.pi) / r, g_x, G, left=0.0, right=G[-1])
-        lo = np.interp((d.x - math.pi) / r, g_x, G, left=0.0, right=G[-1])
-        g_x, g_p = d.x, d.p * (hi - lo)
-    return float(min(1.0, max(0.0, 1.0 - np.trapz(g_p, g_x))))
+        G, Gs = _cumulative(g_x, g_p)
+        # step fails when e_prev < (e - pi)/r or e_prev > (e + pi)/r
+        below = np.interp((d.x - math.pi) / r, g_x, G, left=0.0, right=G[-1])
+        above = np.interp((d.x + math.pi) / r, g_x, Gs, left=Gs[0], right=0.0)
+        fail += float(np.trapz(d.p * (below + above), d.x))
+        g_x, g_p = d.x, d.p * np.maximum(G[-1] - below - above, 0.0)
+    return float(min(1.0, max(0.0, fail)))
 
 
 def _two_error_fail(a: float, b: float, d_a: _Dist, d_b: _Dist) -> float:
-    """P(|a e_a - b e_b| > pi) for independent e_a, e_b."""
-    ok = d_b.F((math.pi + a * d_a.x) / b) - d_b.F((-math.pi + a * d_a.x) / b)
-    return float(min(1.0, max(0.0, 1.0 - d_a.integrate(ok))))
+    """P(|a e_a - b e_b| > pi) for independent e_a, e_b (tails summed directly)."""
+    fail = d_b.F((-math.pi + a * d_a.x) / b) + d_b.S((math.pi + a * d_a.x) / b)
+    return float(min(1.0, max(0.0, d_a.integrate(fail))))
 
 
 def mw_error_rate(frequencies, sigma_phi) -> float:
@@ -117,30 +133,27 @@ def mw_error_rate(frequencies, sigma_phi) -> float:
     f123 = abs(f12 - f23)
     sign = 1.0 if f12 > f23 else -1.0
     c = f12 / f123
-    total = 0.0
     nodes, weights = np.polynomial.legendre.leggauss(96)
-    ok_e2 = np.empty_like(d[1].x)
+    fail_A = np.zeros_like(d[1].x)
+    cs = c * sign
     for j, e2 in enumerate(d[1].x):
         # step B ok: |(f2/f12) e1 - (f1/f12) e2| <= pi  ->  e1 in [lo, hi]
         lo = ((f[0] / f12) * e2 - math.pi) / (f[1] / f12)
         hi = ((f[0] / f12) * e2 + math.pi) / (f[1] / f12)
         lo, hi = max(lo, d[0].x[0]), min(hi, d[0].x[-1])
         if hi <= lo:
-            ok_e2[j] = 0.0
             continue
         e1 = 0.5 * (hi - lo) * nodes + 0.5 * (hi + lo)
         w = 0.5 * (hi - lo) * weights
         p1 = np.interp(e1, d[0].x, d[0].p)
-        # step A ok: |c * sign*(e12 - e23) - e12| <= pi, e12 = e1 - e2, e23 = e2 - e3 (linear in e3)
+        # step A fails: |cs*(e12 - e2 + e3) - e12| > pi with e12 = e1 - e2 (linear in e3)
         e12 = e1 - e2
-        base = c * sign * (e12 - e2) - e12  # coefficient of e3 is c*sign
-        cs = c * sign
-        b1 = (math.pi - base) / cs
-        b2 = (-math.pi - base) / cs
-        pA = np.abs(d[2].F(np.maximum(b1, b2)) - d[2].F(np.minimum(b1, b2)))
-        ok_e2[j] = float(np.sum(w * p1 * pA))
-    total = d[1].integrate(ok_e2)
-    return float(min(1.0, max(0.0, 1.0 - total)))
+        base = cs * (e12 - e2) - e12
+        b1, b2 = (math.pi - base) / cs, (-math.pi - base) / cs
+        pA = d[2].F(np.minimum(b1, b2)) + d[2].S(np.maximum(b1, b2))
+        fail_A[j] = float(np.sum(w * p1 * pA))
+    fail_B = _two_error_fail(f[1] / f12, f[0] / f12, d[0], d[1])
+    return float(min(1.0, max(0.0, fail_B + d[1].integrate(fail_A))))
 
 
 def nt_error_rate(frequencies, sigma_phi) -> float:

@@ -1,0 +1,76 @@
+"""`calib unwrap` and `calib plan-fringes` on a synthetic capture in the DESIGN.md layout."""
+import numpy as np
+import pytest
+
+from calib.cli import main
+from unwrap.patterns import absolute_phase, fringe_intensity
+
+CAPTURE_TOML = """
+[pattern]
+steps = [12, 12, 12]
+frequencies = [1, 8, 48]
+
+[camera]
+size = [64, 48]
+
+[projector]
+size = [912, 1140]
+"""
+
+
+@pytest.fixture
+def design_capture(tmp_path):
+    import cv2
+    root = tmp_path / "captures"
+    pose = root / "pose_00"
+    pose.mkdir(parents=True)
+    (root / "capture.toml").write_text(CAPTURE_TOML)
+    y, x = np.mgrid[0:48, 0:64].astype(np.float64)
+    coords = {"v": (5.0 + 14.1 * x + 0.3 * y, 912), "h": (8.0 + 23.2 * y + 0.2 * x, 1140)}
+    for o, (c, extent) in coords.items():
+        for f in (1, 8, 48):
+            for n in range(12):
+                I = fringe_intensity(absolute_phase(c, f, extent), n, 12, A=30000, B=25000)
+                cv2.imwrite(str(pose / f"{o}_f{f:03d}_n{n:02d}.png"), np.round(I).astype(np.uint16))
+    return root, coords
+
+
+def test_calib_unwrap_writes_the_design_hdf5_layout_with_exact_orders(design_capture, tmp_path, capsys):
+    import h5py
+    root, coords = design_capture
+    out = tmp_path / "out"
+    assert main(["unwrap", str(root), "--method", "mf", "-o", str(out)]) == 0
+    assert (out / "v_unwrap.png").exists() and (out / "h_unwrap.png").exists()
+    with h5py.File(out / "unwrap.h5") as h5:
+        for o, (c, extent) in coords.items():
+            g = h5[o]
+            assert g["phase"].dtype == np.float64 and g["order"].dtype == np.int32
+            assert g["valid"].dtype == bool and g["valid"][()].all()
+            truth = absolute_phase(c, 48, extent)
+            phase = g["phase"][()]
+            assert np.abs(phase - truth).max() < 2e-3  # 16-bit quantisation; any k error is 2 pi
+            # k is the order of the stored phase: phase - 2 pi k is the wrapped phase in [-pi, pi]
+            assert np.abs(phase - 2 * np.pi * g["order"][()]).max() <= np.pi + 1e-9
+            assert np.abs(g["projector_coordinate"][()] - c).max() < 3e-3
+            assert g.attrs["method"] == "mf" and g.attrs["frequency"] == 48
+    err = capsys.readouterr().err
+    assert "orientation v" in err and "f = 48" in err  # progress
+
+
+def test_calib_unwrap_reports_missing_frames_and_unknown_layouts_cleanly(design_capture, tmp_path, capsys):
+    root, _ = design_capture
+    (root / "pose_00" / "v_f048_n07.png").unlink()
+    assert main(["unwrap", str(root), "-o", str(tmp_path / "o")]) == 2
+    assert "found 11 of 12 frames v_f048_nNN" in capsys.readouterr().err
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["unwrap", str(empty), "-o", str(tmp_path / "o")]) == 2
+    assert "not a known scanner layout" in capsys.readouterr().err
+    assert main(["unwrap", str(root), "--method", "gray", "-o", str(tmp_path / "o")]) == 2
+
+
+def test_calib_plan_fringes_prints_error_rate_vs_images(capsys):
+    assert main(["plan-fringes", "--sigma", "3", "--modulation", "50", "--steps", "3", "12",
+                 "--sets", "mf:1,8,48", "mf:1,96"]) == 0
+    out = capsys.readouterr().out
+    assert "| mf:1,96 | 3 | 6 |" in out and "over limit" in out

@@ -1,0 +1,62 @@
+"""Choose frequencies and step counts: predicted fringe-order error rate vs number of images.
+
+SYNOPSIS
+
+    >>> from unwrap.plan import plan_fringes
+    >>> rows = plan_fringes(["mf:1,8,48"], steps=(3, 12), sigma=2.0, modulation=60.0)
+    >>> [(r["set"], r["steps"], r["images"]) for r in rows]
+    [('mf:1,8,48', 3, 9), ('mf:1,8,48', 12, 36)]
+"""
+from __future__ import annotations
+
+import math
+
+from .errors import UnwrapError
+from .reliability import error_rate, phase_sigma
+
+#: Candidate sets shown by default (the paper's 1, 8, 48 ladder and common alternatives).
+DEFAULT_SETS = ("mf:1,8,48", "mf:1,4,16,64", "mf:1,12,96", "mf:1,96", "mw:48,47", "mw:96,95",
+                "mw:70,64,59", "nt:47,48", "nt:95,96", "cgray:32", "cgray:64")
+
+
+def parse_set(text: str):
+    """``"mf:1,8,48"`` -> ("mf", [1.0, 8.0, 48.0])."""
+    try:
+        method, freqs = text.split(":")
+        f = [float(v) for v in freqs.split(",")]
+    except ValueError:
+        raise UnwrapError(f"frequency set {text!r}: expected METHOD:F1,F2,... "
+                          "(e.g. mf:1,8,48, mw:70,64,59, nt:47,48, cgray:32)") from None
+    if method not in ("mf", "mw", "nt", "cgray"):
+        raise UnwrapError(f"frequency set {text!r}: method must be mf, mw, nt or cgray")
+    return method, f
+
+
+def images_needed(method: str, freqs, steps: int) -> int:
+    """Frames to capture per orientation (complementary Gray code: log2(f) + 1 code frames)."""
+    if method == "cgray":
+        return steps + int(math.ceil(math.log2(max(freqs)))) + 1
+    return steps * len(freqs)
+
+
+def plan_fringes(sets=DEFAULT_SETS, steps=(3, 4, 6, 12), *, sigma: float, modulation: float):
+    """Rows {set, method, frequencies, steps, images, sigma_phi, error_rate} for every set x N."""
+    rows = []
+    for text in sets:
+        method, f = parse_set(text)
+        for n in steps:
+            s_phi = phase_sigma(sigma, n, modulation)
+            rows.append({"set": text, "method": method, "frequencies": f, "steps": n,
+                         "images": images_needed(method, f, n), "sigma_phi": s_phi,
+                         "error_rate": error_rate(method, f, s_phi)})
+    return rows
+
+
+def format_table(rows, max_error_rate: float | None = None) -> str:
+    lines = ["| set | steps N | images | sigma_phi [rad] | predicted k error rate |",
+             "|---|---:|---:|---:|---:|"]
+    for r in rows:
+        flag = " (over limit)" if max_error_rate is not None and r["error_rate"] > max_error_rate else ""
+        lines.append(f"| {r['set']} | {r['steps']} | {r['images']} | {r['sigma_phi']:.4f} | "
+                     f"{r['error_rate']:.3g}{flag} |")
+    return "\n".join(lines)
