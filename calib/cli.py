@@ -14,6 +14,8 @@ import sys
 #: (sub-command, module, one-line help). Modules are imported only when their command runs.
 #: A CLI module must import only light modules at top level (heavy ones inside ``run``).
 COMMANDS = [
+    ("render", "synth.cli_render", "render a scene TOML to PNG images + HDF5 ground truth"),
+    ("render-board", "synth.cli_render_board", "render the paper's calibration session from the twin"),
 ]
 
 
