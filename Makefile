@@ -1,5 +1,5 @@
 # make demo : install what is missing, then run the main job on the built-in default system
-# make test : install what is missing (bpy included), then run the whole test suite
+# make test : install what is missing (bpy and chromium included), then run the whole test suite
 VENV   := .venv
 PY     := $(VENV)/bin/python
 OUT    ?= out/demo
@@ -10,7 +10,7 @@ install:
 	@scripts/bootstrap.sh
 
 install-test:
-	@WITH_BPY=1 scripts/bootstrap.sh
+	@WITH_TEST_TOOLS=1 scripts/bootstrap.sh
 
 demo: install
 	@$(VENV)/bin/calib demo -o $(OUT)

@@ -14,6 +14,11 @@ import sys
 #: (sub-command, module, one-line help). Modules are imported only when their command runs.
 #: A CLI module must import only light modules at top level (heavy ones inside ``run``).
 COMMANDS = [
+    ("run", "calib.cli_run", "calibrate camera + projector from point observations (seed + bundle adjustment)"),
+    ("reconstruct", "calib.cli_reconstruct", "absolute phase + calibration -> point cloud (PLY)"),
+    ("twin", "twin_mapping.cli", "calibration -> digital-twin parameters (+ Blender scene script)"),
+    ("report", "reports.cli", "twin-equivalence report (HTML + Markdown)"),
+    ("demo", "calib.demo", "the main job on the built-in default system"),
     ("render", "synth.cli_render", "render a scene TOML to PNG images + HDF5 ground truth"),
     ("render-board", "synth.cli_render_board", "render the paper's calibration session from the twin"),
 ]

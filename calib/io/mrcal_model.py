@@ -3,7 +3,7 @@
 mrcal's OpenCV lens models hold (fx, fy, cx, cy) and 4/5/8/12 distortion terms, no skew. Writing a
 device with skew is refused unless the skew's effect is below ``skew_tol_px`` at every image
 corner (default 0.01 px), in which case it is dropped and the drop is returned in the report.
-Extrinsics: mrcal's ``rt_cam_ref`` maps reference (our world) to the device, as our R, t do.
+mrcal's text format keeps 10 significant digits. Extrinsics: mrcal's ``rt_cam_ref`` maps reference (our world) to the device, as our R, t do.
 """
 from __future__ import annotations
 

@@ -1,0 +1,117 @@
+"""``calib run``: calibrate camera + projector from point observations (Zhang seeds + bundle adjustment).
+
+    calib run --observations CamCalibResult.mat PrjCalibResult.mat -o OUT
+    calib run --observations observations.json -o OUT
+
+Exit codes: 0 success; 2 invalid input or option (file unreadable, bad schema); 3 observations
+insufficient (too few views or points); 4 initialisation failed (degenerate views, e.g. all
+fronto-parallel); 5 adjustment failed (singular, too many outliers); 6 outputs could not be
+written.
+"""
+from __future__ import annotations
+
+import sys
+
+EXIT_OK, EXIT_INPUT, EXIT_OBSERVATIONS, EXIT_INIT, EXIT_ADJUST, EXIT_OUTPUT = 0, 2, 3, 4, 5, 6
+
+
+def add_arguments(p):
+    p.add_argument("--observations", nargs="+", metavar="FILE", required=True,
+                   help="camera and projector Bouguet .mat results (either may be '-' to leave it out), "
+                        "or one observation JSON (schema: docs/calib.md)")
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--mode", choices=("joint", "single"), default="joint",
+                   help="joint: one board pose per view shared by both devices (default); "
+                        "single: each device calibrated alone")
+    p.add_argument("--distortion", type=int, choices=(0, 4, 5, 8, 12), default=5,
+                   help="distortion terms of both devices (default 5)")
+    p.add_argument("--camera-distortion", type=int, choices=(0, 4, 5, 8, 12))
+    p.add_argument("--projector-distortion", type=int, choices=(0, 4, 5, 8, 12))
+    p.add_argument("--skew", action="store_true",
+                   help="estimate skew (then mrcal .cameramodel files can be written only if it is tiny)")
+    p.add_argument("--fix", action="append", default=[], metavar="DEVICE.PARAM",
+                   help="hold a parameter at its seed, e.g. camera.k3 or projector.intrinsics (repeatable)")
+    p.add_argument("--loss", choices=("linear", "huber", "cauchy"), default="linear")
+    p.add_argument("--loss-scale", type=float, default=3.0, help="robust loss scale, in residual sigmas")
+    p.add_argument("--outlier-threshold", type=float, default=5.0,
+                   help="reject points beyond this many robust sigmas (0: keep all)")
+    p.add_argument("--board-warp", action="store_true", help="estimate a 2-parameter board warp (mrcal's)")
+    p.add_argument("--skew-tol", type=float, default=0.01, help="px; see calib.io.mrcal_model")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
+
+
+def _load(paths):
+    from .observations import from_bouguet, read_observations_json
+
+    if len(paths) == 1 and paths[0].lower().endswith(".json"):
+        return read_observations_json(paths[0])
+    if len(paths) != 2:
+        from .observations import ObservationError
+        raise ObservationError(f"--observations takes one JSON file or two .mat files (camera projector, "
+                               f"'-' for none); got {len(paths)} path(s)")
+    cam, prj = (None if p == "-" else p for p in paths)
+    return from_bouguet(cam, prj)
+
+
+def run(args) -> int:
+    from .bundle_adjustment import BAConfig, BundleAdjustmentError, DeviceConfig
+    from .calibrate import run_calibration
+    from .calibration_report import summary_table, write_outputs
+    from .errors import FormatError
+    from .observations import ObservationError
+    from .zhang import InitError
+
+    def progress(msg):
+        if not args.quiet:
+            print(msg, file=sys.stderr, flush=True)
+
+    try:
+        obs = _load(args.observations)
+    except (ObservationError, FormatError) as exc:
+        print(f"calib run: error: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+    fixed = {"camera": [], "projector": []}
+    for f in args.fix:
+        dev, _, name = f.partition(".")
+        if dev not in fixed or not name:
+            print(f"calib run: error: --fix {f!r}: expected camera.PARAM or projector.PARAM", file=sys.stderr)
+            return EXIT_INPUT
+        fixed[dev].append(name)
+    devices = obs.devices()
+    mode = args.mode
+    if mode == "joint" and len(devices) < 2:
+        progress(f"only {devices} observed: calibrating in single-device mode")
+        mode = "single"
+    try:
+        config = BAConfig(
+            mode=mode,
+            camera=DeviceConfig(args.camera_distortion if args.camera_distortion is not None else args.distortion,
+                                args.skew, tuple(fixed["camera"])),
+            projector=DeviceConfig(args.projector_distortion if args.projector_distortion is not None
+                                   else args.distortion, args.skew, tuple(fixed["projector"])),
+            board_warp=args.board_warp, loss=args.loss, loss_scale=args.loss_scale,
+            outlier_threshold=args.outlier_threshold or None, progress=progress)
+    except BundleAdjustmentError as exc:
+        print(f"calib run: error: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+    progress(f"{len(obs.views)} view(s) from {obs.source}; devices {devices}; mode {mode}")
+    try:
+        cal = run_calibration(obs, config)
+    except ObservationError as exc:
+        print(f"calib run: error: observations: {exc}", file=sys.stderr)
+        return EXIT_OBSERVATIONS
+    except InitError as exc:
+        print(f"calib run: error: initialisation: {exc}", file=sys.stderr)
+        return EXIT_INIT
+    except BundleAdjustmentError as exc:
+        print(f"calib run: error: bundle adjustment: {exc}", file=sys.stderr)
+        return EXIT_ADJUST
+    try:
+        written = write_outputs(cal, obs, args.output, skew_tol_px=args.skew_tol)
+    except OSError as exc:
+        print(f"calib run: error: cannot write outputs to {args.output}: {exc}", file=sys.stderr)
+        return EXIT_OUTPUT
+    print(summary_table(cal))
+    for name, path in written.items():
+        progress(f"wrote {name}: {path}")
+    return EXIT_OK

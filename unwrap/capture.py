@@ -1,0 +1,226 @@
+"""Read fringe captures from disk: the DESIGN.md layout and three real scanners' own layouts.
+
+A capture is described per orientation ("v": fringes along projector columns -> u_p, "h" -> v_p)
+by :class:`FringeSet` items (frames of one frequency with their shifts) and optional Gray-code
+frames. Layouts:
+
+- ``design`` (DESIGN.md): ``capture.toml`` with ``[pattern] steps, frequencies`` and
+  ``[projector] size``; frames ``{v|h}_f{FFF}_n{NN}.png`` in the folder (or in its first pose
+  folder ``pose_00``; ``pose=`` picks another).
+- ``slstudio`` (jakobwilm/slstudio example data): ``frameSeq_00..11.png``; 3-step, 16 periods +
+  1-period cue per orientation, projector 1824 x 1140 (6 frames: columns only).
+- ``slmaster`` (Practice3DVision/SLMaster monocular data): ``L/0..17.png``; 12-step, 32 periods
+  of 60 px on a 1920-px DMD, shifts ``pi - 2 pi n/12`` in our convention, then 5+1 bits of
+  complementary Gray code thresholded against the background A.
+- ``kamino`` (kamino410/phase-shifting sample): ``pat00..31.png`` + ``config.xml``; 3-step at
+  periods 200/3 and 100 px (shifts +2pi/3, 0, -2pi/3), OpenCV Gray code (pattern, inverse) pairs
+  on 100-px blocks, white and black frames.
+
+The preset is taken from ``capture.toml`` (``[capture] preset = "..."``), the ``preset``
+argument, or recognised from the files present.
+"""
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import UnwrapError
+
+PRESETS = ("design", "slstudio", "slmaster", "kamino")
+
+
+@dataclass
+class FringeSet:
+    """Frames of one fringe frequency: ``files`` (N paths), ``shifts`` (N, rad), ``frequency``."""
+    frequency: float
+    files: list
+    shifts: np.ndarray
+
+
+@dataclass
+class OrientationCapture:
+    """Everything one orientation needs: fringe sets, the pattern width and optional Gray code.
+
+    gray: None or dict(kind="complementary"|"opencv", files=[...], inverse=[...] or None,
+    block_px=..., n_bits=...).
+    """
+    orientation: str
+    width: float
+    sets: list
+    gray: dict | None = None
+    white: Path | None = None
+    black: Path | None = None
+
+
+@dataclass
+class Capture:
+    folder: Path
+    preset: str
+    orientations: dict = field(default_factory=dict)
+    default_method: str = "mf"
+
+
+def read_image(path) -> np.ndarray:
+    """Grey image as a 2-D array of its own dtype (8/16-bit PNG/TIFF/BMP)."""
+    import cv2
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"capture frame not found: {path}")
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise UnwrapError(f"cannot read image {path}")
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    return img
+
+
+def read_stack(files) -> np.ndarray:
+    imgs = [read_image(f) for f in files]
+    shapes = {i.shape for i in imgs}
+    if len(shapes) != 1:
+        raise UnwrapError(f"frames {[str(f) for f in files]} differ in size: {sorted(shapes)}")
+    return np.stack(imgs)
+
+
+def detect_preset(folder: Path) -> str:
+    if (folder / "capture.toml").exists():
+        meta = tomllib.loads((folder / "capture.toml").read_text())
+        return meta.get("capture", {}).get("preset", "design")
+    if (folder / "config.xml").exists() and (folder / "pat00.png").exists():
+        return "kamino"
+    if (folder / "L" / "0.png").exists() or (folder / "0.png").exists():
+        return "slmaster"
+    if (folder / "frameSeq_00.png").exists():
+        return "slstudio"
+    raise UnwrapError(f"{folder}: no capture.toml and not a known scanner layout "
+                      f"(presets: {', '.join(PRESETS)})")
+
+
+def load_capture(folder, preset: str | None = None, pose: str | None = None) -> Capture:
+    """Describe the capture in ``folder`` (no pixels read yet). See the module docstring."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"capture folder not found: {folder}")
+    preset = preset or detect_preset(folder)
+    if preset not in PRESETS:
+        raise UnwrapError(f"unknown capture preset {preset!r}: expected one of {PRESETS}")
+    return {"design": _design, "slstudio": _slstudio, "slmaster": _slmaster,
+            "kamino": _kamino}[preset](folder, pose)
+
+
+def _design(folder: Path, pose) -> Capture:
+    toml = folder / "capture.toml"
+    if not toml.exists():
+        raise FileNotFoundError(f"{folder}: capture.toml missing (DESIGN.md layout)")
+    meta = tomllib.loads(toml.read_text())
+    try:
+        freqs = [float(v) for v in meta["pattern"]["frequencies"]]
+        steps = meta["pattern"]["steps"]
+        W, H = (int(v) for v in meta["projector"]["size"])
+    except KeyError as exc:
+        raise UnwrapError(f"{toml}: missing key {exc} ([pattern] frequencies, steps; "
+                          "[projector] size)") from None
+    steps = [int(steps)] * len(freqs) if isinstance(steps, int) else [int(s) for s in steps]
+    if len(steps) != len(freqs):
+        raise UnwrapError(f"{toml}: {len(steps)} step counts for {len(freqs)} frequencies")
+    frames_dir = folder
+    if pose is not None:
+        frames_dir = folder / pose
+    elif not list(folder.glob("[vh]_f*_n*.*")):
+        poses = sorted(p for p in folder.iterdir() if p.is_dir() and p.name.startswith("pose_"))
+        if not poses:
+            raise UnwrapError(f"{folder}: no frames v_fFFF_nNN.png and no pose_* folders")
+        frames_dir = poses[0]
+    cap = Capture(folder, "design", default_method=meta.get("capture", {}).get("method", "mf"))
+    for o, width in (("v", W), ("h", H)):
+        sets = []
+        for f, n in zip(freqs, steps):
+            files = []
+            for j in range(n):
+                hits = sorted(frames_dir.glob(f"{o}_f{int(round(f)):03d}_n{j:02d}.*"))
+                if not hits:
+                    break
+                files.append(hits[0])
+            if len(files) == 0:
+                break
+            if len(files) != n:
+                raise UnwrapError(f"{frames_dir}: orientation {o}, frequency {f:g}: found {len(files)} "
+                                  f"of {n} frames {o}_f{int(round(f)):03d}_nNN")
+            sets.append(FringeSet(f, files, 2 * math.pi * np.arange(n) / n))
+        if sets:
+            if len(sets) != len(freqs):
+                raise UnwrapError(f"{frames_dir}: orientation {o} has {len(sets)} of {len(freqs)} frequencies")
+            white = frames_dir / "white.png"
+            cap.orientations[o] = OrientationCapture(o, float(width), sets,
+                                                     white=white if white.exists() else None)
+    if not cap.orientations:
+        raise UnwrapError(f"{frames_dir}: no frames named like v_f{int(freqs[0]):03d}_n00.png")
+    return cap
+
+
+def _slstudio(folder: Path, pose) -> Capture:
+    files = [folder / f"frameSeq_{i:02d}.png" for i in range(12)]
+    n = sum(f.exists() for f in files)
+    if n not in (6, 12):
+        raise UnwrapError(f"{folder}: slstudio layout needs frameSeq_00..05 or 00..11, found {n} frames")
+    shifts = 2 * math.pi * np.arange(3) / 3
+    cap = Capture(folder, "slstudio", default_method="mf")
+    for o, width, first in (("v", 1824.0, 0), ("h", 1140.0, 6))[: n // 6]:
+        cap.orientations[o] = OrientationCapture(o, width, [
+            FringeSet(1.0, files[first + 3:first + 6], shifts),
+            FringeSet(16.0, files[first:first + 3], shifts)])
+    return cap
+
+
+def _slmaster(folder: Path, pose) -> Capture:
+    d = folder / "L" if (folder / "L").is_dir() else folder
+    files = [d / f"{i}.png" for i in range(18)]
+    missing = [f.name for f in files if not f.exists()]
+    if missing:
+        raise UnwrapError(f"{d}: slmaster layout needs 0.png .. 17.png; missing {missing}")
+    shifts = math.pi - 2 * math.pi * np.arange(12) / 12
+    cap = Capture(folder, "slmaster", default_method="gray")
+    cap.orientations["v"] = OrientationCapture(
+        "v", 1920.0, [FringeSet(32.0, files[:12], shifts)],
+        gray={"kind": "complementary", "files": files[12:18], "n_bits": 5})
+    return cap
+
+
+def _read_config_xml(path: Path) -> dict:
+    text = path.read_text()
+    out = {}
+    for key in ("disp_width", "disp_height", "step"):
+        m = re.search(rf"<{key}>\s*([0-9.]+)\s*</{key}>", text)
+        if not m:
+            raise UnwrapError(f"{path}: <{key}> missing")
+        out[key] = float(m.group(1))
+    return out
+
+
+def _kamino(folder: Path, pose) -> Capture:
+    cfg = _read_config_xml(folder / "config.xml")
+    W, H, step = cfg["disp_width"], cfg["disp_height"], cfg["step"]
+    block = step / 2
+    files = [folder / f"pat{i:02d}.png" for i in range(64) if (folder / f"pat{i:02d}.png").exists()]
+    n_col = math.ceil(math.log2(int((W - 1) // block) + 1))
+    n_row = math.ceil(math.log2(int((H - 1) // block) + 1))
+    expected = 12 + 2 * (n_col + n_row) + 2
+    if len(files) != expected:
+        raise UnwrapError(f"{folder}: kamino layout with {W:g}x{H:g}, step {step:g} needs {expected} "
+                          f"frames pat00..; found {len(files)}")
+    shifts = np.array([2 * math.pi / 3, 0.0, -2 * math.pi / 3])  # cos(x w + (phs-2) 2pi/3), phs=1..3
+    gray = files[12:12 + 2 * (n_col + n_row)]
+    cap = Capture(folder, "kamino", default_method="gray")
+    for o, width, first, bits in (("v", W, 0, gray[:2 * n_col]), ("h", H, 6, gray[2 * n_col:])):
+        cap.orientations[o] = OrientationCapture(
+            o, width,
+            [FringeSet(width / (step / 2), files[first + 3:first + 6], shifts),   # period step/2
+             FringeSet(width / (step / 3), files[first:first + 3], shifts)],      # period step/3
+            gray={"kind": "opencv", "files": bits[0::2], "inverse": bits[1::2], "block_px": block},
+            white=files[-2], black=files[-1])
+    return cap

@@ -1,0 +1,12 @@
+"""Exception and warning types of the unwrap package.
+
+Every error names the input, the offending value and what was expected.
+"""
+
+
+class UnwrapError(ValueError):
+    """Invalid input to phase shifting or phase unwrapping (shape, length, values, frequencies)."""
+
+
+class UnreliableFringesWarning(UserWarning):
+    """A frequency set / noise level whose predicted fringe-order error rate is above the limit."""

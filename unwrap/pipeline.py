@@ -1,0 +1,166 @@
+"""Capture folder -> absolute phase, fringe order and masks per orientation; HDF5 + PNG output.
+
+SYNOPSIS (Python)
+
+    from unwrap.pipeline import unwrap_capture, write_results
+    results = unwrap_capture("captures/", method="mf")      # {"v": OrientationResult, "h": ...}
+    write_results(results, "out/")                          # out/unwrap.h5, out/*_phase.png, ...
+
+HDF5 layout (DESIGN.md): one group per orientation ``v``/``h`` with ``phase`` (float64 absolute
+phase of the highest frequency, NaN invalid), ``order`` (int32, -1 invalid), ``valid`` (bool),
+plus ``prior`` (float64 physics prior), ``modulation`` (float64 B of the highest frequency) and
+``projector_coordinate`` (float64 px); attributes: method, frequency, width, preset.
+"""
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ._xp import wrap
+from .capture import Capture, OrientationCapture, load_capture, read_image, read_stack
+from .errors import UnwrapError
+from .graycode import (binarize, complementary_gray_unwrap, gray_coarse_unwrap, gray_to_index)
+from .patterns import projector_coordinate
+from .phase_shift import wrapped_phase
+from .temporal import Unwrapped, mf_unwrap, mw_unwrap, nt_unwrap
+
+METHODS = ("mf", "mw", "nt", "gray")
+
+
+@dataclass
+class OrientationResult:
+    orientation: str
+    width: float
+    result: Unwrapped
+    modulation: np.ndarray
+    background: np.ndarray
+
+
+def _default_min_modulation(dtype) -> float:
+    if np.issubdtype(dtype, np.integer):
+        return 0.02 * float(np.iinfo(dtype).max)
+    return 0.0
+
+
+def _log(progress, msg):
+    if progress:
+        print(msg, file=sys.stderr, flush=True)
+
+
+def unwrap_orientation(oc: OrientationCapture, method: str, *, min_modulation=None,
+                       gray_min_contrast: float = 4.0, progress: bool = False) -> OrientationResult:
+    """Wrapped phases of every fringe set, then the chosen temporal method, for one orientation."""
+    if method not in METHODS:
+        raise UnwrapError(f"unknown method {method!r}: expected one of {METHODS}")
+    sets = sorted(oc.sets, key=lambda s: s.frequency)
+    phases, valid, last = [], None, None
+    for i, s in enumerate(sets):
+        _log(progress, f"  [{oc.orientation}] {i + 1}/{len(sets)}: f = {s.frequency:g}, "
+                       f"{len(s.files)} frames")
+        stack = read_stack(s.files)
+        mm = _default_min_modulation(stack.dtype) if min_modulation is None else min_modulation
+        w = wrapped_phase(stack, s.shifts, min_modulation=mm)
+        phases.append(w.phase)
+        valid = w.valid if valid is None else valid & w.valid
+        last = w
+    freqs = [s.frequency for s in sets]
+    if method == "mf":
+        res = mf_unwrap(phases, freqs, width=oc.width, valid=valid)
+    elif method == "mw":
+        res = mw_unwrap(phases, freqs, width=oc.width, valid=valid)
+    elif method == "nt":
+        res = nt_unwrap(phases, freqs, width=oc.width, valid=valid)
+    else:
+        res = _gray(oc, phases, freqs, valid, last, gray_min_contrast, progress)
+    return OrientationResult(oc.orientation, oc.width, res, last.B, last.A)
+
+
+def _gray(oc, phases, freqs, valid, last, min_contrast, progress) -> Unwrapped:
+    if oc.gray is None:
+        raise UnwrapError(f"orientation {oc.orientation}: this capture has no Gray-code frames")
+    g = oc.gray
+    _log(progress, f"  [{oc.orientation}] Gray code: {len(g['files'])} bits ({g['kind']})")
+    frames = read_stack(g["files"])
+    if g["kind"] == "complementary":
+        bits, reliable = binarize(frames, threshold=last.A, min_contrast=min_contrast)
+        n = g["n_bits"]
+        K1 = gray_to_index(bits[:n])
+        G = gray_to_index(bits[:n + 1])
+        K2 = (G + 1) // 2
+        return complementary_gray_unwrap(phases[-1], K1, K2, freqs[-1], reliable=reliable,
+                                         valid=valid)
+    inverse = read_stack(g["inverse"])
+    bits, reliable = binarize(frames, inverse, min_contrast=min_contrast)
+    c = gray_to_index(bits)
+    if oc.white is not None and oc.black is not None:
+        reliable &= (read_image(oc.white).astype(np.float64)
+                     - read_image(oc.black).astype(np.float64)) > min_contrast
+    # beat of the two fringe frequencies (period 2 blocks) then the finer fringe
+    f_lo, f_hi = freqs[0], freqs[-1]
+    beat = wrap(phases[-1] - phases[0])
+    return gray_coarse_unwrap(c, g["block_px"], oc.width, [beat, phases[-1]],
+                              [f_hi - f_lo, f_hi], reliable=reliable, valid=valid)
+
+
+def unwrap_capture(folder, method: str | None = None, *, preset: str | None = None,
+                   pose: str | None = None, min_modulation=None, progress: bool = False) -> dict:
+    """Unwrap every orientation of a capture folder; returns {"v": OrientationResult, ...}."""
+    cap: Capture = load_capture(folder, preset, pose)
+    method = method or cap.default_method
+    out = {}
+    for o, oc in cap.orientations.items():
+        _log(progress, f"unwrap {cap.folder} [{cap.preset}] orientation {o}, method {method}")
+        out[o] = unwrap_orientation(oc, method, min_modulation=min_modulation, progress=progress)
+    return out
+
+
+def write_results(results: dict, out_dir, *, previews: bool = True, attrs: dict | None = None) -> Path:
+    """Write ``unwrap.h5`` (DESIGN.md layout) and PNG previews into ``out_dir``; returns the h5 path."""
+    import h5py
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "unwrap.h5"
+    with h5py.File(path, "w") as h5:
+        for k, v in (attrs or {}).items():
+            h5.attrs[k] = v
+        for o, r in results.items():
+            g = h5.create_group(o)
+            u = r.result
+            g.create_dataset("phase", data=np.asarray(u.phase, dtype=np.float64), compression="gzip")
+            g.create_dataset("order", data=np.asarray(u.order, dtype=np.int32), compression="gzip")
+            g.create_dataset("valid", data=np.asarray(u.valid, dtype=bool), compression="gzip")
+            g.create_dataset("prior", data=np.asarray(u.prior, dtype=np.float64), compression="gzip")
+            g.create_dataset("modulation", data=np.asarray(r.modulation, np.float64), compression="gzip")
+            g.create_dataset("projector_coordinate", compression="gzip",
+                             data=projector_coordinate(np.asarray(u.phase), u.frequency, r.width))
+            g.attrs.update(method=u.method, frequency=u.frequency, width=r.width,
+                           valid_fraction=float(np.mean(u.valid)))
+    if previews:
+        _previews(results, out)
+    return path
+
+
+def _previews(results, out: Path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    for o, r in results.items():
+        u = r.result
+        fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+        coord = projector_coordinate(np.asarray(u.phase), u.frequency, r.width)
+        for ax, img, title, cmap in (
+                (axes[0], coord, f"projector coordinate ({o}) [px]", "viridis"),
+                (axes[1], np.where(u.valid, u.order, np.nan), f"fringe order k (f = {u.frequency:g})", "turbo"),
+                (axes[2], r.modulation, "modulation B", "gray")):
+            im = ax.imshow(img, cmap=cmap)
+            ax.set_title(title)
+            ax.axis("off")
+            fig.colorbar(im, ax=ax, fraction=0.046)
+        fig.suptitle(f"{o}: method {u.method}, valid {100 * np.mean(u.valid):.1f} %")
+        fig.tight_layout()
+        fig.savefig(out / f"{o}_unwrap.png", dpi=80)
+        plt.close(fig)
