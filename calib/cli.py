@@ -21,6 +21,8 @@ COMMANDS = [
     ("demo", "calib.demo", "the main job on the built-in default system"),
     ("unwrap", "unwrap.cli", "absolute phase, fringe order and masks of a fringe capture (HDF5 + PNG)"),
     ("plan-fringes", "unwrap.cli_plan", "predicted fringe-order error rate vs number of images"),
+    ("render", "synth.cli_render", "render a scene TOML to PNG images + HDF5 ground truth"),
+    ("render-board", "synth.cli_render_board", "render the paper's calibration session from the twin"),
 ]
 
 

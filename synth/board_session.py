@@ -1,0 +1,113 @@
+"""A complete calibration session of the paper, rendered from the twin (supplementary section 2):
+the 9x11 circle board (20 mm pitch, 5 / 2 mm circles) at 9 poses tilted within +-10 deg about x
+and +-20 deg about y, horizontal and vertical fringes with 12 steps at frequencies 1, 8 and 48,
+plus a white frame, written in the capture layout of DESIGN.md with ``truth.json`` beside it.
+
+The world frame is the board at its reference (untilted) pose, so pose 0 has ``R = R_cam``,
+``t = t_cam`` and the board centre stays at the world origin for every pose.
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from .boards import BoardSpec
+from .effects import Effects, Noise
+from .errors import SynthError
+from .objects import Board
+from .output import write_pngs, write_truth_h5
+from .poses import rotation_xyz_deg
+from .render import render
+from .scene import Scene
+from .sequence import PatternSpec, phase_sequence
+
+#: (rx, ry) tilts in degrees: the 3 x 3 grid of the paper's (0 +- 10, 0 +- 20, 0).
+PAPER_TILTS_DEG = [(0, 0), (10, 0), (-10, 0), (0, 20), (0, -20), (10, 20), (10, -20), (-10, 20), (-10, -20)]
+
+
+def session_tilts(n_poses: int, seed: int = 0) -> list:
+    """``n_poses`` (rx, ry) tilts: the paper's 9 first, then random ones within +-10 / +-20 deg."""
+    if n_poses < 1:
+        raise SynthError(f"poses: expected >= 1, got {n_poses}")
+    tilts = list(PAPER_TILTS_DEG[:n_poses])
+    rng = np.random.default_rng(seed)
+    while len(tilts) < n_poses:
+        tilts.append((float(rng.uniform(-10, 10)), float(rng.uniform(-20, 20))))
+    return tilts
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    return repr(v)
+
+
+def capture_toml(board: BoardSpec, steps, frequencies, camera_size, projector_size, extra=None) -> str:
+    tables = {"board": board.capture_toml_table(),
+              "pattern": {"steps": list(steps), "frequencies": list(frequencies)},
+              "camera": {"size": list(camera_size)}, "projector": {"size": list(projector_size)}}
+    if extra:
+        tables["render"] = extra
+    lines = ["# Rendered by sltwin synth (calib render-board); layout of DESIGN.md", ""]
+    for name, t in tables.items():
+        lines.append(f"[{name}]")
+        lines += [f"{k} = {_toml_value(v)}" for k, v in t.items()]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def render_board_session(out_dir, system=None, *, steps: int = 12, frequencies=(1, 8, 48), n_poses: int = 9,
+                         bits: int = 8, seed: int = 0, noise: Noise | None = Noise(), board: BoardSpec = BoardSpec(),
+                         effects: Effects | None = None, truth_h5: bool = False, progress=None) -> dict:
+    """Render the session into ``out_dir`` (capture.toml, pose_XX/*.png, truth.json); returns
+    the truth dictionary. ``noise`` None renders noise-free; its seed is offset per pose."""
+    from calib.io.calibration_json import system_to_dict
+    from calib.system import default_system
+
+    system = system or default_system()
+    freqs = [int(f) if float(f).is_integer() else float(f) for f in frequencies]
+    patterns = [PatternSpec("white", "white")] + phase_sequence(("v", "h"), freqs, int(steps))
+    base = effects or Effects()
+    base = replace(base, bits=int(bits))
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    poses, visible, timings = [], [], []
+    Rc, tc = system.camera.R, system.camera.t
+    pts = board.points_board()
+    for i, (rx, ry) in enumerate(session_tilts(n_poses, seed)):
+        t0 = time.perf_counter()
+        R_wb = rotation_xyz_deg([rx, ry, 0.0])
+        eff = replace(base, noise=replace(noise, seed=int(noise.seed) + 1000 * int(seed) + i) if noise else None)
+        scene = Scene(system, [Board("board", R_wb, np.zeros(3), board)], patterns, eff, name=f"pose_{i:02d}")
+        result = render(scene)
+        pose_dir = out_dir / f"pose_{i:02d}"
+        write_pngs(result, pose_dir)
+        if truth_h5:
+            write_truth_h5(result, scene, pose_dir / "truth.h5")
+        R_cb = Rc @ R_wb
+        poses.append({"R": R_cb.tolist(), "t": tc.tolist(), "tilt_deg": [rx, ry, 0.0]})
+        q = system.camera.project(pts @ R_wb.T)
+        W, H = system.camera.size
+        visible.append(int(np.sum((q[:, 0] >= 0) & (q[:, 0] <= W - 1) & (q[:, 1] >= 0) & (q[:, 1] <= H - 1))))
+        timings.append(time.perf_counter() - t0)
+        if progress:
+            progress(f"pose {i + 1}/{n_poses}: tilt ({rx:+.1f}, {ry:+.1f}) deg, {len(patterns)} images, "
+                     f"{visible[-1]}/{len(pts)} board points in view, {timings[-1]:.1f} s")
+    (out_dir / "capture.toml").write_text(capture_toml(
+        board, [int(steps)] * len(freqs), freqs, system.camera.size, system.projector.size,
+        {"bits": int(bits), "seed": int(seed), "noise": noise is not None, "software": "sltwin synth"}))
+    truth = system_to_dict(system)
+    truth.update({"board_poses": poses, "board": board.capture_toml_table(),
+                  "board_points_in_view": visible, "pattern": {"steps": int(steps), "frequencies": freqs},
+                  "effects": base.to_dict(), "noise": None if noise is None else vars(noise) if hasattr(noise, "__dict__") else str(noise),
+                  "seed": int(seed), "render_seconds": timings})
+    (out_dir / "truth.json").write_text(json.dumps(truth, indent=1, default=str) + "\n")
+    return truth

@@ -1,0 +1,265 @@
+"""The geometry stage: camera rays, nearest hits, projector coordinates, shading, cast shadows.
+
+Computed once per scene pose and reused by every pattern of the stack. All float64: projector
+coordinates feed absolute phase at up to ~100 periods (2*pi*96 rad), where float32's 7 digits
+would cost ~1e-4 rad.
+
+Frames: world (mm); camera frame ``x_c = R_c X + t_c``; projector frame likewise. Per-pixel
+buffers are flattened over the camera image, index ``row * W + col``.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from calib.distortion import distort, undistort
+
+from .objects import Rays
+
+LOG = logging.getLogger("synth")
+F64 = torch.float64
+
+
+@dataclass
+class Geometry:
+    """Per-pixel buffers, each (N,) or (N,3) with N = H*W (camera image, row-major)."""
+
+    size: tuple                 # camera (W, H)
+    hit: torch.Tensor           # bool: a surface is seen
+    object_id: torch.Tensor     # int64, -1 where no hit
+    depth: torch.Tensor         # z in the camera frame (mm), NaN where no hit
+    points_cam: torch.Tensor    # (N,3) mm, NaN where no hit
+    normals_cam: torch.Tensor   # (N,3) unit, facing the camera, NaN where no hit
+    u_p: torch.Tensor           # projector column (px), NaN where not projectable
+    v_p: torch.Tensor           # projector row (px)
+    z_prj: torch.Tensor         # depth in the projector frame (mm)
+    in_field: torch.Tensor      # bool: inside the projector's image (and its lens model)
+    facing: torch.Tensor        # bool: the surface faces the projector (cos_p > 0)
+    shadow: torch.Tensor        # bool: another surface blocks the projector
+    lit: torch.Tensor           # hit & in_field & facing & ~shadow
+    albedo: torch.Tensor        # (N,) albedo (0 where no hit)
+    radiance_scale: torch.Tensor  # exposure*albedo*cos_p*falloff*vignetting, 0 where not lit
+    ambient_term: torch.Tensor    # exposure*ambient*albedo*vignetting
+    sigma_prj: torch.Tensor | None = None   # (N,2) projector blur sigma (px) along u_p, v_p
+    sigma_cam: torch.Tensor | None = None   # (N,) camera blur sigma (px)
+    timings: dict = field(default_factory=dict)
+
+
+def _pixel_grid(size) -> np.ndarray:
+    W, H = size
+    v, u = np.meshgrid(np.arange(H, dtype=np.float64), np.arange(W, dtype=np.float64), indexing="ij")
+    return np.stack([u.ravel(), v.ravel()], axis=1)
+
+
+def camera_rays(camera, use_distortion: bool) -> tuple[Rays, torch.Tensor]:
+    """One ray per camera pixel centre: (Rays, valid (N,) bool). Distortion is inverted by
+    Newton (calib.distortion.undistort); without distortion only K is inverted."""
+    q = _pixel_grid(camera.size)
+    xyd = camera.pixels_to_normalized(q)
+    if use_distortion and camera.distortion.size and np.any(camera.distortion):
+        xy, ok = undistort(xyd, camera.distortion)
+    else:
+        xy, ok = xyd, np.ones(len(q), dtype=bool)
+    xy = torch.tensor(xy)
+    R = torch.tensor(camera.R)
+    t = torch.tensor(camera.t)
+    d = torch.cat([xy, torch.ones_like(xy[:, :1])], 1) @ R  # R^T (x, y, 1)
+    d = d / torch.linalg.norm(d, dim=1, keepdim=True)
+    xy = torch.where(torch.tensor(ok)[:, None], xy, torch.full_like(xy, float("nan")))
+    return Rays(torch.tensor(camera.center_world), d, xy, R, t, 1.0 / max(camera.fx, camera.fy), "camera"), \
+        torch.tensor(ok)
+
+
+def nearest_surface(objects, rays: Rays):
+    """Nearest hit among objects: (t (N,), object index (N,), normal world (N,3), local (N,3))."""
+    N = rays.dirs.shape[0]
+    t_best = torch.full((N,), float("inf"), dtype=F64)
+    idx = torch.full((N,), -1, dtype=torch.int64)
+    normal = torch.zeros((N, 3), dtype=F64)
+    local = torch.zeros((N, 3), dtype=F64)
+    for i, obj in enumerate(objects):
+        h = obj.intersect(rays)
+        closer = h.t < t_best
+        t_best = torch.where(closer, h.t, t_best)
+        idx = torch.where(closer, torch.full_like(idx, i), idx)
+        normal = torch.where(closer[:, None], h.normal, normal)
+        local = torch.where(closer[:, None], h.local, local)
+    return t_best, idx, normal, local
+
+
+def projector_field_box(projector, use_distortion: bool) -> np.ndarray:
+    """(xmin, xmax, ymin, ymax) of the projector's field in undistorted normalised coordinates,
+    5 % enlarged. A point outside cannot be in the image even if a (folding) lens polynomial maps
+    it there."""
+    W, H = projector.size
+    s = np.linspace(0, 1, 101)
+    border = np.concatenate([np.stack([s * W - 0.5, np.full_like(s, -0.5)], 1),
+                             np.stack([s * W - 0.5, np.full_like(s, H - 0.5)], 1),
+                             np.stack([np.full_like(s, -0.5), s * H - 0.5], 1),
+                             np.stack([np.full_like(s, W - 0.5), s * H - 0.5], 1)])
+    xyd = projector.pixels_to_normalized(border)
+    if use_distortion and projector.distortion.size and np.any(projector.distortion):
+        xy, ok = undistort(xyd, projector.distortion)
+        xy = xy[ok]
+    else:
+        xy = xyd
+    lo, hi = xy.min(0), xy.max(0)
+    pad = 0.05 * (hi - lo)
+    return np.array([lo[0] - pad[0], hi[0] + pad[0], lo[1] - pad[1], hi[1] + pad[1]])
+
+
+def project_to_projector(projector, points_world: torch.Tensor, use_distortion: bool):
+    """World points (N,3) -> (u_p, v_p, z_prj, xy_undistorted (N,2), in_field (N,))."""
+    R = torch.tensor(projector.R)
+    t = torch.tensor(projector.t)
+    p = points_world @ R.T + t
+    z = p[:, 2]
+    front = z > 1e-9
+    zs = torch.where(front, z, torch.ones_like(z))
+    xy = p[:, :2] / zs[:, None]
+    coeffs = projector.distortion if use_distortion else np.zeros(0)
+    xyd = distort(xy, coeffs)
+    u = projector.fx * xyd[:, 0] + projector.skew * xyd[:, 1] + projector.cx
+    v = projector.fy * xyd[:, 1] + projector.cy
+    W, H = projector.size
+    box = projector_field_box(projector, use_distortion)
+    in_field = (front & (u >= -0.5) & (u <= W - 0.5) & (v >= -0.5) & (v <= H - 0.5)
+                & (xy[:, 0] >= box[0]) & (xy[:, 0] <= box[1]) & (xy[:, 1] >= box[2]) & (xy[:, 1] <= box[3]))
+    return u, v, z, xy, in_field
+
+
+def defocus_sigma(defocus, f_px: float, z: torch.Tensor) -> torch.Tensor:
+    """Gaussian sigma (px) of the thin-lens blur disc at depth z (mm): ``c / (2 sqrt 2)``."""
+    c = defocus.aperture_mm * f_px * (1.0 / z.clamp(min=1e-6) - 1.0 / defocus.focus_mm).abs()
+    return c / (2.0 * math.sqrt(2.0))
+
+
+def needs_shadow_pass(objects) -> tuple[bool, str]:
+    if not objects:
+        return False, "empty scene"
+    if len(objects) == 1 and objects[0].convex:
+        return False, f"a single convex {objects[0].kind} cannot cast a shadow on itself"
+    return True, f"{len(objects)} object(s), {sum(not o.convex for o in objects)} non-convex"
+
+
+class _Clock:
+    def __init__(self, timings):
+        self.timings = timings
+
+    def __call__(self, name):
+        import time
+        clock = self
+
+        class _C:
+            def __enter__(self):
+                self.t0 = time.perf_counter()
+
+            def __exit__(self, *a):
+                clock.timings[name] = clock.timings.get(name, 0.0) + time.perf_counter() - self.t0
+        return _C()
+
+
+def compute_geometry(scene, *, shadows: bool | None = None, log=LOG) -> Geometry:
+    """Run the geometry stage of ``scene`` (see the module docstring). ``shadows`` overrides
+    the scene's choice (None: follow ``effects.shadows``)."""
+    sysm, eff = scene.system, scene.effects
+    cam, prj = sysm.camera, sysm.projector
+    timings: dict = {}
+    clock = _Clock(timings)
+    W, H = cam.size
+    N = W * H
+    cam_dist = eff.camera_distortion and bool(np.any(cam.distortion))
+    prj_dist = eff.projector_distortion and bool(np.any(prj.distortion))
+    with clock("camera rays"):
+        rays, ray_ok = camera_rays(cam, cam_dist)
+    if not cam_dist:
+        log.info("camera distortion: skipped (%s)", "zero coefficients" if eff.camera_distortion else "turned off")
+    with clock("ray hits"):
+        t, obj, n_world, local = nearest_surface(scene.objects, rays)
+        hit = torch.isfinite(t) & ray_ok
+    nan = float("nan")
+    X = torch.where(hit[:, None], rays.origin + torch.where(hit, t, torch.zeros_like(t))[:, None] * rays.dirs,
+                    torch.full((N, 3), nan, dtype=F64))
+    # normals face the camera (two-sided surfaces)
+    flip = (n_world * rays.dirs).sum(1) > 0
+    n_world = torch.where(flip[:, None], -n_world, n_world)
+    Rc = torch.tensor(cam.R)
+    points_cam = X @ Rc.T + torch.tensor(cam.t)
+    normals_cam = torch.where(hit[:, None], n_world @ Rc.T, torch.full((N, 3), nan, dtype=F64))
+    depth = points_cam[:, 2]
+
+    with clock("projector coordinates"):
+        Xs = torch.where(hit[:, None], X, torch.zeros_like(X))
+        u_p, v_p, z_prj, xy_prj, in_field = project_to_projector(prj, Xs, prj_dist)
+        in_field = in_field & hit
+    if not prj_dist:
+        log.info("projector distortion: skipped (%s)", "zero coefficients" if eff.projector_distortion else "turned off")
+    C_p = torch.tensor(prj.center_world)
+    to_p = C_p - Xs
+    dist_p = torch.linalg.norm(to_p, dim=1)
+    dir_p = to_p / dist_p.clamp(min=1e-12)[:, None]
+    cos_p = (n_world * dir_p).sum(1)
+    facing = hit & (cos_p > 0)
+
+    with clock("shadows"):
+        want = {"on": True, "off": False}.get(eff.shadows) if shadows is None else shadows
+        needed, why = needs_shadow_pass(scene.objects)
+        shadow = torch.zeros(N, dtype=torch.bool)
+        if want is False:
+            log.info("cast shadows: skipped (turned off)")
+        elif not needed and want is None:
+            log.info("cast shadows: skipped (%s)", why)
+        else:
+            cand = torch.nonzero(in_field & facing).squeeze(1)
+            if cand.numel():
+                prays = Rays(C_p, -dir_p[cand], xy_prj[cand], torch.tensor(prj.R), torch.tensor(prj.t),
+                             1.0 / max(prj.fx, prj.fy), "projector")
+                t_block, _, _, _ = nearest_surface(scene.objects, prays)
+                d = dist_p[cand]
+                shadow[cand] = t_block < d * (1 - 1e-6)
+            log.info("cast shadows: computed (%s): %d shadowed pixel(s)", why, int(shadow.sum()))
+    lit = in_field & facing & ~shadow
+
+    with clock("shading"):
+        albedo = torch.zeros(N, dtype=F64)
+        cos_c = (n_world * rays.dirs).sum(1).abs()
+        footprint = torch.where(hit, t, torch.zeros_like(t)) / max(cam.fx, cam.fy) / torch.sqrt(cos_c.clamp(min=0.05))
+        for i, o in enumerate(scene.objects):
+            m = obj == i
+            m = m & hit
+            if bool(m.any()):
+                albedo[m] = o.albedo(local[m], footprint[m])
+        shade = cos_p.clamp(min=0) if eff.shading == "lambert" else torch.ones_like(cos_p)
+        if eff.falloff:
+            d_ref = eff.reference_distance_mm or float(np.linalg.norm(prj.center_world))
+            shade = shade * (d_ref / dist_p.clamp(min=1e-9)) ** 2
+        vign = torch.ones(N, dtype=F64)
+        if eff.vignetting > 0:
+            rx = torch.nan_to_num(rays.xy, nan=0.0)
+            cos4 = 1.0 / (1.0 + (rx ** 2).sum(1)) ** 2
+            vign = 1.0 - eff.vignetting * (1.0 - cos4)
+        radiance_scale = torch.where(lit, eff.exposure * albedo * shade * vign, torch.zeros_like(albedo))
+        ambient_term = torch.where(hit, eff.exposure * eff.ambient * albedo * vign, torch.zeros_like(albedo))
+    if eff.vignetting == 0:
+        log.info("vignetting: skipped (strength 0)")
+    if eff.ambient == 0:
+        log.info("ambient light: skipped (0)")
+
+    sigma_prj = sigma_cam = None
+    if eff.projector_defocus is not None:
+        z = torch.where(in_field, z_prj, torch.full_like(z_prj, eff.projector_defocus.focus_mm))
+        sigma_prj = torch.stack([defocus_sigma(eff.projector_defocus, prj.fx, z),
+                                 defocus_sigma(eff.projector_defocus, prj.fy, z)], 1)
+    if eff.camera_defocus is not None:
+        z = torch.where(hit, depth, torch.full_like(depth, eff.camera_defocus.focus_mm))
+        sigma_cam = defocus_sigma(eff.camera_defocus, max(cam.fx, cam.fy), z)
+    nanv = torch.full_like(u_p, nan)
+    proj_ok = hit & (z_prj > 0)
+    return Geometry((W, H), hit, torch.where(hit, obj, torch.full_like(obj, -1)), depth, points_cam, normals_cam,
+                    torch.where(proj_ok, u_p, nanv), torch.where(proj_ok, v_p, nanv),
+                    torch.where(hit, z_prj, nanv), in_field, facing, shadow & hit, lit, albedo,
+                    radiance_scale, ambient_term, sigma_prj, sigma_cam, timings)

@@ -1,0 +1,156 @@
+"""Render a scene: geometry once, then the whole pattern stack, then the camera stages.
+
+SYNOPSIS
+
+    >>> from synth import render, Scene, Plane, phase_sequence
+    >>> from calib import default_system
+    >>> import numpy as np
+    >>> scene = Scene(default_system(), [Plane("wall", np.eye(3), [0, 0, 0])],
+    ...               phase_sequence(("v",), (8,), 4))
+    >>> result = render(scene)
+    >>> result.images.shape, result.images.dtype
+    ((4, 480, 640), torch.uint8)
+
+Only the stages a scene asks for are built, and a stage that cannot change this scene's image is
+skipped; ``result.plan`` lists every stage with "run" or the reason it was skipped (also logged
+to the ``synth`` logger at INFO).
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from .geometry import Geometry, compute_geometry
+from .projection import linear_model, nonlinear_values
+
+F64 = torch.float64
+from .sensor import add_noise, camera_defocus, quantise
+from .truth import fringe_frequencies, phase_truth
+
+LOG = logging.getLogger("synth")
+
+
+class _PlanLog:
+    """Collects the plan lines and forwards them to the logger."""
+
+    def __init__(self, log):
+        self.lines: list[str] = []
+        self.log = log
+
+    def info(self, fmt, *args):
+        line = fmt % args if args else fmt
+        self.lines.append(line)
+        self.log.info(line)
+
+
+@dataclass
+class RenderResult:
+    """Images and ground truth of one render.
+
+    - images: (K,H,W) counts in [0, 2^bits-1] (uint8 for 8 bits, else int32) (or float32 linear values when
+      ``quantised`` is False).
+    - linear: (K,H,W) float32 linear camera values before noise and quantisation (kept only
+      when asked for).
+    - names: K pattern names; geometry: the per-pixel buffers; plan: stage decisions;
+      timings: seconds per stage.
+    """
+
+    images: torch.Tensor
+    names: list
+    geometry: Geometry
+    plan: list
+    timings: dict
+    bits: int
+    linear: torch.Tensor | None = None
+
+    def truth(self, projector_size, patterns) -> dict:
+        """{orientation: {frequency: (phase, order, valid)}} for the stack's fringes."""
+        return {o: {f: phase_truth(self.geometry, projector_size, o, f) for f in fs}
+                for o, fs in fringe_frequencies(patterns).items()}
+
+
+def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry: Geometry | None = None,
+           log=LOG) -> RenderResult:
+    """Render every pattern of ``scene``. ``geometry`` reuses a previous geometry stage of the
+    same scene pose (e.g. to render another pattern sequence)."""
+    plan = _PlanLog(log)
+    eff = scene.effects
+    timings: dict = {}
+    t0 = time.perf_counter()
+    if geometry is None:
+        geometry = compute_geometry(scene, log=plan)
+        timings.update({f"geometry: {k}": v for k, v in geometry.timings.items()})
+    else:
+        plan.info("geometry: reused")
+    W, H = geometry.size
+    K = len(scene.patterns)
+    lit = torch.nonzero(geometry.lit).squeeze(1)
+
+    t = time.perf_counter()
+    if not eff.projector_defocus:
+        plan.info("projector defocus: skipped (not asked for)")
+    elif lit.numel() == 0 or float(geometry.sigma_prj[lit].max()) < 1e-3:
+        plan.info("projector defocus: skipped (no lit pixel is out of focus)")
+    if eff.projector_gamma == 1.0:
+        plan.info("projector gamma: skipped (1.0)")
+    sig = geometry.sigma_prj[lit] if (geometry.sigma_prj is not None and lit.numel()) else None
+    if sig is not None and float(sig.max()) < 1e-3:
+        sig = None
+    u, v = geometry.u_p[lit], geometry.v_p[lit]
+    psize = scene.system.projector.size
+    N = W * H
+    # images = ambient + scale * p. Linear patterns: one matrix product (K, R) @ (R, N) over basis
+    # rows [ambient, scale, scale*a*cos Phi, scale*a*sin Phi, ...] built in float64 and cast to
+    # float32 (see synth.sensor); no per-pattern temporaries.
+    images = torch.empty((K, N), dtype=torch.float32)
+    idx, coef, basis = linear_model(scene.patterns, u, v, psize, eff, sig)
+    if idx:
+        full = torch.zeros((basis.shape[0] + 1, N), dtype=torch.float32)
+        full[0] = geometry.ambient_term
+        full[1:, lit] = (geometry.radiance_scale[lit] * basis).to(torch.float32)
+        C = torch.cat([torch.ones((len(idx), 1), dtype=F64), coef], 1).to(torch.float32)
+        if idx == list(range(K)):
+            torch.mm(C, full, out=images)
+        else:
+            images[idx] = C @ full
+    other = [k for k in range(K) if k not in set(idx)]
+    if other:
+        p = nonlinear_values(scene.patterns, other, u, v, psize, eff, sig, log=plan)
+        scale = geometry.radiance_scale[lit]
+        for i, k in enumerate(other):
+            images[k] = geometry.ambient_term
+            images[k].index_add_(0, lit, (scale * p[i]).to(torch.float32))
+    images = images.reshape(K, H, W)
+    timings["patterns"] = time.perf_counter() - t
+    if lit.numel() == 0:
+        plan.info("patterns: no camera pixel is lit by the projector (empty image apart from ambient light)")
+
+    t = time.perf_counter()
+    if eff.camera_defocus is None:
+        plan.info("camera defocus: skipped (not asked for)")
+    elif geometry.sigma_cam is None or float(geometry.sigma_cam.max()) < 1e-3:
+        plan.info("camera defocus: skipped (every pixel in focus)")
+    else:
+        images = camera_defocus(images, geometry.sigma_cam.reshape(H, W), eff.camera_defocus.levels)
+        timings["camera defocus"] = time.perf_counter() - t
+    linear = images.clone() if keep_linear else None
+
+    t = time.perf_counter()
+    if eff.noise is None:
+        plan.info("sensor noise: skipped (not asked for)")
+    else:
+        gen = torch.Generator().manual_seed(int(eff.noise.seed))
+        images = add_noise(images, eff.noise, gen)
+        timings["noise"] = time.perf_counter() - t
+    t = time.perf_counter()
+    if quantised:
+        images = quantise(images, eff.bits, eff.gain, eff.saturation)
+        timings["gain + quantisation"] = time.perf_counter() - t
+    elif eff.gain != 1.0 or eff.saturation != 1.0:
+        images = (images * eff.gain).clamp(0, eff.saturation)
+    timings["total"] = time.perf_counter() - t0
+    return RenderResult(images, [p.name for p in scene.patterns], geometry, plan.lines, timings, eff.bits, linear)
