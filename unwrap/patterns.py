@@ -12,7 +12,7 @@ SYNOPSIS
     >>> img = fringe_pattern((912, 1140), frequency=8, step=0, steps=12, orientation="v")
     >>> img.shape
     (1140, 912)
-    >>> float(projector_coordinate(2 * np.pi * 8, 8, 912))
+    >>> round(float(projector_coordinate(2 * np.pi * 8, 8, 912)), 9)
     912.0
 """
 from __future__ import annotations
