@@ -258,8 +258,23 @@ def _wrapped_phase_numpy(stack, P, min_modulation, saturation, valid_range, nonf
                                            lambda m: m.any(axis=0), lambda m: m.all(axis=0),
                                            np.isfinite)
     A, C, S = coef[0], coef[1], coef[2]
-    phase, B, low, valid = _finish(namespace(C), C, S, A, min_modulation, saturated, out_of_range,
-                                   fill_invalid)
+    # numpy fast path of _finish (same rules, no gradient bookkeeping): one atan2, one sqrt
+    B = np.sqrt(C * C + S * S)
+    defined = (B > 1e-9 * np.abs(A)) & (B > 0)
+    phase = np.arctan2(S, C)
+    low = ~defined
+    if min_modulation:
+        low |= B < min_modulation
+    valid = ~low
+    if out_of_range is not None:
+        low &= ~out_of_range
+        valid &= ~out_of_range
+        B[out_of_range] = 0.0
+    if saturated is not None:
+        valid &= ~saturated
+    B[~defined] = 0.0
+    if fill_invalid:
+        phase[~valid] = np.nan
     zeros = np.zeros(n_pix, dtype=bool)
     r = lambda x: np.asarray(x).reshape(pix_shape)  # noqa: E731
     return WrappedPhase(r(phase), r(A), r(B), r(low),
