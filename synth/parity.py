@@ -28,14 +28,20 @@ def parity_system(scale: int = 4):
     from calib.system import SystemModel
 
     s = ideal_system(default_system())
-    cam = s.camera
+    return SystemModel(downscaled_camera(s.camera, scale, square_pixels=True), s.projector, dict(s.meta))
+
+
+def downscaled_camera(cam, scale: int, *, square_pixels: bool = False):
+    """The camera with its image reduced ``scale`` times over the same field of view (pixel centres
+    at integer coordinates); ``square_pixels`` sets fy = fx (Blender's cameras have square pixels)."""
     K = np.array(cam.K)
     K[0, :] /= scale
     K[1, :] /= scale
     K[0, 2] = (cam.cx + 0.5) / scale - 0.5
     K[1, 2] = (cam.cy + 0.5) / scale - 0.5
-    K[1, 1] = K[0, 0]
-    return SystemModel(cam.with_(size=(cam.width // scale, cam.height // scale), K=K), s.projector, dict(s.meta))
+    if square_pixels:
+        K[1, 1] = K[0, 0]
+    return cam.with_(size=(cam.width // scale, cam.height // scale), K=K)
 
 
 def _nstep(stack):
