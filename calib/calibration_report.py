@@ -133,13 +133,15 @@ def summary_table(cal: Calibration) -> str:
     return "\n".join(lines)
 
 
-def write_outputs(cal: Calibration, obs, out_dir, *, skew_tol_px: float = 0.01) -> dict:
-    """Write calibration.json, camera/projector.cameramodel, residuals.png; return {name: path or note}."""
+def write_outputs(cal: Calibration, obs, out_dir, *, skew_tol_px: float = 0.01, extra: dict | None = None) -> dict:
+    """Write calibration.json, camera/projector.cameramodel, residuals.png; return {name: path or note}.
+    ``extra``: more top-level keys for calibration.json (e.g. ``captures``, the image pipeline's summary)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = {}
-    written["calibration.json"] = write_calibration_json(cal.system, out / "calibration.json",
-                                                         **calibration_dict_extra(cal, obs))
+    keys = calibration_dict_extra(cal, obs)
+    keys.update(extra or {})
+    written["calibration.json"] = write_calibration_json(cal.system, out / "calibration.json", **keys)
     only = cal.system.meta.get("only_device")
     for d in ("camera", "projector"):
         if only and d != only:

@@ -1,5 +1,8 @@
-"""``calib run``: calibrate camera + projector from point observations (Zhang seeds + bundle adjustment).
+"""``calib run``: calibrate camera + projector from board captures or point observations
+(Zhang seeds + bundle adjustment).
 
+    calib run CAPTURES -o OUT                      # images: unwrap, detect, phase fit, adjust
+    calib run CAPTURES --capture-toml my.toml -o OUT   # a real scanner's folder, described aside
     calib run --observations CamCalibResult.mat PrjCalibResult.mat -o OUT
     calib run --observations observations.json -o OUT
 
@@ -16,9 +19,20 @@ EXIT_OK, EXIT_INPUT, EXIT_OBSERVATIONS, EXIT_INIT, EXIT_ADJUST, EXIT_OUTPUT = 0,
 
 
 def add_arguments(p):
-    p.add_argument("--observations", nargs="+", metavar="FILE", required=True,
-                   help="camera and projector Bouguet .mat results (either may be '-' to leave it out), "
-                        "or one observation JSON (schema: docs/calib.md)")
+    p.add_argument("captures", nargs="?", metavar="CAPTURES",
+                   help="capture folder (DESIGN.md layout: capture.toml + pose_XX/ frames)")
+    p.add_argument("--observations", nargs="+", metavar="FILE",
+                   help="instead of CAPTURES: camera and projector Bouguet .mat results (either may be '-' "
+                        "to leave it out), or one observation JSON (schema: docs/calib.md)")
+    p.add_argument("--capture-toml", metavar="TOML",
+                   help="capture description kept outside CAPTURES (real scanners' folders; "
+                        "see calib/data/captures/)")
+    p.add_argument("--method", choices=("mf", "mw", "nt", "gray"),
+                   help="temporal unwrapping method (default: capture.toml's or the preset's)")
+    p.add_argument("--strict", action="store_true",
+                   help="refuse the whole run when a pose cannot be used (default: skip it and report)")
+    p.add_argument("--phase-fit-degree", type=int, choices=(1, 2), default=2,
+                   help="local polynomial degree of the projector-coordinate fit around each feature")
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--mode", choices=("joint", "single"), default="joint",
                    help="joint: one board pose per view shared by both devices (default); "
@@ -65,11 +79,31 @@ def run(args) -> int:
         if not args.quiet:
             print(msg, file=sys.stderr, flush=True)
 
-    try:
-        obs = _load(args.observations)
-    except (ObservationError, FormatError) as exc:
-        print(f"calib run: error: {exc}", file=sys.stderr)
+    if (args.captures is None) == (args.observations is None):
+        print("calib run: error: give either a CAPTURES folder or --observations FILE(S)", file=sys.stderr)
         return EXIT_INPUT
+    captured = None
+    if args.captures is not None:
+        from .captures import CaptureError, observations_from_captures
+        from unwrap.errors import UnwrapError
+        try:
+            captured = observations_from_captures(args.captures, capture_toml=args.capture_toml,
+                                                  method=args.method, strict=args.strict,
+                                                  degree=args.phase_fit_degree, keep_images=True,
+                                                  progress=progress)
+        except ObservationError as exc:
+            print(f"calib run: error: observations: {exc}", file=sys.stderr)
+            return EXIT_OBSERVATIONS
+        except (CaptureError, UnwrapError, FormatError, FileNotFoundError, ValueError) as exc:
+            print(f"calib run: error: {exc}", file=sys.stderr)
+            return EXIT_INPUT
+        obs = captured.observations
+    else:
+        try:
+            obs = _load(args.observations)
+        except (ObservationError, FormatError) as exc:
+            print(f"calib run: error: {exc}", file=sys.stderr)
+            return EXIT_INPUT
     fixed = {"camera": [], "projector": []}
     for f in args.fix:
         dev, _, name = f.partition(".")
@@ -107,7 +141,11 @@ def run(args) -> int:
         print(f"calib run: error: bundle adjustment: {exc}", file=sys.stderr)
         return EXIT_ADJUST
     try:
-        written = write_outputs(cal, obs, args.output, skew_tol_px=args.skew_tol)
+        written = write_outputs(cal, obs, args.output, skew_tol_px=args.skew_tol,
+                                extra=None if captured is None else {"captures": captured.summary()})
+        if captured is not None:
+            from .capture_outputs import write_capture_outputs
+            written.update(write_capture_outputs(captured, args.output))
     except OSError as exc:
         print(f"calib run: error: cannot write outputs to {args.output}: {exc}", file=sys.stderr)
         return EXIT_OUTPUT
