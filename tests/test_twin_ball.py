@@ -84,26 +84,50 @@ def test_twin_phase_cells_fill_and_a_foreign_system_is_not_at_the_floor(rendered
     assert cells[("real", "ours")] > 3 * floor
 
 
-def test_report_without_a_twin_phase_renders_it_and_fills_the_matrix(tmp_path, capsys):
+@pytest.fixture(scope="module")
+def cli_report(tmp_path_factory):
+    import contextlib
+    import io
+
     from calib.cli import main
 
     d = shared_data("dp-tpu")
-    assert main(["report", "--real", str(d / "CamCalibResult_real.mat"), str(d / "PrjCalibResult_real.mat"),
-                 "--twin", str(d / "CamCalibResult_sim.mat"), str(d / "PrjCalibResult_sim.mat"),
-                 "--phase-real", str(d / "standardball_phase_real.mat"), "-o", str(tmp_path)]) == 0
-    captured = capsys.readouterr()
-    assert "twin ball: [5/5]" in captured.err and "footprint IoU" in captured.out
+    out = tmp_path_factory.mktemp("twin_ball_report")
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+        rc = main(["report", "--real", str(d / "CamCalibResult_real.mat"), str(d / "PrjCalibResult_real.mat"),
+                   "--twin", str(d / "CamCalibResult_sim.mat"), str(d / "PrjCalibResult_sim.mat"),
+                   "--phase-real", str(d / "standardball_phase_real.mat"), "-o", str(out)])
+    return rc, out, stdout.getvalue(), stderr.getvalue()
+
+
+def test_report_without_a_twin_phase_renders_it_and_fills_the_matrix(cli_report):
     import json
-    summary = json.loads((tmp_path / "summary.json").read_text())
+
+    rc, out, stdout, stderr = cli_report
+    assert rc == 0, stderr
+    assert "twin ball: [5/5]" in stderr and "footprint IoU" in stdout
+    summary = json.loads((out / "summary.json").read_text())
     cells = {(r["phase"], r["calibration"], r["method"]): r for r in summary["sphere_matrix"]}
     for cal in ("real", "twin"):
         for method in ("linear", "distortion-aware"):
             assert np.isfinite(cells[("real", cal, method)]["rms_um"])
             assert np.isfinite(cells[("twin (synth)", cal, method)]["rms_um"])
         assert cells[("twin (synth)", cal, "linear")]["paper_um"] is not None
-    written = load_phase(tmp_path / "twin_ball_phase.h5")
+    written = load_phase(out / "twin_ball_phase.h5")
     assert np.isfinite(written).sum() == summary["twin_ball"]["footprint"]["pixels"]
-    assert "twin (synth)" in (tmp_path / "report.md").read_text()
+    assert "twin (synth)" in (out / "report.md").read_text()
+
+
+def test_twin_ball_report_loads_in_a_real_browser_with_no_broken_image(cli_report):
+    from tests.test_report import ARTIFACTS, _browse
+
+    _, out, _, _ = cli_report
+    shot = ARTIFACTS / "report_twin_ball.png"
+    attrs, console_errors = _browse(out / "report.html", shot)
+    assert int(attrs["total"]) >= 5 and attrs["ok"] == attrs["total"]
+    assert console_errors == []
+    assert shot.exists() and shot.stat().st_size > 10_000
 
 
 def test_twin_with_another_camera_size_is_refused():
