@@ -1,6 +1,8 @@
 """``calib report``: the twin-equivalence report (HTML with embedded figures + Markdown)."""
 from __future__ import annotations
 
+import argparse
+
 
 def add_arguments(p) -> None:
     p.add_argument("--real", nargs="+", required=True, metavar="FILE",
@@ -10,19 +12,47 @@ def add_arguments(p) -> None:
     p.add_argument("--phase-real", metavar="FILE", help="real absolute phase map (.mat/.npy/.h5), vertical fringes")
     p.add_argument("--phase-twin", metavar="FILE", help="twin absolute phase map of the same object")
     p.add_argument("--frequency", type=float, default=96.0, help="periods across the projector of the phase maps")
+    p.add_argument("--twin-ball-render", action=argparse.BooleanOptionalAction, default=None,
+                   help="render the twin ball phase with synth at the real ball's fitted pose and add it to the "
+                        "Fig. 3 matrix (default: on when --phase-real is given without --phase-twin)")
+    p.add_argument("--ball-frequencies", type=float, nargs="+", default=None, metavar="F",
+                   help="fringe ladder of the twin ball render, ending at --frequency (default: 1 8 96)")
+    p.add_argument("--twin-ball-system", choices=("ideal", "real"), default="ideal",
+                   help="system that renders the twin ball: the real calibration without skew and distortion "
+                        "(ideal, what the Blender twin represents; default) or with them (real)")
+    p.add_argument("--ball-noise", default="match", metavar="match|none|SIGMA",
+                   help="twin ball sensor noise: match the real phase noise (default), none, or a phase noise in rad")
     p.add_argument("-o", "--output", default="report", help="output folder (default: %(default)s)")
 
 
 def run(args) -> int:
     from .twin_report import write_twin_report
 
+    from .errors import ReportError
+
+    opts = {}
+    if args.ball_frequencies:
+        opts["frequencies"] = args.ball_frequencies
+    if args.ball_noise != "match":
+        try:
+            opts["noise"] = None if args.ball_noise == "none" else float(args.ball_noise)
+        except ValueError:
+            raise ReportError(f"--ball-noise: expected match, none or a number (rad), got {args.ball_noise!r}") from None
     summary = write_twin_report(args.real, args.twin, args.output, phases={
-        k: v for k, v in (("real", args.phase_real), ("twin", args.phase_twin)) if v}, frequency=args.frequency)
+        k: v for k, v in (("real", args.phase_real), ("twin", args.phase_twin)) if v}, frequency=args.frequency,
+        render_twin_ball=args.twin_ball_render, twin_ball_options=opts,
+        twin_render_system="real" if args.twin_ball_system == "real" else None)
     print(f"wrote {summary['paths']['html']} and {summary['paths']['md']}")
     flagged = summary["beyond_3_sigma"]
     print("parameters beyond 3 sigma: " + (", ".join(flagged) if flagged else "none"))
+    ball = summary.get("twin_ball")
+    if ball:
+        p = ball["pose"]
+        print(f"twin ball: centre {' '.join(f'{v:.3f}' for v in p['centre_cam_mm'])} mm (camera frame), radius "
+              f"{p['radius_mm']:.3f} mm; footprint IoU {ball['footprint']['iou']:.3f}; floor "
+              f"{ball['floor']['render_and_decode']['distortion_aware_um']:.2g} um (render + decode, distortion-aware); phase in {ball['file']}")
     for r in summary.get("sphere_matrix", []):
         paper = f" (paper {r['paper_um']:.3f})" if r.get("paper_um") else ""
         print(f"sphere RMS, {r['phase']} phase + {r['calibration']} calibration, {r['method']}: "
-              f"{r['rms_um']:.2f} um{paper}")
+              f"{r['rms_um']:.4g} um{paper}")
     return 0
