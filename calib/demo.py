@@ -1,27 +1,25 @@
-"""``calib demo``: the main job on the built-in default system.
+"""``calib demo``: the main job on the built-in default system, from images to the report.
 
-1. the paper's real system -> its digital twin (table S3 beside ours): twin.json + Blender script;
-2. a calibration session of the paper inside the twin (board 9 x 11 circles, 20 mm; 9 poses tilted
-   (0 +-10, 0 +-20, 0) deg), at the level of board-point observations with the real system's
-   measured noise (Bouguet err_std: camera 0.060 px, projector 0.197 px);
-3. ``calib run`` (joint casadi bundle adjustment) on it, and the estimates against the twin's
-   exactly known parameters in units of their predicted standard deviations;
-4. ``calib report`` real vs twin-calibrated, with the ball reconstruction when the paper's data are
-   beside the repository (../shared/data/dp-tpu).
+1. the paper's real system -> its digital twin (``calib twin``; table S3 beside ours): twin.json +
+   Blender script;
+2. the paper's calibration session rendered inside the twin (``calib render-board``): the 9x11
+   circle board (20 mm) at 9 poses tilted (0 +-10, 0 +-20, 0) deg, vertical and horizontal fringes,
+   12 steps at 1, 8, 48 periods, plus a white frame, with sensor noise, in the DESIGN.md layout;
+3. ``calib run`` on those images: unwrapping, board detection, projector pixels from the phase,
+   Zhang seeds and the joint casadi bundle adjustment; the estimates against the twin's exactly
+   known parameters in units of their predicted standard deviations;
+4. ``calib report``: real vs twin-calibrated, with the ball cross-reconstruction (the twin ball
+   rendered by synth at the real ball's fitted pose) when the paper's data are beside the
+   repository (../shared/data/dp-tpu).
 
 The twin is what Blender can represent: the real calibration without skew and distortion.
 """
 from __future__ import annotations
 
 import argparse
+import shutil
 import time
 from pathlib import Path
-
-import numpy as np
-
-PAPER_BOARD = dict(kind="circles", rows=9, cols=11, spacing_mm=20.0, large_diameter_mm=5.0, small_diameter_mm=2.0,
-                   large_markers=((4, 5), (4, 6), (4, 7), (3, 5), (2, 5)))
-NOISE_PX = {"camera": 0.0599, "projector": 0.1973}   # dp-tpu *_real.mat err_std, mean of x and y
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -29,18 +27,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="noise seed of the simulated session")
     p.add_argument("--data", default=None, help="folder of the paper's dp-tpu data (default: ../shared/data/dp-tpu "
                                                  "beside the repository, when present)")
-
-
-def paper_session_poses():
-    """The paper's 9 board poses: tilts (0 +-10 deg about x, 0 +-20 deg about y, 0), world = pose 1."""
-    from .rotation import matrix_from_rotvec
-
-    poses = []
-    for ax in (0.0, -10.0, 10.0):
-        for ay in (0.0, -20.0, 20.0):
-            R = matrix_from_rotvec([np.radians(ax), 0, 0]) @ matrix_from_rotvec([0, np.radians(ay), 0])
-            poses.append((R, np.zeros(3)))
-    return poses
 
 
 def truth_table(true_system, estimate, std) -> tuple[list[str], int]:
@@ -61,13 +47,10 @@ def run(args) -> int:
     from twin_mapping import cli as twin_cli
     from twin_mapping.twin import from_twin, read_twin_json
 
-    from .board import Board
     from .bundle_adjustment import BAConfig
     from .calibrate import run_calibration
     from .calibration_report import write_outputs
     from .io.calibration_json import write_calibration_json
-    from .observations import write_observations_json
-    from .simulate import simulate_observations
     from .system import SystemModel, default_system
 
     out = Path(args.output)
@@ -82,21 +65,35 @@ def run(args) -> int:
     true_twin = SystemModel(twin_full.camera.without_skew_and_distortion(),
                             twin_full.projector.without_skew_and_distortion(), {"name": "digital twin (ideal pinhole)"})
 
-    print("\n== [2/4] the paper's calibration session inside the twin (9 poses, board 9x11 circles, 20 mm)", flush=True)
-    board = Board(**PAPER_BOARD)
-    obs, _ = simulate_observations(true_twin, board, 9, NOISE_PX["camera"], np.random.default_rng(args.seed),
-                                   poses=paper_session_poses(), noise_prj_px=NOISE_PX["projector"])
-    print(f"   {obs.count('camera')} camera and {obs.count('projector')} projector observations, "
-          f"noise {NOISE_PX['camera']} / {NOISE_PX['projector']} px", flush=True)
+    print("\n== [2/4] the paper's calibration session rendered in the twin (calib render-board)", flush=True)
+    from synth.board_session import render_board_session
+    from synth.boards import BoardSpec
 
-    print("\n== [3/4] calib run: Zhang seeding + joint casadi bundle adjustment", flush=True)
-    cal = run_calibration(obs, BAConfig(progress=lambda m: print("   " + m, flush=True)))
+    cap_dir = out / "captures"
+    if cap_dir.exists():
+        shutil.rmtree(cap_dir)
+    truth = render_board_session(cap_dir, true_twin, steps=12, frequencies=(1, 8, 48), n_poses=9, seed=args.seed,
+                                 board=BoardSpec(), progress=lambda m: print("   " + m, flush=True))
+    n_images = sum(1 for _ in cap_dir.glob("pose_*/*.png"))
+    print(f"   {n_images} images in {cap_dir}", flush=True)
+
+    print("\n== [3/4] calib run on the images: unwrap, detect, phase fit, Zhang, joint casadi bundle adjustment",
+          flush=True)
+    from .capture_outputs import write_capture_outputs
+    from .captures import observations_from_captures
+
+    say = lambda m: print("   " + m, flush=True)   # noqa: E731
+    captured = observations_from_captures(cap_dir, keep_images=True, progress=say)
+    obs = captured.observations
+    cal = run_calibration(obs, BAConfig(progress=say))
     cal_dir = out / "twin_calibration"
-    write_outputs(cal, obs, cal_dir)
-    write_observations_json(obs, cal_dir / "observations.json")
+    write_outputs(cal, obs, cal_dir, extra={"captures": captured.summary()})
+    write_capture_outputs(captured, cal_dir)
     lines, beyond = truth_table(true_twin, cal.system, cal.ba.std)
     print("\n".join("   " + line for line in lines))
-    print(f"   {8 - beyond} of 8 intrinsics within the predicted 3 sigma of the twin's true values", flush=True)
+    print(f"   {8 - beyond} of 8 intrinsics within the predicted 3 sigma of the twin's true values "
+          f"({len(truth['board_poses'])} poses, {obs.count('camera')} camera / {obs.count('projector')} projector "
+          "points)", flush=True)
 
     print("\n== [4/4] calib report: real vs twin-calibrated", flush=True)
     data = Path(args.data) if args.data else Path(__file__).resolve().parents[2] / "shared" / "data" / "dp-tpu"
@@ -107,11 +104,27 @@ def run(args) -> int:
         print(f"   (no paper data at {data}: the real side is the built-in calibration, without observations)")
         real_inputs = [write_calibration_json(real, out / "real_calibration.json")]
         phases = {}
-    summary = write_twin_report(real_inputs, [cal_dir / "calibration.json"], out / "report", phases=phases)
+    summary = write_twin_report(real_inputs, [cal_dir / "calibration.json"], out / "report", phases=phases,
+                                twin_render_system=true_twin)
+    print("\n   real (S2) vs twin-calibrated (S4 in the paper), intrinsics:")
+    print(f"   {'parameter':16} {'real':>11} {'twin-calibrated':>16} {'difference':>11}")
+    for kind in ("camera", "projector"):
+        r, e = getattr(real, kind), getattr(cal.system, kind)
+        for p in ("fx", "fy", "cx", "cy"):
+            print(f"   {kind + '.' + p:16} {getattr(r, p):11.3f} {getattr(e, p):16.3f} "
+                  f"{getattr(e, p) - getattr(r, p):11.3f}")
+    rows = {}
     for r in summary.get("sphere_matrix", []):
-        paper = f" (paper {r['paper_um']:.3f})" if r.get("paper_um") else ""
-        print(f"   ball sphere-fit RMS, {r['phase']} phase + {r['calibration']} calibration, {r['method']}: "
-              f"{r['rms_um']:.2f} um{paper}")
+        cell = rows.setdefault((r["phase"], r["calibration"]), {"paper": r.get("paper_um")})
+        cell[r["method"]] = r["rms_um"]
+    if rows:
+        print("\n   ball sphere-fit RMS (um), the paper's Fig. 3 with the real ball and our twin render:")
+        print(f"   {'phase':44} {'calibration':34} {'linear':>8} {'ours':>8} {'paper':>8}")
+        for (phase, calib_name), cell in rows.items():
+            paper = f"{cell['paper']:8.3f}" if cell.get("paper") else f"{'':8}"
+            print(f"   {phase:44} {calib_name:34} {cell.get('linear', float('nan')):8.2f} "
+                  f"{cell.get('distortion-aware', float('nan')):8.2f} {paper}")
+        print("   (linear: the paper's K[R|T] triangulation; ours: distortion-aware, joint rig)")
     print(f"   report: {summary['paths']['html']}")
     print(f"\ndemo done in {time.perf_counter() - t0:.1f} s; outputs in {out}/")
     return 0

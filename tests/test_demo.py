@@ -1,4 +1,4 @@
-"""`make demo`'s job: twin -> calibration session in the twin -> calib run -> report."""
+"""`make demo`'s job: twin -> calibration session rendered in the twin -> calib run on the images -> report."""
 import json
 
 from calib.cli import main
@@ -10,7 +10,8 @@ def test_demo_recovers_the_twins_true_intrinsics_within_predicted_3_sigma(tmp_pa
     assert "8 of 8 intrinsics within the predicted 3 sigma" in out
     for name in ("twin.json", "twin_scene.py", "twin_calibration/calibration.json",
                  "twin_calibration/camera.cameramodel", "twin_calibration/projector.cameramodel",
-                 "twin_calibration/observations.json", "report/report.html", "report/report.md"):
+                 "twin_calibration/observations.json", "twin_calibration/detections.png",
+                 "captures/capture.toml", "captures/pose_08/white.png", "report/report.html", "report/report.md"):
         assert (tmp_path / name).exists(), name
     cal = json.loads((tmp_path / "twin_calibration" / "calibration.json").read_text())
     assert cal["units"] == "mm" and "uncertainties_1sigma" in cal
