@@ -122,7 +122,9 @@ def _identify(cells, is_large, board, jac_sign, where):
     if improper:
         raise DetectionError(f"{where}: ambiguous orientation: the visible large markers fit the board and its "
                              f"mirror image equally well ({int(is_large.sum())} large circles, "
-                             f"{len(cells)} grid circles); refusing rather than guessing")
+                             f"{len(cells)} grid circles; the marker layout is mirror-symmetric and the view "
+                             f"too partial to tell); refusing rather than guessing: bring a full row or column "
+                             f"of the board into view")
     if len(proper) > 1:
         raise DetectionError(f"{where}: ambiguous orientation: {len(proper)} placements of the "
                              f"{int(is_large.sum())} visible large markers fit equally well")
@@ -155,7 +157,7 @@ def _local_homographies(ids_rc, xy_board, q, H_global):
     return Hs
 
 
-def detect_circles(f: np.ndarray, board, *, min_points: int = 6, centre_method: str = "moments",
+def detect_circles(f: np.ndarray, board, *, min_points: int = 6, centre_method: str = "edge",
                    correct_bias: bool = True) -> BoardDetection:
     """Circle-grid detection on a float grey image ``f`` (H, W); see the module docstring."""
     H_img, W_img = f.shape
@@ -166,7 +168,8 @@ def detect_circles(f: np.ndarray, board, *, min_points: int = 6, centre_method: 
     whole = ~blobs.cut
     if whole.sum() < max(min_points, 5):
         raise DetectionError(f"{where}: found {int(whole.sum())} complete circle candidates "
-                             f"(need at least {max(min_points, 5)}); no board in view?")
+                             f"(need at least {max(min_points, 5)}: min_points={min_points}, and 5 to find a grid); "
+                             f"no board in view?")
     xy = blobs.xy[whole]
     sub = np.nonzero(whole)[0]
     grown = grow_lattice(xy)
