@@ -20,7 +20,8 @@ def renders(tmp_path_factory):
     paper, big = BoardSpec(), BoardSpec(small_diameter_mm=8.0, large_diameter_mm=14.0)
     twin, close = default_system(), close_system()
     jobs = {"twin_10_20_noisy": (twin, paper, (10, 20), 1), "twin_0_0": (twin, paper, (0, 0), None),
-            "close_big_40": (close, big, (40, 0), None)}
+            "close_big_40": (close, big, (40, 0), None),
+            "close_no_markers": (close, BoardSpec(large_markers=()), (10, 20), 2)}
     out = {}
     for name, (system, spec, tilt, noise) in jobs.items():
         path = cache / f"{name}.npz"
@@ -170,3 +171,23 @@ def test_no_board_and_bad_inputs_are_refused_with_clear_messages(renders):
     other = Board.from_dict({**spec.capture_toml_table(), "large_markers": [[1, 1], [1, 2], [2, 1], [6, 8]]})
     with pytest.raises(DetectionError):
         detect_board(img, other)
+
+
+def test_board_without_markers_needs_the_full_grid_and_states_the_turn_convention(renders):
+    img, R, system, spec = renders["close_no_markers"]
+    board = Board(kind="circles", rows=9, cols=11, spacing_mm=20.0, small_diameter_mm=2.0)
+    det = detect_board(img, board)
+    assert len(det) == 99
+    assert np.linalg.norm(det.q - _truth(system, board, det.ids, R), axis=1).max() < 0.1
+    assert any("convention" in n for n in det.notes)
+    with pytest.raises(DetectionError, match="fully in view"):
+        detect_board(img[:, :400], board)
+
+
+def test_docstring_examples_run():
+    import doctest
+
+    import calib.detect
+
+    result = doctest.testmod(calib.detect)
+    assert result.attempted > 0 and result.failed == 0

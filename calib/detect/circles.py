@@ -15,8 +15,6 @@ centre.
 """
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -65,71 +63,72 @@ def _classify_large(blobs, board):
     return area > np.sqrt(ratio_expected) * local
 
 
-def _identify(cells, is_large, board, jac_sign, where):
-    """Pick the lattice -> (row, col) map. Returns (rc (M,2), description)."""
+def _placements(cells, is_large, board, jac_sign):
+    """Every placement of the lattice on the board that keeps all its blobs on the board.
+
+    Yields dicts: rc (M, 2) board (row, col) per blob, conflicts (large/small disagreements with
+    ``board.large_markers``), hits (large blobs on large cells), proper (seen from the front)."""
     rows, cols = board.rows, board.cols
     large_map = np.zeros((rows, cols), bool)
     for r, c in board.large_markers:
         large_map[r, c] = True
     markers = np.array(board.large_markers, dtype=int).reshape(-1, 2)
-    hyps = []
     for G in GRID_SYMMETRIES:
         rc0 = cells @ G.T
         proper = jac_sign * np.sign(np.linalg.det(G)) > 0
         if len(markers):
             offsets = {tuple(m - rc0[i]) for i in np.nonzero(is_large)[0] for m in markers}
-        else:  # no markers: the lattice must fill the board exactly
-            lo = rc0.min(axis=0)
-            offsets = {tuple(-lo)}
+        else:
+            offsets = {tuple(-rc0.min(axis=0))}
         for o in offsets:
             rc = rc0 + np.array(o)
-            inside = (rc[:, 0] >= 0) & (rc[:, 0] < rows) & (rc[:, 1] >= 0) & (rc[:, 1] < cols)
-            if not inside.all():
+            if not ((rc[:, 0] >= 0) & (rc[:, 0] < rows) & (rc[:, 1] >= 0) & (rc[:, 1] < cols)).all():
                 continue
             expect = large_map[rc[:, 0], rc[:, 1]]
-            conflicts = int(np.sum(expect != is_large))
-            hits = int(np.sum(expect & is_large))
-            hyps.append((conflicts, -hits, proper, tuple(G.ravel()), o, rc))
-    if not hyps:
-        raise DetectionError(f"{where}: no placement of the {len(cells)} grid circles on the {rows}x{cols} board "
-                             f"fits (lattice larger than the board, or stray blobs on the lattice)")
-    allowed = 1 if int(is_large.sum()) >= 4 else 0
-    good = [h for h in hyps if h[0] <= allowed and (h[1] < 0 or not len(markers))]
-    if not len(markers):
-        good = [h for h in hyps if len(cells) == rows * cols]
+            yield {"rc": rc, "conflicts": int(np.sum(expect != is_large)), "hits": int(np.sum(expect & is_large)),
+                   "proper": bool(proper)}
+
+
+def _identify(cells, is_large, board, jac_sign, where):
+    """Pick the lattice -> (row, col) placement (module docstring). Returns (placements, text):
+    one placement, or for a board without markers the proper full-board placements (the caller
+    decides between them by convention)."""
+    places = list(_placements(cells, is_large, board, jac_sign))
+    if not places:
+        raise DetectionError(f"{where}: no placement of the {len(cells)} grid circles on the {board.rows}x"
+                             f"{board.cols} board fits (lattice larger than the board, or stray blobs on it)")
+    if not board.large_markers:
+        full = [p for p in places if p["proper"]] if len(cells) == board.n_points else []
+        if not full:
+            raise DetectionError(f"{where}: a board without large markers must be fully in view: found "
+                                 f"{len(cells)} of {board.n_points} circles on the grid")
+        return full, "no large markers: all circles in view"
+    allowed = 1 if int(is_large.sum()) >= 4 else 0   # one misread size is tolerated with >= 4 markers
+    good = [p for p in places if p["conflicts"] <= allowed and p["hits"] > 0]
+    n_large = int(is_large.sum())
     if not good:
-        best = min(hyps, key=lambda h: h[:2])
-        raise DetectionError(f"{where}: the large circles ({int(is_large.sum())} found) do not match the "
-                             f"board's large_markers {list(board.large_markers)} in any orientation "
-                             f"(best placement: {best[0]} size conflicts)")
-    good.sort(key=lambda h: h[:2])
-    best_cost = good[0][:2]
-    proper = [h for h in good if h[2] and h[:2] == best_cost]
-    improper = [h for h in good if not h[2] and h[:2] <= best_cost]
-    if not len(markers):
-        proper = [h for h in good if h[2]]
-        return proper, "no large markers: orientation by convention"
+        best = min(p["conflicts"] for p in places)
+        raise DetectionError(f"{where}: the large circles ({n_large} found) do not match the board's "
+                             f"large_markers {list(board.large_markers)} in any orientation "
+                             f"(best placement: {best} size conflicts)")
+    key = lambda p: (p["conflicts"], -p["hits"])  # noqa: E731
+    proper = [p for p in good if p["proper"]]
     if not proper:
-        if any(h[2] for h in good):
-            pass
-        else:
-            raise DetectionError(f"{where}: the large markers read as the board's MIRROR image (the image is "
-                                 f"flipped, or the board is seen through its back); refusing to order it")
-    proper_all = [h for h in good if h[2]]
-    bestp = min(h[:2] for h in proper_all)
-    proper = [h for h in proper_all if h[:2] == bestp]
-    improper = [h for h in good if not h[2] and h[:2] <= bestp]
-    if improper:
+        raise DetectionError(f"{where}: the large markers read as the board's MIRROR image (the image is "
+                             f"flipped, or the board is seen through its back); refusing to order it")
+    best = min(key(p) for p in proper)
+    winners = [p for p in proper if key(p) == best]
+    if any(key(p) <= best for p in good if not p["proper"]):
         raise DetectionError(f"{where}: ambiguous orientation: the visible large markers fit the board and its "
-                             f"mirror image equally well ({int(is_large.sum())} large circles, "
-                             f"{len(cells)} grid circles; the marker layout is mirror-symmetric and the view "
-                             f"too partial to tell); refusing rather than guessing: bring a full row or column "
-                             f"of the board into view")
-    if len(proper) > 1:
-        raise DetectionError(f"{where}: ambiguous orientation: {len(proper)} placements of the "
-                             f"{int(is_large.sum())} visible large markers fit equally well")
-    h = proper[0]
-    return [h], f"{-h[1]} of {len(markers)} large markers matched, {h[0]} size conflicts"
+                             f"mirror image equally well ({n_large} large circles, {len(cells)} grid circles; "
+                             f"the marker layout is mirror-symmetric and the view too partial to tell); "
+                             f"refusing rather than guessing: bring a full row or column of the board into view")
+    if len(winners) > 1:
+        raise DetectionError(f"{where}: ambiguous orientation: {len(winners)} placements of the {n_large} "
+                             f"visible large markers fit equally well")
+    p = winners[0]
+    return winners, (f"{p['hits']} of {len(board.large_markers)} large markers matched, "
+                     f"{p['conflicts']} size conflicts")
 
 
 def _fit_rc_map(cells, xy):
@@ -189,17 +188,14 @@ def detect_circles(f: np.ndarray, board, *, min_points: int = 6, centre_method: 
                              f"the board's identity cannot be read")
     jac = _fit_rc_map(cells, blobs.xy[idx])
     choice, how = _identify(cells, is_large, board, jac, where)
-    if not board.large_markers:
-        # orientation by convention: board +y points up in the image
-        picks = []
-        for h in choice:
-            rc = h[5]
-            Hh = homography(board.points_board(rc[:, 0] * board.cols + rc[:, 1])[:, :2], blobs.xy[idx])
-            picks.append((not _up_convention(Hh, board), h))
-        picks.sort(key=lambda t: t[0])
-        choice = [picks[0][1]]
+    if len(choice) > 1:
+        # no markers: the 180-degree turn is invisible; convention: board +y points up in the image
+        def down(p):
+            ids_p = p["rc"][:, 0] * board.cols + p["rc"][:, 1]
+            return not _up_convention(homography(board.points_board(ids_p)[:, :2], blobs.xy[idx]), board)
+        choice = sorted(choice, key=down)
         notes.append("board without large markers: 180-degree turn resolved by convention (board +y up in the image)")
-    rc = choice[0][5]
+    rc = choice[0]["rc"]
     notes.append(f"identification: {how}")
     ids = rc[:, 0] * board.cols + rc[:, 1]
     pts = board.points_board(ids)[:, :2]
