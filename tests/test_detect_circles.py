@@ -127,6 +127,9 @@ def test_light_on_dark_board_and_low_contrast(renders):
     inv = Board.from_dict({**spec.capture_toml_table(), "polarity": "light-on-dark"})
     det = detect_board(255 - img, inv)
     assert len(det) >= 75
+    det16 = detect_board(img.astype(np.uint16) * 257, board)      # 16-bit input, same answer
+    det8 = detect_board(img, board)
+    assert np.array_equal(det16.ids, det8.ids) and np.allclose(det16.q, det8.q, atol=1e-6)
     assert np.linalg.norm(det.q - _truth(system, board, det.ids, R), axis=1).max() < 0.15
     rng = np.random.default_rng(3)
     low = 100 + 0.12 * img.astype(float) + rng.normal(0, 0.5, img.shape)   # ink contrast ~20 grey levels

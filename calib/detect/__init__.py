@@ -10,8 +10,8 @@ SYNOPSIS
     >>> try:
     ...     detect_board(np.full((64, 64), 128, np.uint8), board)
     ... except DetectionError as exc:
-    ...     print(str(exc)[:40])
-    image (64x64 px): the image is constant
+    ...     print(exc)
+    image (64x64 px): the image is constant (128); no board in it
 
 ``detect_board(image, board, *, min_points=6) -> BoardDetection`` (ids, q, points_board,
 feature_px, homography, method, notes); ``DetectionError`` when the board is not found, too few
