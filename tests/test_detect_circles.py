@@ -194,3 +194,17 @@ def test_docstring_examples_run():
 
     result = doctest.testmod(calib.detect)
     assert result.attempted > 0 and result.failed == 0
+
+
+def test_board_half_out_of_view_identified_when_the_markers_tell_else_refused(renders):
+    img, R, system, spec = renders["twin_10_20_noisy"]
+    board = _board(spec)
+    det = detect_board(np.ascontiguousarray(img[:, 320:]), board)      # right half: all markers, 37 circles
+    truth = _truth(system, board, det.ids, R) - [320, 0]
+    assert len(det) >= 30 and np.linalg.norm(det.q - truth, axis=1).max() < 0.1
+    det = detect_board(np.ascontiguousarray(img[:240]), board)          # top half
+    assert np.linalg.norm(det.q - _truth(system, board, det.ids, R), axis=1).max() < 0.1
+    with pytest.raises(DetectionError, match="ambiguous|cannot be read"):
+        detect_board(np.ascontiguousarray(img[240:]), board)            # one marker: could be mirrored
+    with pytest.raises(DetectionError, match="large orientation marker"):
+        detect_board(np.ascontiguousarray(img[:, :320]), board)         # no marker in view

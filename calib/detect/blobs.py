@@ -141,7 +141,7 @@ def _refine(d, f, comp_mask, x0, y0, bg_dark, lit, method, n_rays=48):
     """Centre, axes, angle, peak contrast of one blob from its window (see module docstring)."""
     h, w = comp_mask.shape
     ys, xs = np.nonzero(comp_mask)
-    size = max(xs.ptp(), ys.ptp()) + 1
+    size = max(np.ptp(xs), np.ptp(ys)) + 1
     grow = 2 + int(round(0.25 * size))
     support = cv2.dilate(comp_mask.astype(np.uint8), cv2.getStructuringElement(
         cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))).astype(bool)
