@@ -1,6 +1,9 @@
 """``detect_board``: one entry point for every board kind of calib.board."""
 from __future__ import annotations
 
+import cv2
+import numpy as np
+
 from ..board import Board
 from .result import BoardDetection, DetectionError, image_as_float
 
@@ -28,11 +31,16 @@ def detect_board(image, board: Board, *, min_points: int = 6) -> BoardDetection:
     if not isinstance(min_points, int) or min_points < 1:
         raise DetectionError(f"min_points: expected a positive integer, got {min_points!r}")
     f = image_as_float(image)
-    if board.kind == "circles":
-        from .circles import detect_circles
-        return detect_circles(f, board, min_points=min_points)
-    if board.kind == "checkerboard":
-        from .chessboard import detect_checkerboard
-        return detect_checkerboard(f, board, min_points=min_points)
-    from .chessboard import detect_charuco
-    return detect_charuco(f, board, min_points=min_points)
+    try:
+        if board.kind == "circles":
+            from .circles import detect_circles
+            return detect_circles(f, board, min_points=min_points)
+        if board.kind == "checkerboard":
+            from .chessboard import detect_checkerboard
+            return detect_checkerboard(f, board, min_points=min_points)
+        from .chessboard import detect_charuco
+        return detect_charuco(f, board, min_points=min_points)
+    except (np.linalg.LinAlgError, cv2.error) as exc:  # a degenerate configuration, never a traceback
+        raise DetectionError(f"{board.kind} board {board.rows}x{board.cols} in a {f.shape[1]}x{f.shape[0]} px "
+                             f"image: numerical failure while fitting ({type(exc).__name__}: "
+                             f"{str(exc).strip().splitlines()[-1] if str(exc).strip() else exc})") from None
