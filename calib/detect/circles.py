@@ -1,0 +1,256 @@
+"""Circle grids with large orientation markers: candidates -> lattice -> identities -> centres.
+
+Identities come from the large markers: every lattice-to-board map that is a symmetry of the
+square grid (8 of them) plus an offset is scored by how the large/small blobs agree with
+``board.large_markers``; a map must keep every lattice blob on the board. The map must also be
+*proper*: seen from the printed face, board (x right, y up) -> image (x right, y down) has a
+negative Jacobian determinant, whatever the camera. A mirrored image therefore reads as an
+improper map and is refused; when a proper and an improper map fit equally well (a partial view
+of a marker layout with a mirror symmetry) the view is refused as ambiguous.
+
+Perspective bias: a circle of radius r at board point c images to the conic
+``C_img = H^-T C H^-1``; its centre is not ``H c``. With a local homography H (fitted to the
+neighbouring circles) the bias ``centre(C_img) - H c`` is subtracted from the measured ellipse
+centre.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..zhang import homography
+from .blobs import find_blobs
+from .lattice import grow_lattice
+from .result import BoardDetection, DetectionError, apply_homography, size_text
+
+#: the 8 symmetries of the square grid acting on lattice cells (i, j) -> (row, col)
+GRID_SYMMETRIES = [np.array(m) for m in ([[1, 0], [0, 1]], [[0, -1], [1, 0]], [[-1, 0], [0, -1]], [[0, 1], [-1, 0]],
+                                          [[-1, 0], [0, 1]], [[1, 0], [0, -1]], [[0, 1], [1, 0]], [[0, -1], [-1, 0]])]
+
+
+def circle_image_centre(H, centre_xy, radius):
+    """Centre (N, 2) px of the image conic of circles (board centres (N, 2) mm, radius mm) under
+    the board -> image homography H (3, 3) (or (N, 3, 3), one per circle)."""
+    centre_xy = np.atleast_2d(np.asarray(centre_xy, dtype=np.float64))
+    Hs = np.broadcast_to(np.asarray(H, dtype=np.float64), (len(centre_xy), 3, 3))
+    r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(centre_xy),))
+    out = np.empty((len(centre_xy), 2))
+    for k, ((cx, cy), Hk, rk) in enumerate(zip(centre_xy, Hs, r)):
+        C = np.array([[1.0, 0.0, -cx], [0.0, 1.0, -cy], [-cx, -cy, cx * cx + cy * cy - rk * rk]])
+        Hi = np.linalg.inv(Hk)
+        Ci = Hi.T @ C @ Hi
+        out[k] = np.linalg.solve(Ci[:2, :2], -Ci[:2, 2])
+    return out
+
+
+def perspective_bias(H, centre_xy, radius):
+    """(N, 2) px: image-conic centre minus the image of the circle centre (see module doc)."""
+    centre_xy = np.atleast_2d(np.asarray(centre_xy, dtype=np.float64))
+    Hs = np.broadcast_to(np.asarray(H, dtype=np.float64), (len(centre_xy), 3, 3))
+    proj = np.array([apply_homography(Hk, c[None])[0] for Hk, c in zip(Hs, centre_xy)])
+    return circle_image_centre(Hs, centre_xy, radius) - proj
+
+
+def _classify_large(blobs, board):
+    """(M,) bool: blobs clearly bigger than the median of their 8 nearest neighbours."""
+    if not board.large_markers:
+        return np.zeros(len(blobs), bool)
+    area = blobs.axes[:, 0] * blobs.axes[:, 1]
+    k = min(9, len(blobs))
+    _, idx = cKDTree(blobs.xy).query(blobs.xy, k=k)
+    local = np.median(area[idx[:, 1:]], axis=1)
+    ratio_expected = (board.large_diameter_mm / board.small_diameter_mm) ** 2
+    return area > np.sqrt(ratio_expected) * local
+
+
+def _placements(cells, is_large, board, jac_sign):
+    """Every placement of the lattice on the board that keeps all its blobs on the board.
+
+    Yields dicts: rc (M, 2) board (row, col) per blob, conflicts (large/small disagreements with
+    ``board.large_markers``), hits (large blobs on large cells), proper (seen from the front)."""
+    rows, cols = board.rows, board.cols
+    large_map = np.zeros((rows, cols), bool)
+    for r, c in board.large_markers:
+        large_map[r, c] = True
+    markers = np.array(board.large_markers, dtype=int).reshape(-1, 2)
+    for G in GRID_SYMMETRIES:
+        rc0 = cells @ G.T
+        proper = jac_sign * np.sign(np.linalg.det(G)) > 0
+        if len(markers):
+            offsets = {tuple(m - rc0[i]) for i in np.nonzero(is_large)[0] for m in markers}
+        else:
+            offsets = {tuple(-rc0.min(axis=0))}
+        for o in offsets:
+            rc = rc0 + np.array(o)
+            if not ((rc[:, 0] >= 0) & (rc[:, 0] < rows) & (rc[:, 1] >= 0) & (rc[:, 1] < cols)).all():
+                continue
+            expect = large_map[rc[:, 0], rc[:, 1]]
+            yield {"rc": rc, "conflicts": int(np.sum(expect != is_large)), "hits": int(np.sum(expect & is_large)),
+                   "proper": bool(proper)}
+
+
+def _identify(cells, is_large, board, jac_sign, where):
+    """Pick the lattice -> (row, col) placement (module docstring). Returns (placements, text):
+    one placement, or for a board without markers the proper full-board placements (the caller
+    decides between them by convention)."""
+    places = list(_placements(cells, is_large, board, jac_sign))
+    if not places:
+        raise DetectionError(f"{where}: no placement of the {len(cells)} grid circles on the {board.rows}x"
+                             f"{board.cols} board fits (lattice larger than the board, or stray blobs on it)")
+    if not board.large_markers:
+        full = [p for p in places if p["proper"]] if len(cells) == board.n_points else []
+        if not full:
+            raise DetectionError(f"{where}: a board without large markers must be fully in view: found "
+                                 f"{len(cells)} of {board.n_points} circles on the grid")
+        return full, "no large markers: all circles in view"
+    allowed = 1 if int(is_large.sum()) >= 4 else 0   # one misread size is tolerated with >= 4 markers
+    good = [p for p in places if p["conflicts"] <= allowed and p["hits"] > 0]
+    n_large = int(is_large.sum())
+    if not good:
+        best = min(p["conflicts"] for p in places)
+        raise DetectionError(f"{where}: the large circles ({n_large} found) do not match the board's "
+                             f"large_markers {list(board.large_markers)} in any orientation "
+                             f"(best placement: {best} size conflicts)")
+    key = lambda p: (p["conflicts"], -p["hits"])  # noqa: E731
+    proper = [p for p in good if p["proper"]]
+    if not proper:
+        raise DetectionError(f"{where}: the large markers read as the board's MIRROR image (the image is "
+                             f"flipped, or the board is seen through its back); refusing to order it")
+    best = min(key(p) for p in proper)
+    winners = [p for p in proper if key(p) == best]
+    if any(key(p) <= best for p in good if not p["proper"]):
+        raise DetectionError(f"{where}: ambiguous orientation: the visible large markers fit the board and its "
+                             f"mirror image equally well ({n_large} large circles, {len(cells)} grid circles; "
+                             f"the marker layout is mirror-symmetric and the view too partial to tell); "
+                             f"refusing rather than guessing: bring a full row or column of the board into view")
+    if len(winners) > 1:
+        raise DetectionError(f"{where}: ambiguous orientation: {len(winners)} placements of the {n_large} "
+                             f"visible large markers fit equally well")
+    p = winners[0]
+    return winners, (f"{p['hits']} of {len(board.large_markers)} large markers matched, "
+                     f"{p['conflicts']} size conflicts")
+
+
+def _fit_rc_map(cells, xy):
+    """Sign of det of the affine (i, j) -> image map (handedness of the grown lattice)."""
+    A = np.c_[cells.astype(float), np.ones(len(cells))]
+    coef = np.linalg.lstsq(A, xy, rcond=None)[0]
+    return float(np.sign(np.linalg.det(coef[:2].T)))
+
+
+def _up_convention(H, board):
+    """True when the board's +y axis points up (negative image y) at the board centre."""
+    p0 = apply_homography(H, [[0.0, 0.0], [0.0, board.spacing_mm]])
+    return p0[1, 1] < p0[0, 1]
+
+
+def _local_homographies(ids_rc, xy_board, q, H_global):
+    """One board->image homography per feature, fitted to the features within 2 cells of it
+    (at least 8), else the global one."""
+    Hs = np.empty((len(q), 3, 3))
+    for k, rc in enumerate(ids_rc):
+        near = np.max(np.abs(ids_rc - rc), axis=1) <= 2
+        if near.sum() < 8:
+            near = np.max(np.abs(ids_rc - rc), axis=1) <= 3
+        Hs[k] = homography(xy_board[near], q[near]) if near.sum() >= 8 else H_global
+    return Hs
+
+
+def detect_circles(f: np.ndarray, board, *, min_points: int = 6, centre_method: str = "edge",
+                   correct_bias: bool = True) -> BoardDetection:
+    """Circle-grid detection on a float grey image ``f`` (H, W); see the module docstring."""
+    H_img, W_img = f.shape
+    where = f"circle board {board.rows}x{board.cols} in a {size_text(f)} image"
+    notes = []
+    blobs = find_blobs(f, board.polarity == "dark-on-light", method=centre_method)
+    notes += blobs.notes
+    whole = ~blobs.cut
+    if whole.sum() < max(min_points, 5):
+        raise DetectionError(f"{where}: found {int(whole.sum())} complete circle candidates "
+                             f"(need at least {max(min_points, 5)}: min_points={min_points}, and 5 to find a grid); "
+                             f"no board in view?")
+    xy = blobs.xy[whole]
+    sub = np.nonzero(whole)[0]
+    grown = grow_lattice(xy)
+    if grown is None:
+        raise DetectionError(f"{where}: {len(xy)} circle candidates but no regular grid among them")
+    cells, assigned, _ = grown
+    if assigned.sum() < max(min_points, 5):
+        raise DetectionError(f"{where}: only {int(assigned.sum())} candidates lie on a common grid "
+                             f"(need at least {max(min_points, 5)})")
+    idx = sub[assigned]
+    cells = cells[assigned]
+    cells = cells - cells.min(axis=0)
+    large_all = _classify_large(blobs, board)
+    is_large = large_all[idx]
+    if board.large_markers and not is_large.any():
+        raise DetectionError(f"{where}: none of the {len(idx)} grid circles is a large orientation marker; "
+                             f"the board's identity cannot be read")
+    jac = _fit_rc_map(cells, blobs.xy[idx])
+    choice, how = _identify(cells, is_large, board, jac, where)
+    if len(choice) > 1:
+        # no markers: the 180-degree turn is invisible; convention: board +y points up in the image
+        def down(p):
+            ids_p = p["rc"][:, 0] * board.cols + p["rc"][:, 1]
+            return not _up_convention(homography(board.points_board(ids_p)[:, :2], blobs.xy[idx]), board)
+        choice = sorted(choice, key=down)
+        notes.append("board without large markers: 180-degree turn resolved by convention (board +y up in the image)")
+    rc = choice[0]["rc"]
+    notes.append(f"identification: {how}")
+    ids = rc[:, 0] * board.cols + rc[:, 1]
+    pts = board.points_board(ids)[:, :2]
+    Hg = homography(pts, blobs.xy[idx])
+    # second pass: circles the growth missed, and circles cut by the image edge
+    all_ids = np.arange(board.n_points)
+    missing = np.setdiff1d(all_ids, ids)
+    if missing.size:
+        pred = apply_homography(Hg, board.points_board(missing)[:, :2])
+        tree = cKDTree(blobs.xy)
+        d, k = tree.query(pred)
+        spacing = np.median(np.linalg.norm(np.diff(apply_homography(
+            Hg, np.array([[0, 0], [board.spacing_mm, 0], [0, board.spacing_mm]])), axis=0), axis=1))
+        near = d < 0.25 * spacing
+        used = set(idx.tolist())
+        add_ids, add_idx, cut_ids = [], [], []
+        for m, ok, kk in zip(missing, near, k):
+            if not ok or kk in used:
+                continue
+            if blobs.cut[kk]:
+                cut_ids.append(int(m))
+            else:
+                add_ids.append(int(m))
+                add_idx.append(int(kk))
+                used.add(int(kk))
+        if add_ids:
+            ids = np.r_[ids, add_ids]
+            idx = np.r_[idx, add_idx]
+            notes.append(f"{len(add_ids)} circles added from the board homography (off the grown lattice)")
+        if cut_ids:
+            notes.append(f"dropped {len(cut_ids)} circles cut by the image edge or the unlit region: ids {cut_ids}")
+        outside = [int(m) for m, p in zip(missing, pred)
+                   if not (0 <= p[0] <= W_img - 1 and 0 <= p[1] <= H_img - 1)]
+        if outside:
+            notes.append(f"{len(outside)} circles outside the image (partial board)")
+    order = np.argsort(ids)
+    ids, idx = ids[order], idx[order]
+    if len(ids) < min_points:
+        raise DetectionError(f"{where}: {len(ids)} circles identified, fewer than min_points={min_points}")
+    is_large_id = board.is_large()[ids]
+    radius = np.where(is_large_id, (board.large_diameter_mm or 0) / 2, board.small_diameter_mm / 2)
+    pts = board.points_board(ids)[:, :2]
+    q_ellipse = blobs.xy[idx].copy()
+    q = q_ellipse.copy()
+    rc = np.c_[ids // board.cols, ids % board.cols]
+    method = f"circles: {centre_method} centres, lattice + large-marker identification"
+    if correct_bias:
+        for _ in range(2):
+            Hl = _local_homographies(rc, pts, q, homography(pts, q))
+            bias = perspective_bias(Hl, pts, radius)
+            q = q_ellipse - bias
+        mag = np.linalg.norm(bias, axis=1)
+        notes.append(f"perspective bias corrected: mean {mag.mean():.4f} px, max {mag.max():.4f} px")
+        method += ", perspective bias corrected"
+    H = homography(pts, q)
+    return BoardDetection(ids=ids.astype(np.int64), q=q, points_board=board.points_board(ids),
+                          feature_px=blobs.size[idx].astype(np.float64), homography=H, method=method,
+                          notes=notes, image_size=(W_img, H_img))
