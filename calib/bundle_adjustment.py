@@ -66,11 +66,14 @@ class DeviceConfig:
     - estimate_skew: estimate K[0,1] (default: fixed at 0 so mrcal files can be written).
     - fixed: names held at their starting value (``fx fy cx cy skew k1 .. s4``, or
       ``"intrinsics"`` for all of them).
+    - values: ``((name, value), ...)`` parameters held at a given value instead (e.g. the principal
+      point at the image centre and k2 = p1 = p2 = 0, as another tool's flags fix them).
     """
 
     n_distortion: int = 5
     estimate_skew: bool = False
     fixed: tuple = ()
+    values: tuple = ()
 
     def __post_init__(self):
         if self.n_distortion not in (0, 4, 5, 8, 12):
@@ -79,13 +82,24 @@ class DeviceConfig:
         bad = [f for f in self.fixed if f not in known]
         if bad:
             raise BundleAdjustmentError(f"fixed: unknown parameter(s) {bad}; known: {sorted(known)}")
+        for item in self.values:
+            if len(item) != 2 or item[0] not in known - {"intrinsics"}:
+                raise BundleAdjustmentError(f"values: expected (name, value) pairs with a known name, got {item!r}")
+            if not np.isfinite(float(item[1])):
+                raise BundleAdjustmentError(f"values: {item[0]} must be finite, got {item[1]!r}")
+            if item[0] in DISTORTION_NAMES[self.n_distortion:] or self.n_distortion == 0 and item[0] in DISTORTION_NAMES:
+                raise BundleAdjustmentError(f"values: {item[0]} is not part of a {self.n_distortion}-term model")
+
+    def value(self, name: str, start: float) -> float:
+        """The starting value of ``name``: the given one (``values``) or ``start``."""
+        return float(dict(self.values).get(name, start))
 
     def is_fixed(self, name: str) -> bool:
         if "intrinsics" in self.fixed:
             return True
         if name == "skew" and not self.estimate_skew:
             return True
-        return name in self.fixed
+        return name in self.fixed or name in dict(self.values)
 
 
 @dataclass
@@ -238,11 +252,11 @@ def build_problem(obs, start: RigState, config: BAConfig) -> BAProblem:
         dc = config.device(d)
         K = start.K[d]
         vals = (K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1] if dc.estimate_skew else 0.0)
-        intr[d] = [add(f"{d}.{n}", v, not dc.is_fixed(n)) for n, v in zip(INTRINSIC_NAMES, vals)]
+        intr[d] = [add(f"{d}.{n}", dc.value(n, v), not dc.is_fixed(n)) for n, v in zip(INTRINSIC_NAMES, vals)]
         d0 = np.zeros(dc.n_distortion)
         given = np.asarray(start.dist.get(d, np.zeros(0)), float)
         d0[:min(given.size, d0.size)] = given[:d0.size]
-        dist[d] = [add(f"{d}.{n}", v, not dc.is_fixed(n)) for n, v in zip(DISTORTION_NAMES, d0)]
+        dist[d] = [add(f"{d}.{n}", dc.value(n, v), not dc.is_fixed(n)) for n, v in zip(DISTORTION_NAMES, d0)]
     n_views = len(obs.views)
     pose_names = []
     if config.mode == "joint":

@@ -43,8 +43,9 @@ def add_arguments(p):
     p.add_argument("--projector-distortion", type=int, choices=(0, 4, 5, 8, 12))
     p.add_argument("--skew", action="store_true",
                    help="estimate skew (then mrcal .cameramodel files can be written only if it is tiny)")
-    p.add_argument("--fix", action="append", default=[], metavar="DEVICE.PARAM",
-                   help="hold a parameter at its seed, e.g. camera.k3 or projector.intrinsics (repeatable)")
+    p.add_argument("--fix", action="append", default=[], metavar="DEVICE.PARAM[=VALUE]",
+                   help="hold a parameter at its seed, e.g. camera.k3 or projector.intrinsics, or at a given "
+                        "value, e.g. camera.cx=843.5 (repeatable)")
     p.add_argument("--loss", choices=("linear", "huber", "cauchy"), default="linear")
     p.add_argument("--loss-scale", type=float, default=3.0, help="robust loss scale, in residual sigmas")
     p.add_argument("--outlier-threshold", type=float, default=5.0,
@@ -105,12 +106,22 @@ def run(args) -> int:
             print(f"calib run: error: {exc}", file=sys.stderr)
             return EXIT_INPUT
     fixed = {"camera": [], "projector": []}
+    values = {"camera": [], "projector": []}
     for f in args.fix:
         dev, _, name = f.partition(".")
+        name, eq, value = name.partition("=")
         if dev not in fixed or not name:
-            print(f"calib run: error: --fix {f!r}: expected camera.PARAM or projector.PARAM", file=sys.stderr)
+            print(f"calib run: error: --fix {f!r}: expected camera.PARAM[=VALUE] or projector.PARAM[=VALUE]",
+                  file=sys.stderr)
             return EXIT_INPUT
-        fixed[dev].append(name)
+        if eq:
+            try:
+                values[dev].append((name, float(value)))
+            except ValueError:
+                print(f"calib run: error: --fix {f!r}: {value!r} is not a number", file=sys.stderr)
+                return EXIT_INPUT
+        else:
+            fixed[dev].append(name)
     devices = obs.devices()
     mode = args.mode
     if mode == "joint" and len(devices) < 2:
@@ -120,9 +131,10 @@ def run(args) -> int:
         config = BAConfig(
             mode=mode,
             camera=DeviceConfig(args.camera_distortion if args.camera_distortion is not None else args.distortion,
-                                args.skew, tuple(fixed["camera"])),
+                                args.skew, tuple(fixed["camera"]), tuple(values["camera"])),
             projector=DeviceConfig(args.projector_distortion if args.projector_distortion is not None
-                                   else args.distortion, args.skew, tuple(fixed["projector"])),
+                                   else args.distortion, args.skew, tuple(fixed["projector"]),
+                                   tuple(values["projector"])),
             board_warp=args.board_warp, loss=args.loss, loss_scale=args.loss_scale,
             outlier_threshold=args.outlier_threshold or None, progress=progress)
     except BundleAdjustmentError as exc:
