@@ -47,10 +47,10 @@ def _atan2(y, x):
     ay = abs(y)
     mx = max(ax, ay)
     mn = min(ax, ay)
-    t = mn / (mx if mx > 0.0 else 1.0)
-    big = t > 0.66
-    ub = (t - 1.0) / (t + 1.0)
-    u = ub if big else t
+    big = mn > 0.66 * mx  # atan(t) = pi/4 + atan((t - 1)/(t + 1)), t = mn/mx
+    num = mn - mx if big else mn
+    den = mn + mx if big else mx
+    u = num / (den if den > 0.0 else 1.0)
     z = u * u
     p = (((_P0 * z + _P1) * z + _P2) * z + _P3) * z + _P4
     q = ((((z + _Q0) * z + _Q1) * z + _Q2) * z + _Q3) * z + _Q4
@@ -74,68 +74,184 @@ def atan2_array(y, x, out):
 _BLOCK = 2048  # pixels per block: the block's sums and phases stay in L1/L2
 
 
-@nb.njit(inline="always", **_JIT)
-def _accumulate(st, s0, m, P, c0, sa, sc, ss, imax, imin):
-    """Sums ``sa/sc/ss[j] = sum_n P[0/1/2, c0 + n] * st[n, s0 + j]`` (float64, n in order) and
-    the per-pixel max/min frame value over the N frames of one stack, pixels s0 .. s0+m-1.
-
-    Four frames per pass over the block (same left-to-right sum as one frame per pass, a
-    quarter of the accumulator loads and stores)."""
-    N = st.shape[0]
+@nb.njit(**_JIT)
+def _extremes(st, s0, m, imax, imin, want_min):
+    """Per-pixel max (and min when ``want_min``) over the N frames of one stack, pixels s0 .. s0+m-1."""
+    if not want_min:
+        r = st[0, s0:s0 + m]
+        for j in range(m):
+            imax[j] = r[j]
+        n = 1
+        while n + 4 <= st.shape[0]:
+            r0 = st[n, s0:s0 + m]
+            r1 = st[n + 1, s0:s0 + m]
+            r2 = st[n + 2, s0:s0 + m]
+            r3 = st[n + 3, s0:s0 + m]
+            for j in range(m):
+                imax[j] = max(max(imax[j], max(r0[j], r1[j])), max(r2[j], r3[j]))
+            n += 4
+        while n < st.shape[0]:
+            r0 = st[n, s0:s0 + m]
+            for j in range(m):
+                imax[j] = max(imax[j], r0[j])
+            n += 1
+        return
     r = st[0, s0:s0 + m]
     for j in range(m):
-        sa[j] = 0.0
-        sc[j] = 0.0
-        ss[j] = 0.0
         imax[j] = r[j]
         imin[j] = r[j]
-    n = 0
-    while n + 4 <= N:
-        r0 = st[n, s0:s0 + m]
-        r1 = st[n + 1, s0:s0 + m]
-        r2 = st[n + 2, s0:s0 + m]
-        r3 = st[n + 3, s0:s0 + m]
-        c = c0 + n
-        a0, a1, a2, a3 = P[0, c], P[0, c + 1], P[0, c + 2], P[0, c + 3]
-        b0, b1, b2, b3 = P[1, c], P[1, c + 1], P[1, c + 2], P[1, c + 3]
-        e0, e1, e2, e3 = P[2, c], P[2, c + 1], P[2, c + 2], P[2, c + 3]
+    for n in range(1, st.shape[0]):
+        r = st[n, s0:s0 + m]
         for j in range(m):
-            v0 = r0[j]
-            v1 = r1[j]
-            v2 = r2[j]
-            v3 = r3[j]
-            x0 = np.float64(v0)
-            x1 = np.float64(v1)
-            x2 = np.float64(v2)
-            x3 = np.float64(v3)
-            sa[j] = (((sa[j] + a0 * x0) + a1 * x1) + a2 * x2) + a3 * x3
-            sc[j] = (((sc[j] + b0 * x0) + b1 * x1) + b2 * x2) + b3 * x3
-            ss[j] = (((ss[j] + e0 * x0) + e1 * x1) + e2 * x2) + e3 * x3
-            imax[j] = max(imax[j], max(max(v0, v1), max(v2, v3)))
-            imin[j] = min(imin[j], min(min(v0, v1), min(v2, v3)))
-        n += 4
-    while n < N:
-        r0 = st[n, s0:s0 + m]
-        c = c0 + n
-        a0, b0, e0 = P[0, c], P[1, c], P[2, c]
+            imax[j] = max(imax[j], r[j])
+            imin[j] = min(imin[j], r[j])
+
+
+@nb.njit(**_JIT)
+def _group_sum(st, s0, m, ent_n, ent_s, e, e_end, yg):
+    """Exact integer ``yg[j] = sum_e ent_s[e] * st[ent_n[e], s0 + j]`` over entries e .. e_end-1."""
+    first = True
+    while e < e_end:
+        if e + 4 <= e_end:
+            r0 = st[ent_n[e], s0:s0 + m]
+            r1 = st[ent_n[e + 1], s0:s0 + m]
+            r2 = st[ent_n[e + 2], s0:s0 + m]
+            r3 = st[ent_n[e + 3], s0:s0 + m]
+            q0, q1, q2, q3 = ent_s[e], ent_s[e + 1], ent_s[e + 2], ent_s[e + 3]
+            if first:
+                for j in range(m):
+                    yg[j] = (q0 * np.int32(r0[j]) + q1 * np.int32(r1[j])
+                             + q2 * np.int32(r2[j]) + q3 * np.int32(r3[j]))
+            else:
+                for j in range(m):
+                    yg[j] += (q0 * np.int32(r0[j]) + q1 * np.int32(r1[j])
+                              + q2 * np.int32(r2[j]) + q3 * np.int32(r3[j]))
+            e += 4
+        elif e + 2 <= e_end:
+            r0 = st[ent_n[e], s0:s0 + m]
+            r1 = st[ent_n[e + 1], s0:s0 + m]
+            q0, q1 = ent_s[e], ent_s[e + 1]
+            if first:
+                for j in range(m):
+                    yg[j] = q0 * np.int32(r0[j]) + q1 * np.int32(r1[j])
+            else:
+                for j in range(m):
+                    yg[j] += q0 * np.int32(r0[j]) + q1 * np.int32(r1[j])
+            e += 2
+        else:
+            r0 = st[ent_n[e], s0:s0 + m]
+            q0 = ent_s[e]
+            if first:
+                for j in range(m):
+                    yg[j] = q0 * np.int32(r0[j])
+            else:
+                for j in range(m):
+                    yg[j] += q0 * np.int32(r0[j])
+            e += 1
+        first = False
+
+
+@nb.njit(**_JIT)
+def _float_sum(y, w, out):
+    """``out[j] = sum_g w[g] * y[g, j]`` in float64 over the nonzero weights, g in order."""
+    m = out.size
+    nz = np.flatnonzero(w)
+    if nz.size == 0:
         for j in range(m):
-            v0 = r0[j]
-            x0 = np.float64(v0)
-            sa[j] += a0 * x0
-            sc[j] += b0 * x0
-            ss[j] += e0 * x0
-            imax[j] = max(imax[j], v0)
-            imin[j] = min(imin[j], v0)
-        n += 1
+            out[j] = 0.0
+        return
+    i = 0
+    while i < nz.size:
+        if i + 2 <= nz.size:
+            wa = w[nz[i]]
+            wb = w[nz[i + 1]]
+            ya = y[nz[i]]
+            yb = y[nz[i + 1]]
+            if i == 0:
+                for j in range(m):
+                    out[j] = wa * np.float64(ya[j]) + wb * np.float64(yb[j])
+            else:
+                for j in range(m):
+                    out[j] = (out[j] + wa * np.float64(ya[j])) + wb * np.float64(yb[j])
+            i += 2
+        else:
+            wa = w[nz[i]]
+            ya = y[nz[i]]
+            if i == 0:
+                for j in range(m):
+                    out[j] = wa * np.float64(ya[j])
+            else:
+                for j in range(m):
+                    out[j] += wa * np.float64(ya[j])
+            i += 1
+
+
+@nb.njit(**_JIT)
+def _phase_and_masks(sa, sc, ss, imax, imin, lo, hi, sat, min_mod, ph_f, ok, bmod):
+    """Wrapped phase (NaN where not valid), B and masks exactly as
+    ``unwrap.phase_shift._wrapped_phase_numpy``; ``ok &= valid``."""
+    for j in range(sa.size):
+        a = sa[j]
+        cc = sc[j]
+        sn = ss[j]
+        Bm = math.sqrt(cc * cc + sn * sn)
+        defined = (Bm > 1e-9 * abs(a)) & (Bm > 0.0)
+        oor = (np.float64(imin[j]) < lo) | (np.float64(imax[j]) > hi)
+        saturated = np.float64(imax[j]) >= sat
+        good = defined & ~(Bm < min_mod) & ~oor & ~saturated
+        ph = _atan2(sn, cc)
+        ph_f[j] = ph if good else np.nan
+        ok[j] = ok[j] & good
+        bmod[j] = Bm if (defined & ~oor) else 0.0
+
+
+@nb.njit(**_JIT)
+def _base(p0, cut, Phi_s):
+    """unwrap.temporal.base_phase: remainder(phi - c, 2 pi) + c, for |phi - c| < 2 pi."""
+    for j in range(p0.size):
+        d = p0[j] - cut
+        Phi_s[j] = (d + _TWO_PI if d < 0.0 else d) + cut
+
+
+@nb.njit(**_JIT)
+def _refine(p_i, ratio, Phi_s, pr_s, k_s):
+    """unwrap.temporal.refine (eq. 7) in place: prior, k = rint(prior) (half to even), Phi."""
+    for j in range(p_i.size):
+        phi = p_i[j]
+        pr = (ratio * Phi_s[j] - phi) / _TWO_PI
+        k = np.rint(pr)
+        Phi_s[j] = phi + _TWO_PI * k
+        pr_s[j] = pr
+        k_s[j] = k
+
+
+@nb.njit(**_JIT)
+def _final(ok, k_s, Phi_s, pr_s, kmax, phase, order, valid, prior):
+    """unwrap.temporal._finish for one block (output slices)."""
+    for j in range(ok.size):
+        k = k_s[j]
+        g = ok[j] & (k >= 0.0) & (k <= kmax)
+        phase[j] = Phi_s[j] if g else np.nan
+        order[j] = np.int32(k if g else -1.0)
+        valid[j] = g
+        prior[j] = pr_s[j] if ok[j] else np.nan
+
+
+@nb.njit(**_JIT)
+def _copy(src, dst):
+    for j in range(src.size):
+        dst[j] = src[j]
 
 
 @nb.njit(parallel=True, **_JIT)
-def mf_kernel(stacks, P, offsets, ratios, cut, sat, lo, hi, min_mod, kmax,
+def mf_kernel(stacks, W, goff, grp_start, ent_n, ent_s, ratios, cut, sat, lo, hi, min_mod, kmax,
               phase, order, valid, prior, A_out, B_out, lev_prior, lev_k):
     """Fused wrapped phase (every stack) + MF unwrapping.
 
-    stacks: tuple of F (N_f, n_pix) uint8/uint16 C-contiguous arrays; P: (3, sum N_f) float64
-    least-squares weights, stack f's columns at offsets[f]:offsets[f+1]; ratios[i] =
+    stacks: tuple of F (N_f, n_pix) uint8/uint16 C-contiguous arrays. Least-squares weights
+    factored as ``P_f = W[:, goff[f]:goff[f+1]] @ Q_f`` (``unwrap.fused_mf.factor_weights``):
+    group g's integer sum takes frames ent_n[e] with signs ent_s[e] (int32 +-1) for
+    e in grp_start[g] .. grp_start[g+1]-1; W (3, G) float64. ratios[i] =
     f_i / f_{i-1} (ratios[0] unused); cut: base-phase cut (rad); sat: saturation level (inf: none);
     lo, hi: valid range (+-inf: none); min_mod: low-modulation threshold; kmax: largest order.
     Outputs (n_pix,): phase, order, valid, prior, A_out, B_out (highest frequency);
@@ -144,67 +260,48 @@ def mf_kernel(stacks, P, offsets, ratios, cut, sat, lo, hi, min_mod, kmax,
     F = len(stacks)
     n_pix = phase.size
     want_levels = lev_prior.shape[0] > 0
+    check_range = lo > -np.inf or hi < np.inf
+    check_sat = sat < np.inf
     n_blocks = (n_pix + _BLOCK - 1) // _BLOCK
+    g_max = 0
+    for f in range(F):
+        g_max = max(g_max, goff[f + 1] - goff[f])
     for b in nb.prange(n_blocks):
         s0 = b * _BLOCK
         m = min(_BLOCK, n_pix - s0)
-        sa = np.empty(m, np.float64)
-        sc = np.empty(m, np.float64)
-        ss = np.empty(m, np.float64)
+        acc = np.empty((3, m), np.float64)
         bmod = np.empty(m, np.float64)
         phis = np.empty((F, m), np.float64)
         ok = np.ones(m, np.bool_)
+        y = np.empty((g_max, m), np.int32)
         for f in range(F):
             st = stacks[f]
             imax = np.empty(m, st.dtype)
-            imin = np.empty(m, st.dtype)
-            _accumulate(st, s0, m, P, offsets[f], sa, sc, ss, imax, imin)
-            ph_f = phis[f]
-            for j in range(m):
-                # masks and phase exactly as unwrap.phase_shift._wrapped_phase_numpy
-                a = sa[j]
-                cc = sc[j]
-                sn = ss[j]
-                Bm = math.sqrt(cc * cc + sn * sn)
-                defined = (Bm > 1e-9 * abs(a)) & (Bm > 0.0)
-                oor = (np.float64(imin[j]) < lo) | (np.float64(imax[j]) > hi)
-                saturated = np.float64(imax[j]) >= sat
-                good = defined & ~(Bm < min_mod) & ~oor & ~saturated
-                ph = _atan2(sn, cc)
-                ph_f[j] = ph if good else np.nan
-                ok[j] = ok[j] & good
-                bmod[j] = Bm if (defined & ~oor) else 0.0
-        for j in range(m):
-            A_out[s0 + j] = sa[j]
-            B_out[s0 + j] = bmod[j]
+            imin = imax
+            if check_range:
+                imin = np.empty(m, st.dtype)
+            if check_range or check_sat:
+                _extremes(st, s0, m, imax, imin, check_range)
+            g0 = goff[f]
+            G = goff[f + 1] - g0
+            for g in range(G):
+                _group_sum(st, s0, m, ent_n, ent_s, grp_start[g0 + g], grp_start[g0 + g + 1], y[g])
+            a_row = A_out[s0:s0 + m] if f == F - 1 else acc[0]
+            b_row = B_out[s0:s0 + m] if f == F - 1 else bmod
+            _float_sum(y, W[0, g0:g0 + G], a_row)
+            _float_sum(y, W[1, g0:g0 + G], acc[1])
+            _float_sum(y, W[2, g0:g0 + G], acc[2])
+            _phase_and_masks(a_row, acc[1], acc[2], imax, imin, lo, hi, sat, min_mod, phis[f], ok,
+                             b_row)
+        e = s0 + m
         # MF chain of unwrap.temporal.mf_unwrap, one frequency step at a time over the block
         Phi_s = np.empty(m, np.float64)
         pr_s = np.full(m, np.nan)
         k_s = np.full(m, np.nan)
-        p0 = phis[0]
-        for j in range(m):
-            # base phase (unwrap.temporal.base_phase): remainder(phi - c, 2 pi) + c, |phi - c| < 2 pi
-            d = p0[j] - cut
-            Phi_s[j] = (d + _TWO_PI if d < 0.0 else d) + cut
+        _base(phis[0], cut, Phi_s)
         for i in range(1, F):
-            ratio = ratios[i]
-            p_i = phis[i]
-            for j in range(m):
-                phi = p_i[j]
-                pr = (ratio * Phi_s[j] - phi) / _TWO_PI  # eq. 7, unwrap.temporal.refine
-                k = np.rint(pr)  # half to even, as numpy.round
-                Phi_s[j] = phi + _TWO_PI * k
-                pr_s[j] = pr
-                k_s[j] = k
+            _refine(phis[i], ratios[i], Phi_s, pr_s, k_s)
             if want_levels:
-                for j in range(m):
-                    lev_prior[i - 1, s0 + j] = pr_s[j]
-                    lev_k[i - 1, s0 + j] = k_s[j]
-        for j in range(m):
-            # unwrap.temporal._finish
-            k = k_s[j]
-            g = ok[j] & (k >= 0.0) & (k <= kmax)
-            phase[s0 + j] = Phi_s[j] if g else np.nan
-            order[s0 + j] = np.int32(k if g else -1.0)
-            valid[s0 + j] = g
-            prior[s0 + j] = pr_s[j] if ok[j] else np.nan
+                _copy(pr_s, lev_prior[i - 1, s0:e])
+                _copy(k_s, lev_k[i - 1, s0:e])
+        _final(ok, k_s, Phi_s, pr_s, kmax, phase[s0:e], order[s0:e], valid[s0:e], prior[s0:e])
