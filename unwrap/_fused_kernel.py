@@ -72,7 +72,7 @@ def atan2_array(y, x, out):
         out[i] = _atan2(y[i], x[i])
 
 
-_BLOCK = 2048  # pixels per block: the block's sums and phases stay in L1/L2
+_BLOCK = 4096  # pixels per block (measured: 2048-8192 within noise, 512 is 20 % slower)
 
 
 @nb.njit(**_JIT)
