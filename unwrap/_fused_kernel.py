@@ -153,6 +153,37 @@ def _group_sum(st, s0, m, ent_n, ent_s, e, e_end, yg):
 
 
 @nb.njit(**_JIT)
+def _sum_and_max(st, s0, m, yg, imax):
+    """``yg[j] = sum_n st[n, s0 + j]`` (exact integer) and ``imax[j] = max_n st[n, s0 + j]`` in
+    one pass over the frames (the background group of equal shifts + the saturation test)."""
+    N = st.shape[0]
+    r0 = st[0, s0:s0 + m]
+    for j in range(m):
+        yg[j] = r0[j]
+        imax[j] = r0[j]
+    n = 1
+    while n + 4 <= N:
+        r0 = st[n, s0:s0 + m]
+        r1 = st[n + 1, s0:s0 + m]
+        r2 = st[n + 2, s0:s0 + m]
+        r3 = st[n + 3, s0:s0 + m]
+        for j in range(m):
+            v0 = r0[j]
+            v1 = r1[j]
+            v2 = r2[j]
+            v3 = r3[j]
+            yg[j] += (np.int32(v0) + np.int32(v1)) + (np.int32(v2) + np.int32(v3))
+            imax[j] = max(imax[j], max(max(v0, v1), max(v2, v3)))
+        n += 4
+    while n < N:
+        r0 = st[n, s0:s0 + m]
+        for j in range(m):
+            yg[j] += np.int32(r0[j])
+            imax[j] = max(imax[j], r0[j])
+        n += 1
+
+
+@nb.njit(**_JIT)
 def _float_sum(y, w, out):
     """``out[j] = sum_g w[g] * y[g, j]`` in float64 over the nonzero weights, g in order."""
     m = out.size
@@ -260,14 +291,17 @@ def _copy(src, dst):
 
 
 @nb.njit(parallel=True, **_JIT)
-def mf_kernel(stacks, W, goff, grp_start, ent_n, ent_s, ratios, cut, sat, lo, hi, min_mod, kmax,
-              phase, order, valid, prior, A_out, B_out, lev_prior, lev_k):
+def mf_kernel(stacks, sum_type, W, goff, grp_start, ent_n, ent_s, sum_all, ratios, cut, sat, lo, hi,
+              min_mod, kmax, phase, order, valid, prior, A_out, B_out, lev_prior, lev_k):
     """Fused wrapped phase (every stack) + MF unwrapping.
 
-    stacks: tuple of F (N_f, n_pix) uint8/uint16 C-contiguous arrays. Least-squares weights
+    stacks: tuple of F (N_f, n_pix) uint8/uint16 C-contiguous arrays; sum_type: an empty array
+    of the integer type of the group sums (int16 when every sum fits, else int32; the narrower
+    type doubles the SIMD lanes). Least-squares weights
     factored as ``P_f = W[:, goff[f]:goff[f+1]] @ Q_f`` (``unwrap.fused_mf.factor_weights``):
     group g's integer sum takes frames ent_n[e] with signs ent_s[e] (int32 +-1) for
-    e in grp_start[g] .. grp_start[g+1]-1; W (3, G) float64. ratios[i] =
+    e in grp_start[g] .. grp_start[g+1]-1; W (3, G) float64; sum_all[f]: stack f's group that
+    sums all frames with sign +1 (its pass also finds the maximum), or -1. ratios[i] =
     f_i / f_{i-1} (ratios[0] unused); cut: base-phase cut (rad); sat: saturation level (inf: none);
     lo, hi: valid range (+-inf: none); min_mod: low-modulation threshold; kmax: largest order.
     Outputs (n_pix,): phase, order, valid, prior, A_out, B_out (highest frequency);
@@ -289,19 +323,25 @@ def mf_kernel(stacks, W, goff, grp_start, ent_n, ent_s, ratios, cut, sat, lo, hi
         bmod = np.empty(m, np.float64)
         phis = np.empty((F, m), np.float64)
         ok = np.ones(m, np.bool_)
-        y = np.empty((g_max, m), np.int32)
+        y = np.empty((g_max, m), sum_type.dtype)
         for f in range(F):
             st = stacks[f]
             imax = np.empty(m, st.dtype)
             imin = imax
             if check_range:
                 imin = np.empty(m, st.dtype)
-            if check_range or check_sat:
-                _extremes(st, s0, m, imax, imin, check_range)
             g0 = goff[f]
             G = goff[f + 1] - g0
+            g_all = sum_all[f]  # the group summing every frame with sign +1, or -1
+            fuse_max = check_sat and not check_range and g_all >= 0
+            if (check_range or check_sat) and not fuse_max:
+                _extremes(st, s0, m, imax, imin, check_range)
             for g in range(G):
-                _group_sum(st, s0, m, ent_n, ent_s, grp_start[g0 + g], grp_start[g0 + g + 1], y[g])
+                if fuse_max and g == g_all:
+                    _sum_and_max(st, s0, m, y[g], imax)
+                else:
+                    _group_sum(st, s0, m, ent_n, ent_s, grp_start[g0 + g], grp_start[g0 + g + 1],
+                               y[g])
             a_row = A_out[s0:s0 + m] if f == F - 1 else acc[0]
             b_row = B_out[s0:s0 + m] if f == F - 1 else bmod
             _float_sum(y, W[0, g0:g0 + G], a_row)

@@ -214,12 +214,15 @@ def _kernel_weights(shift_sets: tuple):
     """Factored weights of every stack in the kernel's flat layout, built once per shift sets.
 
     shift_sets: one tuple of shifts (rad) per stack. Returns (W (3, sum G) float64,
-    goff (F+1,), grp_start (sum G + 1,), ent_n (E,) int64, ent_s (E,) int32), read-only.
+    goff (F+1,), grp_start (sum G + 1,), ent_n (E,) int64, ent_s (E,) int32, sum_all (F,): the
+    group of each stack that sums every frame with sign +1, or -1), read-only.
     """
-    W_cols, goff, grp_start, ent_n, ent_s = [], [0], [0], [], []
+    W_cols, goff, grp_start, ent_n, ent_s, sum_all = [], [0], [0], [], [], []
     for sh in shift_sets:
         W, Q = factor_weights(least_squares_weights(sh))  # raises for degenerate shifts
         W_cols.append(W)
+        everything = np.flatnonzero(np.all(Q == 1, axis=1))
+        sum_all.append(int(everything[0]) if everything.size else -1)
         for q in Q:
             nz = np.flatnonzero(q)
             ent_n.extend(nz.tolist())
@@ -228,7 +231,7 @@ def _kernel_weights(shift_sets: tuple):
         goff.append(goff[-1] + Q.shape[0])
     out = (np.ascontiguousarray(np.concatenate(W_cols, axis=1)), np.asarray(goff, np.int64),
            np.asarray(grp_start, np.int64), np.asarray(ent_n, np.int64),
-           np.asarray(ent_s, np.int32))
+           np.asarray(ent_s, np.int32), np.asarray(sum_all, np.int64))
     for a in out:
         a.setflags(write=False)
     return out
@@ -260,7 +263,7 @@ def _fused(stacks, f, shift_list, width, min_modulation, saturation, valid_range
     n_pix = int(np.prod(pix_shape))
     flat = tuple(np.ascontiguousarray(s).reshape(s.shape[0], n_pix) for s in stacks)
     max_value = int(np.iinfo(flat[0].dtype).max)
-    shift_sets = []
+    shift_sets, n_max = [], 0
     for st, sh in zip(flat, shift_list):
         N = st.shape[0]
         sh = equal_shifts(N) if sh is None else np.asarray(sh, dtype=np.float64).reshape(-1)
@@ -269,8 +272,9 @@ def _fused(stacks, f, shift_list, width, min_modulation, saturation, valid_range
                               "they must match")
         if N * max_value >= 2 ** 31:
             raise UnwrapError(f"{N} frames of {st.dtype}: integer sums could overflow int32")
+        n_max = max(n_max, N)
         shift_sets.append(tuple(sh.tolist()))
-    W, goff, grp_start, ent_n, ent_s = _kernel_weights(tuple(shift_sets))
+    W, goff, grp_start, ent_n, ent_s, sum_all = _kernel_weights(tuple(shift_sets))
     if saturation == "auto":
         saturation = float(max_value)
     sat = math.inf if saturation is None else float(saturation)
@@ -282,9 +286,10 @@ def _fused(stacks, f, shift_list, width, min_modulation, saturation, valid_range
     phase, order, valid, prior, A, B = _outputs(out, n_pix, n_lev)
     lev_prior = np.empty((n_lev, n_pix if levels else 0), np.float64)
     lev_k = np.empty_like(lev_prior)
-    K.mf_kernel(flat, W, goff, grp_start, ent_n, ent_s, ratios, base_cut(f[0], width), sat, lo,
-                hi, float(min_modulation or 0.0), kmax, phase, order, valid, prior, A, B,
-                lev_prior, lev_k)
+    sum_type = np.empty(0, np.int16 if n_max * max_value < 2 ** 15 else np.int32)
+    K.mf_kernel(flat, sum_type, W, goff, grp_start, ent_n, ent_s, sum_all, ratios,
+                base_cut(f[0], width), sat, lo, hi, float(min_modulation or 0.0), kmax,
+                phase, order, valid, prior, A, B, lev_prior, lev_k)
     r = lambda x: x.reshape(pix_shape)  # noqa: E731
     lev = [(float(f[i + 1]), r(lev_prior[i]), r(lev_k[i])) for i in range(n_lev)]
     res = Unwrapped(r(phase), r(order), r(valid), r(prior), float(f[-1]), "mf", lev)
