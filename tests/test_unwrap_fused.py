@@ -244,3 +244,11 @@ def test_real_slstudio_capture_fused_equals_reference_and_is_what_the_pipeline_u
     piped = unwrap_orientation(oc, "mf").result
     assert np.array_equal(piped.order, fast.result.order)
     assert np.array_equal(piped.phase, fast.result.phase, equal_nan=True)
+
+
+def test_docstring_example_runs():
+    import doctest
+
+    import unwrap.fused_mf
+    result = doctest.testmod(unwrap.fused_mf)
+    assert result.attempted > 0 and result.failed == 0
