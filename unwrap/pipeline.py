@@ -47,6 +47,15 @@ def _default_min_modulation(dtype) -> float:
     return 0.0
 
 
+def _kernel_cold() -> bool:
+    """True when the fused kernel has not run in this process yet (numba installed)."""
+    from .fused_mf import fast_available
+    if not fast_available():
+        return False
+    from . import _fused_kernel
+    return not _fused_kernel.mf_kernel.signatures
+
+
 def _log(progress, msg):
     if progress:
         print(msg, file=sys.stderr, flush=True)
@@ -69,6 +78,9 @@ def unwrap_orientation(oc: OrientationCapture, method: str, *, min_modulation=No
             # one fused pass (unwrap.fused_mf) for 8/16-bit frames, the reference otherwise
             mm = (_default_min_modulation(stacks[0].dtype) if min_modulation is None
                   else min_modulation)
+            if progress and _kernel_cold():
+                _log(progress, f"  [{oc.orientation}] wrapped phase + MF: first use of the fused "
+                               "kernel in this process (compiles once per machine, ~15 s)")
             r = mf_unwrap_stacks(stacks, freqs, shifts=[s.shifts for s in sets], width=oc.width,
                                  min_modulation=mm)
             return OrientationResult(oc.orientation, oc.width, r.result, r.modulation, r.background)
