@@ -1,22 +1,26 @@
 """numba kernel of :func:`unwrap.fused_mf.mf_unwrap_stacks` (imported only when numba is installed).
 
-One pass over the frames: for each block of pixels and each frequency, the float64 sums
-``[A, C, S] = P @ I`` of the least-squares fit (frames in order n = 0..N-1), then per pixel
-``B = sqrt(C^2 + S^2)``, the masks and the wrapped phase ``atan2(S, C)`` (kept in a block-sized
-scratch array), then the MF chain of :func:`unwrap.temporal.mf_unwrap` (base phase, eq. 7 steps,
-final masks). Blocks run in parallel (``prange``); compiled code is cached on disk
-(``cache=True``), so only the first use on a machine pays the compile time.
+One pass over the frames: for each block of pixels and each frequency, exact integer sums of
+the frames that share a least-squares weight (``unwrap.fused_mf.factor_weights``: int16 for
+8-bit frames, else int32; the background group's pass also finds the per-pixel maximum for the
+saturation mask), the float64 sums ``[A, C, S] = W @ y`` over the groups in order, then per pixel
+``B = sqrt(C^2 + S^2)``, the masks and the wrapped phase ``atan2(S, C)`` (block-sized scratch),
+then the MF chain of :func:`unwrap.temporal.mf_unwrap` (base phase, eq. 7 steps, final masks)
+with the reference's float64 operations in the same order. Blocks run in parallel (``prange``);
+compiled code is cached on disk (``cache=True``), so only the first use on a machine pays the
+compile time (~13 s).
 
-``error_model="numpy"`` (IEEE division, no ZeroDivisionError checks) and branch-free arithmetic
-let LLVM vectorise the per-pixel loops, the arctangent included.
+``error_model="numpy"`` (IEEE division, no ZeroDivisionError checks), branch-free arithmetic and
+one small function per loop (arrays arrive as arguments, so LLVM sees their data pointers as
+loop invariant) let LLVM vectorise every per-pixel loop, the arctangent included.
 
-Arctangent: ``_atan2`` reduces ``atan2(y, x)`` to ``atan(t)``, ``t = min(|x|,|y|)/max(|x|,|y|)``
-in [0, 1], uses ``atan(t) = pi/4 + atan((t - 1)/(t + 1))`` above t = 0.66 and the rational
-approximation ``atan(u) = u + u z P(z)/Q(z)``, ``z = u^2``, of the Cephes Math Library
-(S. L. Moshier, ``atan.c``, coefficients below; relative error ~1e-16 on |u| <= 0.66), then
-the octant and quadrant from the signs (IEEE signed zeros as C's atan2). Measured against
-``numpy.arctan2``: at most 4.5e-16 rad (2 ulp) over 1e6 random and all signed-zero points
-(tests/test_unwrap_fused.py).
+Arctangent: ``_atan2`` reduces ``atan2(y, x)`` with ``mn = min(|x|,|y|)``, ``mx = max(|x|,|y|)``
+to ``atan(u)``, ``u = mn/mx`` or, above ``tan(pi/8)``, ``u = (mn - mx)/(mn + mx)`` with
+``atan(mn/mx) = pi/4 + atan(u)``, so |u| <= tan(pi/8) with one division; ``atan(u) = u + u z R(z)``,
+``z = u^2``, R a degree-10 polynomial (coefficients below, our own fit); then the octant and
+quadrant from the signs (IEEE signed zeros as C's atan2; finite arguments). Measured against
+``numpy.arctan2``: at most 4.5e-16 rad (2 ulp) over 1e6 random points, octant boundaries and all
+signed-zero cases (tests/test_unwrap_fused.py).
 """
 from __future__ import annotations
 
