@@ -1,21 +1,24 @@
 """Fused N-step phase + multi-frequency unwrapping: integer frames in, absolute phase and k out, one pass.
 
-``mf_unwrap_stacks`` gives the same result as the readable reference
+``mf_unwrap_stacks`` gives the result of the readable reference
 (:func:`unwrap.phase_shift.wrapped_phase` on each stack, then :func:`unwrap.temporal.mf_unwrap`
 with the AND of the phase-shift masks), but, for 8/16-bit stacks with numba installed, runs one
-compiled kernel (:mod:`unwrap._fused_kernel`) that reads every frame pixel once, accumulates the
-least-squares sums of every frequency in float64, and writes the absolute phase, fringe order,
-validity, physics prior and the highest frequency's A and B, multithreaded over pixel blocks.
-Otherwise (float input, no numba, an unusual base-phase cut) it runs the reference.
+compiled kernel (:mod:`unwrap._fused_kernel`) that reads the frames of every frequency once per
+pixel block, forms exact integer sums of the frames sharing a least-squares weight
+(:func:`factor_weights`) and the float64 sums from them, and writes the absolute phase, fringe
+order, validity, physics prior and the highest frequency's A and B, multithreaded over pixel
+blocks. Otherwise (float input, torch, no numba) it runs the reference.
 
-Agreement with the reference (tested on noisy 8/16-bit stacks with dark, saturated and
-low-modulation pixels): ``order``, ``valid`` and the masks are identical; phase, prior, A and B
-agree within 1e-12 (rad or grey levels). They are not always bit-identical because the reference
-forms its step sums with a BLAS matrix product (its summation order and fused multiply-adds are
-the BLAS library's) and calls numpy's ``arctan2``, while the kernel sums frames in order and
-uses its own arctangent (at most 2 ulp from numpy's, see ``_fused_kernel``); everything after
-the arctangent (base phase, eq. 7 steps, rounding half to even, masks) repeats the reference's
-float64 operations in the same order.
+Agreement with the reference (tests/test_unwrap_fused.py: noisy 8/16-bit stacks with flat,
+dark, saturated, low-modulation and clipped pixels, unequal shifts, a real capture): ``valid``
+and ``B == 0`` identical; phase and prior within 1e-12 rad, A and B within 1e-12 relative.
+``order`` is identical except at exact ties on the wrapped phase's +-pi cut (the sine sum
+exactly 0, the cosine sum negative): the kernel's exact integer sums give phase pi, the
+reference's BLAS rounding leaves +-4e-15 and gives pi or -pi; both then describe the same
+absolute phase with k one apart (and the prior exactly one apart). Bit-identity would need the
+BLAS library's summation order and fused multiply-adds, which numpy does not fix. After the
+arctangent (own, at most 2 ulp from numpy's) the kernel repeats the reference's float64
+operations (base phase, eq. 7 steps, rounding half to even, masks) in the same order.
 
 SYNOPSIS
 
