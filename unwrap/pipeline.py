@@ -23,6 +23,7 @@ import numpy as np
 from ._xp import wrap
 from .capture import Capture, OrientationCapture, load_capture, read_image, read_stack
 from .errors import UnwrapError
+from .fused_mf import mf_unwrap_stacks
 from .graycode import (binarize, complementary_gray_unwrap, gray_coarse_unwrap, gray_to_index)
 from .patterns import projector_coordinate
 from .phase_shift import wrapped_phase
@@ -46,6 +47,15 @@ def _default_min_modulation(dtype) -> float:
     return 0.0
 
 
+def _kernel_cold() -> bool:
+    """True when the fused kernel has not run in this process yet (numba installed)."""
+    from .fused_mf import fast_available
+    if not fast_available():
+        return False
+    from . import _fused_kernel
+    return not _fused_kernel.mf_kernel.signatures
+
+
 def _log(progress, msg):
     if progress:
         print(msg, file=sys.stderr, flush=True)
@@ -57,17 +67,37 @@ def unwrap_orientation(oc: OrientationCapture, method: str, *, min_modulation=No
     if method not in METHODS:
         raise UnwrapError(f"unknown method {method!r}: expected one of {METHODS}")
     sets = sorted(oc.sets, key=lambda s: s.frequency)
+    freqs = [s.frequency for s in sets]
+    if method == "mf" and len(sets) >= 2:
+        stacks = []
+        for i, s in enumerate(sets):
+            _log(progress, f"  [{oc.orientation}] {i + 1}/{len(sets)}: f = {s.frequency:g}, "
+                           f"{len(s.files)} frames")
+            stacks.append(read_stack(s.files))
+        if len({st.dtype for st in stacks}) == 1:
+            # one fused pass (unwrap.fused_mf) for 8/16-bit frames, the reference otherwise
+            mm = (_default_min_modulation(stacks[0].dtype) if min_modulation is None
+                  else min_modulation)
+            if progress and _kernel_cold():
+                _log(progress, f"  [{oc.orientation}] wrapped phase + MF: first use of the fused "
+                               "kernel in this process (compiles once per machine, ~15 s)")
+            r = mf_unwrap_stacks(stacks, freqs, shifts=[s.shifts for s in sets], width=oc.width,
+                                 min_modulation=mm)
+            return OrientationResult(oc.orientation, oc.width, r.result, r.modulation, r.background)
+        stacks = iter(stacks)
+    else:
+        stacks = None
     phases, valid, last = [], None, None
     for i, s in enumerate(sets):
-        _log(progress, f"  [{oc.orientation}] {i + 1}/{len(sets)}: f = {s.frequency:g}, "
-                       f"{len(s.files)} frames")
-        stack = read_stack(s.files)
+        if stacks is None:
+            _log(progress, f"  [{oc.orientation}] {i + 1}/{len(sets)}: f = {s.frequency:g}, "
+                           f"{len(s.files)} frames")
+        stack = read_stack(s.files) if stacks is None else next(stacks)
         mm = _default_min_modulation(stack.dtype) if min_modulation is None else min_modulation
         w = wrapped_phase(stack, s.shifts, min_modulation=mm)
         phases.append(w.phase)
         valid = w.valid if valid is None else valid & w.valid
         last = w
-    freqs = [s.frequency for s in sets]
     if method == "mf":
         res = mf_unwrap(phases, freqs, width=oc.width, valid=valid)
     elif method == "mw":

@@ -113,8 +113,13 @@ def base_phase(phi, frequency: float = 1.0, width=None):
         raise UnwrapError(f"the lowest frequency must be <= 1 period across the pattern to be "
                           f"absolute, got {frequency}")
     xp = namespace(phi)
-    c = min(-math.pi * (1.0 - frequency), -TWO_PI * frequency * edge_fraction(width))
+    c = base_cut(frequency, width)
     return xp.remainder(phi - c, TWO_PI) + c
+
+
+def base_cut(frequency: float = 1.0, width=None) -> float:
+    """The phase c (rad, <= 0) where :func:`base_phase` puts the 2*pi cut: Phi lies in [c, c + 2*pi)."""
+    return min(-math.pi * (1.0 - frequency), -TWO_PI * frequency * edge_fraction(width))
 
 
 def refine(Phi_coarse, ratio: float, phi):
