@@ -133,9 +133,10 @@ def project_to_projector(projector, points_world: torch.Tensor, use_distortion: 
 
 
 def defocus_sigma(defocus, f_px: float, z: torch.Tensor) -> torch.Tensor:
-    """Gaussian sigma (px) of the thin-lens blur disc at depth z (mm): ``c / (2 sqrt 2)``."""
+    """Gaussian sigma (px) of the thin-lens blur disc at depth z (mm): ``c / 4``, the per-axis
+    standard deviation of a uniform disc of diameter ``c = aperture * f_px * |1/z - 1/focus|``."""
     c = defocus.aperture_mm * f_px * (1.0 / z.clamp(min=1e-6) - 1.0 / defocus.focus_mm).abs()
-    return c / (2.0 * math.sqrt(2.0))
+    return c / 4.0
 
 
 def needs_shadow_pass(objects) -> tuple[bool, str]:
