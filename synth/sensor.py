@@ -30,9 +30,8 @@ def camera_defocus(images: torch.Tensor, sigma: torch.Tensor, levels: int = 6) -
     out = torch.zeros((K, H * W), dtype=images.dtype)
     for k, blurred in enumerate(_blur_levels(images, [(float(s), float(s)) for s in lv])):
         wk = torch.where(i == k, 1 - w, torch.zeros_like(w)) + torch.where(i + 1 == k, w, torch.zeros_like(w))
-        m = wk > 0
-        if bool(m.any()):
-            out[:, m] += wk[m] * blurred.reshape(K, -1)[:, m]
+        if bool((wk > 0).any()):
+            out.addcmul_(blurred.reshape(K, -1), wk)  # dense: cheaper than gathering the pixels
     return out.reshape(K, H, W)
 
 

@@ -198,3 +198,22 @@ def test_poisson_gaussian_noise_has_mean_e_and_variance_e_plus_read_squared(valu
         assert np.allclose(e, np.round(e), atol=1e-3)
         p0 = np.mean(np.round(e) == 0)
         assert abs(p0 - math.exp(-mean_e)) < 5 * math.sqrt(p0 * (1 - p0) / n)
+
+
+# --- the fused fast path equals the staged path ------------------------------------------------
+
+@pytest.mark.parametrize("ambient, gamma", [(0.0, 1.0), (0.05, 2.2)])
+def test_fused_pattern_and_quantisation_stage_equals_quantising_the_linear_images(ambient, gamma):
+    """Without camera defocus or noise the renderer quantises chunks of lit pixels as it computes
+    them; that must equal quantising the full linear stack (Gray code and white included)."""
+    from synth import Sphere, gray_sequence
+
+    system = small_system(4)
+    seq = phase_sequence(("v",), (8,), 4) + gray_sequence("v", (912, 1140), 4) + [PatternSpec("white", "white")]
+    objs = [Plane("wall", np.eye(3), [0, 0, -60]), Sphere("ball", np.eye(3), [0, 0, 0], radius_mm=30)]
+    eff = Effects(ambient=ambient, projector_gamma=gamma, gain=1.2, saturation=0.95, bits=10)
+    fused = render(Scene(system, objs, seq, eff))
+    staged = render(Scene(system, objs, seq, eff), keep_linear=True, geometry=fused.geometry)  # not fused
+    assert any("fused" in line for line in fused.plan) and not any("fused" in line for line in staged.plan)
+    assert int(fused.images.max()) > 500 and bool(fused.geometry.shadow.any())
+    assert torch.equal(fused.images, staged.images)
