@@ -76,14 +76,15 @@ def camera_rays(camera, use_distortion: bool) -> tuple[Rays, torch.Tensor]:
         xy, ok = undistort(xyd, camera.distortion)
     else:
         xy, ok = xyd, np.ones(len(q), dtype=bool)
-    xy = torch.tensor(xy)
+    xy = torch.from_numpy(np.ascontiguousarray(xy))
+    ok = torch.from_numpy(np.ascontiguousarray(ok))
     R = torch.tensor(camera.R)
     t = torch.tensor(camera.t)
-    d = torch.cat([xy, torch.ones_like(xy[:, :1])], 1) @ R  # R^T (x, y, 1)
-    d = d / torch.linalg.norm(d, dim=1, keepdim=True)
-    xy = torch.where(torch.tensor(ok)[:, None], xy, torch.full_like(xy, float("nan")))
-    out = (Rays(torch.tensor(camera.center_world), d, xy, R, t, 1.0 / max(camera.fx, camera.fy), "camera"),
-           torch.tensor(ok))
+    d = xy @ R[:2] + R[2]  # R^T (x, y, 1)
+    d /= torch.linalg.norm(d, dim=1, keepdim=True)
+    if not bool(ok.all()):
+        xy = torch.where(ok[:, None], xy, torch.full_like(xy, float("nan")))
+    out = (Rays(torch.tensor(camera.center_world), d, xy, R, t, 1.0 / max(camera.fx, camera.fy), "camera"), ok)
     if len(_RAY_CACHE) >= _RAY_CACHE_SIZE:
         _RAY_CACHE.pop(next(iter(_RAY_CACHE)))
     _RAY_CACHE[key] = out

@@ -37,9 +37,11 @@ def camera_defocus(images: torch.Tensor, sigma: torch.Tensor, levels: int = 6) -
 
 def add_noise(images: torch.Tensor, noise, generator: torch.Generator) -> torch.Tensor:
     """Poisson-Gaussian noise in electrons, in place: ``e = value * full_well``; shot noise
-    exact (Poisson) below 50 electrons, its normal approximation N(e, e) above; plus N(0, read^2)."""
+    exact (Poisson) between 0 and 50 electrons, its normal approximation N(e, e) above; plus
+    N(0, read^2)."""
     e = images.clamp_(min=0).mul_(noise.full_well_e)
-    low = e < 50
+    # dark pixels (e = 0: unlit, shadowed) draw Poisson(0) = 0 exactly: read noise only
+    low = (e > 0) & (e < 50)
     z = torch.randn(e.shape, generator=generator, dtype=e.dtype)
     shot_low = torch.poisson(e[low].to(torch.float64), generator=generator).to(e.dtype) if bool(low.any()) else None
     std = (e + noise.read_noise_e ** 2).sqrt_()
