@@ -18,7 +18,8 @@ distortion), the phase pattern v f=48 step 0, 1 sample, point-sampled pixels, di
 CPU with ``--threads`` threads, time of ``bpy.ops.render.render`` (minimum over 3 frames). That is
 the fidelity the parity test matches (plane and ball: <= 0.01 8-bit levels); the mesh row's
 Cycles frame has no depth of field (converging it needs many samples) and no noise, so its
-Cycles time is a lower bound and the speed-up an under-estimate.
+Cycles time is a lower bound and the speed-up an under-estimate; the same frame with Cycles' depth
+of field (64 samples) is timed too.
 """
 from __future__ import annotations
 
@@ -29,6 +30,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
+
+
+DOF_SAMPLES = 64  # the Blender DOF reference check (tests/test_synth_reference.py) converges at 32 at 160x120
 
 
 def _scenes():
@@ -100,7 +104,7 @@ def _time_ours(scene, repeats):
     return best, len(res.names), res.plan
 
 
-def _time_cycles(scene, threads, python):
+def _time_cycles(scene, threads, python, samples=1, frames=3):
     from synth.blender_twin import render_in_blender
     from synth.scene import ideal_system
 
@@ -111,8 +115,10 @@ def _time_cycles(scene, threads, python):
     pattern = scene.patterns[[p.name for p in scene.patterns].index("v_f048_n00")]
     img = pattern.projector_image(system.projector.size, scene.effects.A, scene.effects.B)
     d_ref = float(np.linalg.norm(system.projector.center_world))
-    r = render_in_blender(system, _world_meshes(scene), np.stack([img] * 3), exposure=scene.effects.exposure,
-                          reference_distance_mm=d_ref, threads=threads, python=python)
+    dof = scene.effects.camera_defocus if samples > 1 else None
+    r = render_in_blender(system, _world_meshes(scene), np.stack([img] * frames), exposure=scene.effects.exposure,
+                          reference_distance_mm=d_ref, threads=threads, python=python, samples=samples,
+                          camera_dof=None if dof is None else {"focus_mm": dof.focus_mm, "aperture_mm": dof.aperture_mm})
     return min(r["seconds_per_frame"])
 
 
@@ -136,6 +142,10 @@ def main(argv=None) -> int:
         whole = best["geometry cold"] + best["total"]
         whole_pose = best["geometry new pose"] + best["total"]
         cyc = _time_cycles(scene, args.threads, blender) if blender else None
+        if blender and scene.effects.camera_defocus is not None:
+            dof_s = _time_cycles(scene, args.threads, blender, samples=DOF_SAMPLES, frames=1)
+            print(f"{name}: Cycles with depth of field, {DOF_SAMPLES} samples: {dof_s:.2f} s/frame, "
+                  f"speed-up {dof_s / (whole / K):.0f}x (cold) / {dof_s / (whole_pose / K):.0f}x (new pose)")
         rows.append((name, K, best, whole, whole_pose, cyc))
         print(f"{name}: geometry {best['geometry cold']:.3f} s cold / {best['geometry new pose']:.3f} s new pose, "
               f"pattern stage {K / best['patterns']:.0f} images/s, whole stack {K / whole:.1f} images/s"

@@ -96,7 +96,12 @@ def _quantised_stack(geometry, lit, idx, C, rows, other, p_other, K, eff) -> tor
                 vals[idx] = chunk
         if other:
             vals[other] = (scale_lit[sl] * p_other[:, sl]).to(torch.float32) + amb_lit[sl]
-        out.index_copy_(1, lit[sl], quantise(vals, eff.bits, eff.gain, eff.saturation))
+        q = quantise(vals, eff.bits, eff.gain, eff.saturation)
+        first, last = int(lit[j]), int(lit[min(j + _CHUNK, lit.numel()) - 1])
+        if last - first + 1 == q.shape[1]:  # a run of consecutive pixels (lit is sorted): plain copy
+            out[:, first:last + 1] = q
+        else:
+            out.index_copy_(1, lit[sl], q)
     return out
 
 

@@ -181,7 +181,8 @@ def test_gain_saturation_and_quantisation_follow_the_closed_form(bits):
 
 # --- Poisson-Gaussian noise ---------------------------------------------------------------------
 
-@pytest.mark.parametrize("value, full_well, read", [(0.3, 10000.0, 5.0), (0.002, 10000.0, 5.0), (0.0003, 10000.0, 0.0)])
+@pytest.mark.parametrize("value, full_well, read", [(0.3, 10000.0, 5.0), (0.002, 10000.0, 5.0), (0.0003, 10000.0, 0.0),
+                                                    (0.0, 10000.0, 5.0)])
 def test_poisson_gaussian_noise_has_mean_e_and_variance_e_plus_read_squared(value, full_well, read):
     """In electrons e = value * full_well: mean e, variance e + read^2 (shot noise exact Poisson
     below 50 e-: with no read noise the counts are integers with P(0) = exp(-e))."""
