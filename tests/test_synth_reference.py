@@ -34,7 +34,7 @@ def test_camera_defocus_matches_blender_thin_lens_depth_of_field_up_to_the_gauss
     plane at 800-900 mm by the thin-lens disc; we blur by a Gaussian of the disc's second moment
     (sigma = c / 4). Their contrasts then differ exactly by the ratio of the two transfer
     functions at the local fringe frequency nu: exp(-2 pi^2 sigma^2 nu^2) / (2 J1(pi c nu) / (pi c nu)).
-    (With sigma = c / (2 sqrt 2), the radial RMS, the ratio would be ~0.75 instead of ~1.04.)"""
+    (With sigma = c / (2 sqrt 2), the radial RMS, the ratio would be ~0.67 instead of ~1.04.)"""
     from scipy.special import j1
 
     from synth.blender_twin import blender_available
