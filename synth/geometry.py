@@ -55,23 +55,47 @@ def _pixel_grid(size) -> np.ndarray:
     return np.stack([u.ravel(), v.ravel()], axis=1)
 
 
+_RAY_CACHE: dict = {}
+_RAY_CACHE_SIZE = 4
+
+
 def camera_rays(camera, use_distortion: bool) -> tuple[Rays, torch.Tensor]:
     """One ray per camera pixel centre: (Rays, valid (N,) bool). Distortion is inverted by
-    Newton (calib.distortion.undistort); without distortion only K is inverted."""
+    Newton (calib.distortion.undistort); without distortion only K is inverted.
+
+    The rays depend only on the camera (size, K, distortion, pose), not on the scene, so the
+    last few are kept (a session of board poses, or many scenes, seen by one camera pays the
+    Newton inversion once). The returned tensors are shared: never modify them in place."""
+    key = (tuple(camera.size), camera.K.tobytes(), np.asarray(camera.distortion, dtype=np.float64).tobytes(),
+           camera.R.tobytes(), camera.t.tobytes(), bool(use_distortion))
+    if key in _RAY_CACHE:
+        return _RAY_CACHE[key]
     q = _pixel_grid(camera.size)
     xyd = camera.pixels_to_normalized(q)
     if use_distortion and camera.distortion.size and np.any(camera.distortion):
         xy, ok = undistort(xyd, camera.distortion)
     else:
         xy, ok = xyd, np.ones(len(q), dtype=bool)
-    xy = torch.tensor(xy)
+    xy = torch.from_numpy(np.ascontiguousarray(xy))
+    ok = torch.from_numpy(np.ascontiguousarray(ok))
     R = torch.tensor(camera.R)
     t = torch.tensor(camera.t)
-    d = torch.cat([xy, torch.ones_like(xy[:, :1])], 1) @ R  # R^T (x, y, 1)
-    d = d / torch.linalg.norm(d, dim=1, keepdim=True)
-    xy = torch.where(torch.tensor(ok)[:, None], xy, torch.full_like(xy, float("nan")))
-    return Rays(torch.tensor(camera.center_world), d, xy, R, t, 1.0 / max(camera.fx, camera.fy), "camera"), \
-        torch.tensor(ok)
+    d = xy @ R[:2] + R[2]  # R^T (x, y, 1)
+    d /= torch.linalg.norm(d, dim=1, keepdim=True)
+    if not bool(ok.all()):
+        xy = torch.where(ok[:, None], xy, torch.full_like(xy, float("nan")))
+    out = (Rays(torch.tensor(camera.center_world), d, xy, R, t, 1.0 / max(camera.fx, camera.fy), "camera"), ok)
+    if len(_RAY_CACHE) >= _RAY_CACHE_SIZE:
+        _RAY_CACHE.pop(next(iter(_RAY_CACHE)))
+    _RAY_CACHE[key] = out
+    return out
+
+
+def _scatter(values: torch.Tensor, index: torch.Tensor, N: int, fill) -> torch.Tensor:
+    """Full (N, ...) buffer holding ``values`` at ``index`` and ``fill`` elsewhere."""
+    out = torch.full((N, *values.shape[1:]), fill, dtype=values.dtype)
+    out[index] = values
+    return out
 
 
 def nearest_surface(objects, rays: Rays):
@@ -133,9 +157,10 @@ def project_to_projector(projector, points_world: torch.Tensor, use_distortion: 
 
 
 def defocus_sigma(defocus, f_px: float, z: torch.Tensor) -> torch.Tensor:
-    """Gaussian sigma (px) of the thin-lens blur disc at depth z (mm): ``c / (2 sqrt 2)``."""
+    """Gaussian sigma (px) of the thin-lens blur disc at depth z (mm): ``c / 4``, the per-axis
+    standard deviation of a uniform disc of diameter ``c = aperture * f_px * |1/z - 1/focus|``."""
     c = defocus.aperture_mm * f_px * (1.0 / z.clamp(min=1e-6) - 1.0 / defocus.focus_mm).abs()
-    return c / (2.0 * math.sqrt(2.0))
+    return c / 4.0
 
 
 def needs_shadow_pass(objects) -> tuple[bool, str]:
@@ -179,36 +204,38 @@ def compute_geometry(scene, *, shadows: bool | None = None, log=LOG) -> Geometry
     if not cam_dist:
         log.info("camera distortion: skipped (%s)", "zero coefficients" if eff.camera_distortion else "turned off")
     with clock("ray hits"):
-        t, obj, n_world, local = nearest_surface(scene.objects, rays)
-        hit = torch.isfinite(t) & ray_ok
+        t_all, obj_all, n_all, local_all = nearest_surface(scene.objects, rays)
+        hit = torch.isfinite(t_all) & ray_ok
+    # from here on only the M pixels that see a surface are computed, then scattered into (N,)
+    # buffers at the end (a ball fills ~5 % of the image)
+    hi = torch.nonzero(hit).squeeze(1)
+    t, obj, n_world, local = t_all[hi], obj_all[hi], n_all[hi], local_all[hi]
+    dirs = rays.dirs[hi]
     nan = float("nan")
-    X = torch.where(hit[:, None], rays.origin + torch.where(hit, t, torch.zeros_like(t))[:, None] * rays.dirs,
-                    torch.full((N, 3), nan, dtype=F64))
+    X = rays.origin + t[:, None] * dirs
     # normals face the camera (two-sided surfaces)
-    flip = (n_world * rays.dirs).sum(1) > 0
+    flip = (n_world * dirs).sum(1) > 0
     n_world = torch.where(flip[:, None], -n_world, n_world)
     Rc = torch.tensor(cam.R)
     points_cam = X @ Rc.T + torch.tensor(cam.t)
-    normals_cam = torch.where(hit[:, None], n_world @ Rc.T, torch.full((N, 3), nan, dtype=F64))
+    normals_cam = n_world @ Rc.T
     depth = points_cam[:, 2]
 
     with clock("projector coordinates"):
-        Xs = torch.where(hit[:, None], X, torch.zeros_like(X))
-        u_p, v_p, z_prj, xy_prj, in_field = project_to_projector(prj, Xs, prj_dist)
-        in_field = in_field & hit
+        u_p, v_p, z_prj, xy_prj, in_field = project_to_projector(prj, X, prj_dist)
     if not prj_dist:
         log.info("projector distortion: skipped (%s)", "zero coefficients" if eff.projector_distortion else "turned off")
     C_p = torch.tensor(prj.center_world)
-    to_p = C_p - Xs
+    to_p = C_p - X
     dist_p = torch.linalg.norm(to_p, dim=1)
     dir_p = to_p / dist_p.clamp(min=1e-12)[:, None]
     cos_p = (n_world * dir_p).sum(1)
-    facing = hit & (cos_p > 0)
+    facing = cos_p > 0
 
     with clock("shadows"):
         want = {"on": True, "off": False}.get(eff.shadows) if shadows is None else shadows
         needed, why = needs_shadow_pass(scene.objects)
-        shadow = torch.zeros(N, dtype=torch.bool)
+        shadow = torch.zeros(hi.numel(), dtype=torch.bool)
         if want is False:
             log.info("cast shadows: skipped (turned off)")
         elif not needed and want is None:
@@ -225,25 +252,24 @@ def compute_geometry(scene, *, shadows: bool | None = None, log=LOG) -> Geometry
     lit = in_field & facing & ~shadow
 
     with clock("shading"):
-        albedo = torch.zeros(N, dtype=F64)
-        cos_c = (n_world * rays.dirs).sum(1).abs()
-        footprint = torch.where(hit, t, torch.zeros_like(t)) / max(cam.fx, cam.fy) / torch.sqrt(cos_c.clamp(min=0.05))
+        albedo = torch.zeros(hi.numel(), dtype=F64)
+        cos_c = (n_world * dirs).sum(1).abs()
+        footprint = t / max(cam.fx, cam.fy) / torch.sqrt(cos_c.clamp(min=0.05))
         for i, o in enumerate(scene.objects):
             m = obj == i
-            m = m & hit
             if bool(m.any()):
                 albedo[m] = o.albedo(local[m], footprint[m])
         shade = cos_p.clamp(min=0) if eff.shading == "lambert" else torch.ones_like(cos_p)
         if eff.falloff:
             d_ref = eff.reference_distance_mm or float(np.linalg.norm(prj.center_world))
             shade = shade * (d_ref / dist_p.clamp(min=1e-9)) ** 2
-        vign = torch.ones(N, dtype=F64)
+        vign = torch.ones(hi.numel(), dtype=F64)
         if eff.vignetting > 0:
-            rx = torch.nan_to_num(rays.xy, nan=0.0)
+            rx = torch.nan_to_num(rays.xy[hi], nan=0.0)
             cos4 = 1.0 / (1.0 + (rx ** 2).sum(1)) ** 2
             vign = 1.0 - eff.vignetting * (1.0 - cos4)
         radiance_scale = torch.where(lit, eff.exposure * albedo * shade * vign, torch.zeros_like(albedo))
-        ambient_term = torch.where(hit, eff.exposure * eff.ambient * albedo * vign, torch.zeros_like(albedo))
+        ambient_term = eff.exposure * eff.ambient * albedo * vign
     if eff.vignetting == 0:
         log.info("vignetting: skipped (strength 0)")
     if eff.ambient == 0:
@@ -252,14 +278,17 @@ def compute_geometry(scene, *, shadows: bool | None = None, log=LOG) -> Geometry
     sigma_prj = sigma_cam = None
     if eff.projector_defocus is not None:
         z = torch.where(in_field, z_prj, torch.full_like(z_prj, eff.projector_defocus.focus_mm))
-        sigma_prj = torch.stack([defocus_sigma(eff.projector_defocus, prj.fx, z),
-                                 defocus_sigma(eff.projector_defocus, prj.fy, z)], 1)
+        sigma_prj = _scatter(torch.stack([defocus_sigma(eff.projector_defocus, prj.fx, z),
+                                          defocus_sigma(eff.projector_defocus, prj.fy, z)], 1), hi, N, 0.0)
     if eff.camera_defocus is not None:
-        z = torch.where(hit, depth, torch.full_like(depth, eff.camera_defocus.focus_mm))
-        sigma_cam = defocus_sigma(eff.camera_defocus, max(cam.fx, cam.fy), z)
-    nanv = torch.full_like(u_p, nan)
-    proj_ok = hit & (z_prj > 0)
-    return Geometry((W, H), hit, torch.where(hit, obj, torch.full_like(obj, -1)), depth, points_cam, normals_cam,
-                    torch.where(proj_ok, u_p, nanv), torch.where(proj_ok, v_p, nanv),
-                    torch.where(hit, z_prj, nanv), in_field, facing, shadow & hit, lit, albedo,
-                    radiance_scale, ambient_term, sigma_prj, sigma_cam, timings)
+        sigma_cam = _scatter(defocus_sigma(eff.camera_defocus, max(cam.fx, cam.fy), depth), hi, N, 0.0)
+    proj_ok = z_prj > 0
+    u_p = torch.where(proj_ok, u_p, torch.full_like(u_p, nan))
+    v_p = torch.where(proj_ok, v_p, torch.full_like(v_p, nan))
+    return Geometry((W, H), hit, _scatter(obj, hi, N, -1), _scatter(depth, hi, N, nan),
+                    _scatter(points_cam, hi, N, nan), _scatter(normals_cam, hi, N, nan),
+                    _scatter(u_p, hi, N, nan), _scatter(v_p, hi, N, nan), _scatter(z_prj, hi, N, nan),
+                    _scatter(in_field, hi, N, False), _scatter(facing, hi, N, False),
+                    _scatter(shadow, hi, N, False), _scatter(lit, hi, N, False), _scatter(albedo, hi, N, 0.0),
+                    _scatter(radiance_scale, hi, N, 0.0), _scatter(ambient_term, hi, N, 0.0),
+                    sigma_prj, sigma_cam, timings)

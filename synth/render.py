@@ -73,6 +73,38 @@ class RenderResult:
                 for o, fs in fringe_frequencies(patterns).items()}
 
 
+_CHUNK = 1 << 14  # lit pixels per chunk of the fused pattern + quantisation stage (72 x 16k float32 = 4.7 MB)
+
+
+def _quantised_stack(geometry, lit, idx, C, rows, other, p_other, K, eff) -> torch.Tensor:
+    """(K, N) quantised counts: unlit pixels hold their quantised ambient term; lit pixels the
+    patterns, computed and quantised chunk by chunk."""
+    N = geometry.lit.numel()
+    ambient = geometry.ambient_term.to(torch.float32)
+    base = quantise(ambient.clone(), eff.bits, eff.gain, eff.saturation)
+    out = base.expand(K, N).clone()
+    scale_lit = geometry.radiance_scale[lit]
+    amb_lit = ambient[lit]
+    for j in range(0, lit.numel(), _CHUNK):
+        sl = slice(j, j + _CHUNK)
+        vals = torch.empty((K, min(_CHUNK, lit.numel() - j)), dtype=torch.float32)
+        if idx:
+            chunk = torch.mm(C[:, 1:], rows[:, sl]).add_(amb_lit[sl])  # row 0 of C is the ambient's 1
+            if len(idx) == K:
+                vals = chunk
+            else:
+                vals[idx] = chunk
+        if other:
+            vals[other] = (scale_lit[sl] * p_other[:, sl]).to(torch.float32) + amb_lit[sl]
+        q = quantise(vals, eff.bits, eff.gain, eff.saturation)
+        first, last = int(lit[j]), int(lit[min(j + _CHUNK, lit.numel()) - 1])
+        if last - first + 1 == q.shape[1]:  # a run of consecutive pixels (lit is sorted): plain copy
+            out[:, first:last + 1] = q
+        else:
+            out.index_copy_(1, lit[sl], q)
+    return out
+
+
 def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry: Geometry | None = None,
            log=LOG) -> RenderResult:
     """Render every pattern of ``scene``. ``geometry`` reuses a previous geometry stage of the
@@ -103,54 +135,76 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
     u, v = geometry.u_p[lit], geometry.v_p[lit]
     psize = scene.system.projector.size
     N = W * H
+    if eff.camera_defocus is None:
+        plan.info("camera defocus: skipped (not asked for)")
+        cam_blur = False
+    elif geometry.sigma_cam is None or float(geometry.sigma_cam.max()) < 1e-3:
+        plan.info("camera defocus: skipped (every pixel in focus)")
+        cam_blur = False
+    else:
+        cam_blur = True
+    if eff.noise is None:
+        plan.info("sensor noise: skipped (not asked for)")
     # images = ambient + scale * p. Linear patterns: one matrix product (K, R) @ (R, N) over basis
     # rows [ambient, scale, scale*a*cos Phi, scale*a*sin Phi, ...] built in float64 and cast to
     # float32 (see synth.sensor); no per-pattern temporaries.
-    images = torch.empty((K, N), dtype=torch.float32)
     idx, coef, basis = linear_model(scene.patterns, u, v, psize, eff, sig)
-    if idx:
-        full = torch.zeros((basis.shape[0] + 1, N), dtype=torch.float32)
-        full[0] = geometry.ambient_term
-        full[1:, lit] = (geometry.radiance_scale[lit] * basis).to(torch.float32)
-        C = torch.cat([torch.ones((len(idx), 1), dtype=F64), coef], 1).to(torch.float32)
-        if idx == list(range(K)):
-            torch.mm(C, full, out=images)
-        else:
-            images[idx] = C @ full
+    C = torch.cat([torch.ones((len(idx), 1), dtype=F64), coef], 1).to(torch.float32)
+    rows = (geometry.radiance_scale[lit] * basis).to(torch.float32)  # (R, M) at lit pixels
     other = [k for k in range(K) if k not in set(idx)]
-    if other:
-        p = nonlinear_values(scene.patterns, other, u, v, psize, eff, sig, log=plan)
-        scale = geometry.radiance_scale[lit]
-        for i, k in enumerate(other):
-            images[k] = geometry.ambient_term
-            images[k].index_add_(0, lit, (scale * p[i]).to(torch.float32))
-    images = images.reshape(K, H, W)
-    timings["patterns"] = time.perf_counter() - t
+    p_other = nonlinear_values(scene.patterns, other, u, v, psize, eff, sig, log=plan) if other else None
     if lit.numel() == 0:
         plan.info("patterns: no camera pixel is lit by the projector (empty image apart from ambient light)")
-
-    t = time.perf_counter()
-    if eff.camera_defocus is None:
-        plan.info("camera defocus: skipped (not asked for)")
-    elif geometry.sigma_cam is None or float(geometry.sigma_cam.max()) < 1e-3:
-        plan.info("camera defocus: skipped (every pixel in focus)")
+    fused = quantised and not cam_blur and eff.noise is None and not keep_linear
+    if fused:
+        # nothing between the patterns and the quantiser acts across pixels: compute the lit
+        # pixels in cache-sized chunks and quantise them at once; unlit pixels hold ambient only
+        images = _quantised_stack(geometry, lit, idx, C, rows, other, p_other, K, eff)
+        timings["patterns"] = time.perf_counter() - t
+        plan.info("gain + quantisation: fused with the pattern stage (no camera defocus or noise in between)")
+        images = images.reshape(K, H, W)
+        linear = None
     else:
-        images = camera_defocus(images, geometry.sigma_cam.reshape(H, W), eff.camera_defocus.levels)
-        timings["camera defocus"] = time.perf_counter() - t
-    linear = images.clone() if keep_linear else None
+        full = torch.zeros((rows.shape[0] + 1, N), dtype=torch.float32)
+        full[0] = geometry.ambient_term
+        full[1:, lit] = rows
+        images = torch.empty((K, N), dtype=torch.float32)
+        nl = None
+        if other:
+            nl = geometry.ambient_term.to(torch.float32).repeat(len(other), 1)
+            nl[:, lit] += (geometry.radiance_scale[lit] * p_other).to(torch.float32)
+        timings["patterns"] = time.perf_counter() - t
+        if cam_blur:
+            # blur is linear and its per-pixel level weights too: blurring the R basis rows and
+            # combining them equals blurring the K images (R ~ K / 5 for fringe stacks)
+            t = time.perf_counter()
+            sigma = geometry.sigma_cam.reshape(H, W)
+            lv = eff.camera_defocus.levels
+            full = camera_defocus(full.reshape(-1, H, W), sigma, lv).reshape(-1, N)
+            if nl is not None:
+                nl = camera_defocus(nl.reshape(-1, H, W), sigma, lv).reshape(-1, N)
+            timings["camera defocus"] = time.perf_counter() - t
+        t = time.perf_counter()
+        if idx == list(range(K)):
+            torch.mm(C, full, out=images)
+        elif idx:
+            images[idx] = C @ full
+        if nl is not None:
+            images[other] = nl
+        images = images.reshape(K, H, W)
+        timings["patterns"] += time.perf_counter() - t
+        linear = images.clone() if keep_linear else None
 
-    t = time.perf_counter()
-    if eff.noise is None:
-        plan.info("sensor noise: skipped (not asked for)")
-    else:
-        gen = torch.Generator().manual_seed(int(eff.noise.seed))
-        images = add_noise(images, eff.noise, gen)
-        timings["noise"] = time.perf_counter() - t
-    t = time.perf_counter()
-    if quantised:
-        images = quantise(images, eff.bits, eff.gain, eff.saturation)
-        timings["gain + quantisation"] = time.perf_counter() - t
-    elif eff.gain != 1.0 or eff.saturation != 1.0:
-        images = (images * eff.gain).clamp(0, eff.saturation)
+        t = time.perf_counter()
+        if eff.noise is not None:
+            gen = torch.Generator().manual_seed(int(eff.noise.seed))
+            images = add_noise(images, eff.noise, gen)
+            timings["noise"] = time.perf_counter() - t
+        t = time.perf_counter()
+        if quantised:
+            images = quantise(images, eff.bits, eff.gain, eff.saturation)
+            timings["gain + quantisation"] = time.perf_counter() - t
+        elif eff.gain != 1.0 or eff.saturation != 1.0:
+            images = (images * eff.gain).clamp(0, eff.saturation)
     timings["total"] = time.perf_counter() - t0
     return RenderResult(images, [p.name for p in scene.patterns], geometry, plan.lines, timings, eff.bits, linear)

@@ -30,17 +30,18 @@ def camera_defocus(images: torch.Tensor, sigma: torch.Tensor, levels: int = 6) -
     out = torch.zeros((K, H * W), dtype=images.dtype)
     for k, blurred in enumerate(_blur_levels(images, [(float(s), float(s)) for s in lv])):
         wk = torch.where(i == k, 1 - w, torch.zeros_like(w)) + torch.where(i + 1 == k, w, torch.zeros_like(w))
-        m = wk > 0
-        if bool(m.any()):
-            out[:, m] += wk[m] * blurred.reshape(K, -1)[:, m]
+        if bool((wk > 0).any()):
+            out.addcmul_(blurred.reshape(K, -1), wk)  # dense: cheaper than gathering the pixels
     return out.reshape(K, H, W)
 
 
 def add_noise(images: torch.Tensor, noise, generator: torch.Generator) -> torch.Tensor:
     """Poisson-Gaussian noise in electrons, in place: ``e = value * full_well``; shot noise
-    exact (Poisson) below 50 electrons, its normal approximation N(e, e) above; plus N(0, read^2)."""
+    exact (Poisson) between 0 and 50 electrons, its normal approximation N(e, e) above; plus
+    N(0, read^2)."""
     e = images.clamp_(min=0).mul_(noise.full_well_e)
-    low = e < 50
+    # dark pixels (e = 0: unlit, shadowed) draw Poisson(0) = 0 exactly: read noise only
+    low = (e > 0) & (e < 50)
     z = torch.randn(e.shape, generator=generator, dtype=e.dtype)
     shot_low = torch.poisson(e[low].to(torch.float64), generator=generator).to(e.dtype) if bool(low.any()) else None
     std = (e + noise.read_noise_e ** 2).sqrt_()

@@ -63,7 +63,9 @@ def use_camera(obj, dev):
 
 
 def add_projector_light(dev, pattern=None, power_w=1.0, name="Projector"):
-    """The projector as a textured SPOT light; ``pattern`` is a path or a bpy image (or None)."""
+    """The projector as a textured SPOT light; ``pattern`` is an image path, a bpy image, a size
+    ``(W, H)`` (a blank float image for the caller to fill: ``light.data.node_tree`` holds it in its
+    Image Texture node) or None."""
     w, h = dev["resolution"]
     fx, fy, cx, cy = _intrinsics(dev)
     light = bpy.data.lights.new(name, type="SPOT")
@@ -94,7 +96,13 @@ def add_projector_light(dev, pattern=None, power_w=1.0, name="Projector"):
     tex.extension = "CLIP"
     tex.interpolation = "Linear"
     if pattern is not None:
-        image = bpy.data.images.load(pattern) if isinstance(pattern, str) else pattern
+        if isinstance(pattern, str):
+            image = bpy.data.images.load(pattern)
+        elif isinstance(pattern, (tuple, list)):  # (W, H): a blank float image, filled by the caller
+            image = bpy.data.images.new("pattern", int(pattern[0]), int(pattern[1]), float_buffer=True,
+                                        is_data=True)
+        else:
+            image = pattern
         image.colorspace_settings.name = "Non-Color"
         tex.image = image
     links = nt.links
