@@ -124,7 +124,7 @@ def run(args) -> int:
             paper = f"{cell['paper']:8.3f}" if cell.get("paper") else f"{'':8}"
             print(f"   {phase:44} {calib_name:34} {cell.get('linear', float('nan')):8.2f} "
                   f"{cell.get('distortion-aware', float('nan')):8.2f} {paper}")
-        print("   (linear: the paper's K[R|T] triangulation; ours: distortion-aware, joint rig)")
+        print("   (linear: the paper's K[R|T] triangulation; ours: distortion-aware triangulation)")
     print(f"   report: {summary['paths']['html']}")
     print(f"\ndemo done in {time.perf_counter() - t0:.1f} s; outputs in {out}/")
     return 0
