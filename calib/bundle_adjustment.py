@@ -87,7 +87,7 @@ class DeviceConfig:
                 raise BundleAdjustmentError(f"values: expected (name, value) pairs with a known name, got {item!r}")
             if not np.isfinite(float(item[1])):
                 raise BundleAdjustmentError(f"values: {item[0]} must be finite, got {item[1]!r}")
-            if item[0] in DISTORTION_NAMES[self.n_distortion:] or self.n_distortion == 0 and item[0] in DISTORTION_NAMES:
+            if item[0] in DISTORTION_NAMES[self.n_distortion:]:
                 raise BundleAdjustmentError(f"values: {item[0]} is not part of a {self.n_distortion}-term model")
 
     def value(self, name: str, start: float) -> float:

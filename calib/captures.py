@@ -55,7 +55,6 @@ class CaptureSession:
     - poses: [(name, folder)] one per board pose.
     - camera_size, projector_size: (W, H) px or None where the description does not say.
     - board_image: sources tried in order for the board detection.
-    - steps, frequencies: the fringe sets of the DESIGN.md layout (None for other presets).
     """
 
     folder: Path
@@ -67,8 +66,6 @@ class CaptureSession:
     camera_size: tuple | None
     projector_size: tuple | None
     board_image: tuple = BOARD_IMAGE_SOURCES
-    steps: list | None = None
-    frequencies: list | None = None
 
 
 def _size(meta, key, toml):
@@ -105,18 +102,17 @@ def read_session(folder, capture_toml=None) -> CaptureSession:
     if preset == "design" and capture_toml and Path(capture_toml).resolve() != (folder / "capture.toml").resolve():
         if not (folder / "capture.toml").exists():
             raise CaptureError(f"{folder}: the DESIGN.md layout keeps its capture.toml in the capture folder")
-    steps = freqs = None
     if preset == "design":
+        from unwrap.capture import read_design_pattern
+        from unwrap.errors import UnwrapError
+
+        if capture_toml and Path(capture_toml).resolve() != (folder / "capture.toml").resolve():
+            raise CaptureError(f"{capture_toml}: the DESIGN.md layout reads its frames' description from "
+                               f"{folder / 'capture.toml'}; --capture-toml is for other presets")
         try:
-            freqs = [float(f) for f in meta["pattern"]["frequencies"]]
-            steps = meta["pattern"]["steps"]
-        except KeyError as exc:
-            raise CaptureError(f"{toml}: missing key {exc} in [pattern] (steps, frequencies)") from None
-        steps = [int(steps)] * len(freqs) if isinstance(steps, int) else [int(s) for s in steps]
-        if len(steps) != len(freqs):
-            raise CaptureError(f"{toml}: [pattern] has {len(steps)} step counts for {len(freqs)} frequencies")
-        if any(s < 3 for s in steps):
-            raise CaptureError(f"{toml}: [pattern] steps must be >= 3 each, got {steps}")
+            read_design_pattern(toml)      # refuse a bad [pattern] now, not once per pose
+        except UnwrapError as exc:
+            raise CaptureError(str(exc)) from None
     if "poses" in cap:
         names = [str(p) for p in cap["poses"]]
     else:
@@ -132,22 +128,21 @@ def read_session(folder, capture_toml=None) -> CaptureSession:
         raise CaptureError(f"{toml}: [capture] board_image: unknown source(s) {bad}; "
                            f"expected a list from {BOARD_IMAGE_SOURCES}")
     return CaptureSession(folder, toml, board, preset, cap.get("method"), [(n, folder / n) for n in names],
-                          _size(meta, "camera", toml), _size(meta, "projector", toml), sources, steps, freqs)
+                          _size(meta, "camera", toml), _size(meta, "projector", toml), sources)
 
 
-def check_frames(session: CaptureSession, pose_dir: Path) -> None:
+def check_frames(cap, pose_dir: Path) -> None:
     """Refuse frames that the description does not account for (DESIGN.md layout): a frame
     ``v_f048_n12.png`` beside ``steps = 12`` means the step count is wrong, and decoding would
-    silently use the wrong shifts."""
-    if session.preset != "design":
+    silently use the wrong shifts. ``cap``: the pose's :class:`unwrap.capture.Capture`."""
+    if cap.preset != "design":
         return
-    expected = {f"{o}_f{int(round(f)):03d}_n{j:02d}"
-                for o in "vh" for f, n in zip(session.frequencies, session.steps) for j in range(n)}
+    expected = {Path(f).stem for oc in cap.orientations.values() for s in oc.sets for f in s.files}
     extra = sorted(p.name for p in pose_dir.glob("[vh]_f*_n*.*") if p.stem not in expected)
     if extra:
+        steps = [len(s.files) for s in cap.orientations[next(iter(cap.orientations))].sets]
         raise CaptureError(f"{pose_dir}: frame(s) {extra[:4]}{' ...' if len(extra) > 4 else ''} are not "
-                           f"described by [pattern] steps = {session.steps}, frequencies = "
-                           f"{[int(f) if f.is_integer() else f for f in session.frequencies]}: wrong step count?")
+                           f"described by capture.toml's [pattern] (steps = {steps}): wrong step count?")
 
 
 @dataclass
@@ -170,7 +165,7 @@ class PoseObservation:
     notes: list = field(default_factory=list)
     seconds: dict = field(default_factory=dict)
     image_size: tuple = (0, 0)
-    image: np.ndarray | None = None
+    image: np.ndarray | None = None     # float32 copy of the board image, for figures only
 
     def view(self) -> ViewObservations:
         return ViewObservations(self.points_board, {"camera": self.q_cam, "projector": self.q_prj},
@@ -199,12 +194,12 @@ def observe_pose(session: CaptureSession, name: str, pose_dir: Path, *, method: 
     if detector is None:
         from .detect import detect_board as detector
     say = progress or (lambda msg: None)
-    check_frames(session, pose_dir)
     t0 = time.perf_counter()
     if session.preset == "design":
         cap = load_capture(session.folder, "design", pose=name)
     else:
         cap = load_capture(pose_dir, session.preset)
+    check_frames(cap, pose_dir)
     method = method or session.method or cap.default_method
     missing = [o for o in ("v", "h") if o not in cap.orientations]
     if missing:
@@ -246,12 +241,13 @@ def observe_pose(session: CaptureSession, name: str, pose_dir: Path, *, method: 
         notes.append(f"projector pixels of {len(fit.reasons)} feature(s) not fitted: "
                      + "; ".join(f"id {det.ids[i]}: {m}" for i, m in list(fit.reasons.items())[:3])
                      + (" ..." if len(fit.reasons) > 3 else ""))
-    say(f"  {name}: board on {used}, {len(det.ids)} features, {int(fit.ok.sum())} with projector pixels, "
-        f"median sigma_prj {np.nanmedian(fit.sigma_point):.4f} px")
+    sigma = fit.sigma_point[fit.ok]
+    say(f"  {name}: board on {used}, {len(det.ids)} features, {int(fit.ok.sum())} with projector pixels"
+        + (f", median sigma_prj {np.median(sigma):.4f} px" if sigma.size else ""))
     return PoseObservation(name, np.asarray(det.ids), np.asarray(det.points_board, np.float64),
                            np.asarray(det.q, np.float64), fit.q_prj, fit.sigma_point, used, notes,
                            {"unwrap": t1 - t0, "detect": t2 - t1, "phase_fit": t3 - t2},
-                           (shape[1], shape[0]), image if keep_image else None)
+                           (shape[1], shape[0]), image.astype(np.float32) if keep_image else None)
 
 
 @dataclass
@@ -270,7 +266,8 @@ class CaptureObservations:
                 "poses_used": [p.name for p in self.poses], "poses_skipped": dict(self.skipped),
                 "features": {p.name: int(len(p.ids)) for p in self.poses},
                 "projector_points": {p.name: int(np.isfinite(p.q_prj).all(axis=1).sum()) for p in self.poses},
-                "median_sigma_prj_px": {p.name: float(np.nanmedian(p.sigma_prj)) for p in self.poses},
+                "median_sigma_prj_px": {p.name: float(np.median(p.sigma_prj[np.isfinite(p.sigma_prj)]))
+                                        if np.isfinite(p.sigma_prj).any() else None for p in self.poses},
                 "board_image": {p.name: p.board_image for p in self.poses},
                 "notes": {p.name: p.notes for p in self.poses if p.notes},
                 "seconds": {"total": self.seconds,
@@ -282,8 +279,6 @@ def observations_from_captures(folder, *, capture_toml=None, method=None, strict
                                min_poses: int = 3, detector=None, degree: int = 2, keep_images: bool = False,
                                progress=None) -> CaptureObservations:
     """Every pose of a capture folder -> :class:`CaptureObservations` (see the module docstring)."""
-    from unwrap.errors import UnwrapError
-
     say = progress or (lambda msg: None)
     t0 = time.perf_counter()
     session = read_session(folder, capture_toml)
@@ -295,7 +290,7 @@ def observations_from_captures(folder, *, capture_toml=None, method=None, strict
         try:
             poses.append(observe_pose(session, name, pose_dir, method=method, detector=detector, degree=degree,
                                       keep_image=keep_images, progress=say))
-        except (CaptureError, UnwrapError, FileNotFoundError, ValueError) as exc:
+        except (ValueError, OSError) as exc:     # CaptureError, UnwrapError, DetectionError, missing files
             if strict:
                 raise CaptureError(f"pose {name}: {exc}") from None
             skipped[name] = str(exc)

@@ -106,7 +106,6 @@ def _fit_one(dx, dy, values, weights, degree, reject_sigma, min_pixels):
         mad = 1.4826 * float(np.median(np.abs(r_all[keep])))
         scale = max(mad, 1e-12)
         new_keep = np.abs(r_all) <= reject_sigma * scale
-        new_keep &= weights > 0
         if np.array_equal(new_keep, keep):
             break
         keep = new_keep

@@ -277,3 +277,18 @@ def test_jointly_adjusted_rig_with_distortion_aware_triangulation_beats_40um(dp_
     # and the sphere is the 25.4 mm-radius standard ball (radius from the same fit)
     _, r, _ = fit_sphere(X[ok])
     assert 25.0 < r < 26.0
+
+
+def test_parameters_fixed_at_given_values_stay_there_and_the_rest_is_estimated():
+    from calib.bundle_adjustment import BundleAdjustmentError
+
+    obs, _ = _paper_like_obs(9)
+    cfg = BAConfig(camera=DeviceConfig(5, values=(("cx", 312.5), ("k3", 0.0))), outlier_threshold=None)
+    cal = run_calibration(obs, cfg)
+    assert cal.system.camera.cx == 312.5 and cal.system.camera.distortion[4] == 0.0
+    assert "camera.cx" not in cal.ba.std and "camera.k3" not in cal.ba.std      # fixed: no uncertainty
+    assert np.isfinite(cal.ba.std["camera.fx"]) and cal.ba.std["camera.fx"] > 0
+    with pytest.raises(BundleAdjustmentError, match="not part of a 4-term model"):
+        DeviceConfig(4, values=(("k3", 0.0),))
+    with pytest.raises(BundleAdjustmentError, match="known name"):
+        DeviceConfig(5, values=(("cz", 1.0),))

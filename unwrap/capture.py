@@ -113,10 +113,18 @@ def load_capture(folder, preset: str | None = None, pose: str | None = None) -> 
             "kamino": _kamino}[preset](folder, pose)
 
 
-def _design(folder: Path, pose) -> Capture:
-    toml = folder / "capture.toml"
+def design_frame_stem(orientation: str, frequency: float, step: int) -> str:
+    """File name (without extension) of a DESIGN.md frame, e.g. ``v_f048_n05``."""
+    return f"{orientation}_f{int(round(frequency)):03d}_n{step:02d}"
+
+
+def read_design_pattern(toml) -> tuple:
+    """``[pattern]`` and ``[projector]`` of a DESIGN.md ``capture.toml``: (frequencies (list of
+    float), steps (list of int, one per frequency), projector size (W, H)). UnwrapError names a
+    missing or inconsistent key."""
+    toml = Path(toml)
     if not toml.exists():
-        raise FileNotFoundError(f"{folder}: capture.toml missing (DESIGN.md layout)")
+        raise FileNotFoundError(f"{toml.parent}: capture.toml missing (DESIGN.md layout)")
     meta = tomllib.loads(toml.read_text())
     try:
         freqs = [float(v) for v in meta["pattern"]["frequencies"]]
@@ -128,6 +136,15 @@ def _design(folder: Path, pose) -> Capture:
     steps = [int(steps)] * len(freqs) if isinstance(steps, int) else [int(s) for s in steps]
     if len(steps) != len(freqs):
         raise UnwrapError(f"{toml}: {len(steps)} step counts for {len(freqs)} frequencies")
+    if any(n < 3 for n in steps):
+        raise UnwrapError(f"{toml}: [pattern] steps must be >= 3 each, got {steps}")
+    return freqs, steps, (W, H)
+
+
+def _design(folder: Path, pose) -> Capture:
+    toml = folder / "capture.toml"
+    freqs, steps, (W, H) = read_design_pattern(toml)
+    meta = tomllib.loads(toml.read_text())
     frames_dir = folder
     if pose is not None:
         frames_dir = folder / pose
@@ -142,11 +159,12 @@ def _design(folder: Path, pose) -> Capture:
         for f, n in zip(freqs, steps):
             files, missing = [], []
             for j in range(n):
-                hits = sorted(frames_dir.glob(f"{o}_f{int(round(f)):03d}_n{j:02d}.*"))
+                stem = design_frame_stem(o, f, j)
+                hits = sorted(frames_dir.glob(f"{stem}.*"))
                 if hits:
                     files.append(hits[0])
                 else:
-                    missing.append(f"{o}_f{int(round(f)):03d}_n{j:02d}")
+                    missing.append(stem)
             if len(files) == 0:
                 break
             if missing:
