@@ -281,7 +281,18 @@ def solve(problem: BAProblem) -> BAResult:
     # pixel residuals of every point (unweighted)
     r_plain, _ = ev(theta, R0, np.ones(P), jacobian=False)
     res_px = np.stack([r_plain[0::2], r_plain[1::2]], axis=1) * problem.point_sigma[:, None]
+    res_given_camera = None
+    if problem.transfer_link is not None:
+        # projector rows hold r_prj - A r_cam: add the camera part back for the plain reprojection error
+        linked = problem.transfer_link >= 0
+        res_given_camera = res_px[linked].copy()
+        res_px[linked] += np.einsum("kij,kj->ki", problem.transfer_A[linked], res_px[problem.transfer_link[linked]])
     stats = {d: _stats(res_px, (problem.point_device == d) & inlier) for d in devices}
+    if res_given_camera is not None:
+        m = inlier[linked]
+        stats["projector"]["rms_given_camera_px"] = (float(np.sqrt(np.mean(res_given_camera[m] ** 2)))
+                                                     if m.any() else None)
+        stats["projector"]["n_transferred"] = int(linked.sum())
     stats["views"] = []
     for i, v in enumerate(problem.obs.views):
         entry = {"view": i, "name": v.name}

@@ -24,6 +24,18 @@ the decision variable, reset to 0 after every accepted step (a manifold update),
 linearisation and the covariance are in the local tangent space (radians) and never meet the
 singularity of rotation vectors at 0 or pi.
 
+Camera error transfer (joint mode, on by default where the observations carry ``dprj_dcam``).
+A projector pixel is not measured independently of the camera: it is the decoded projector
+coordinate read at the camera's detected feature, so a camera detection error ``e`` moves it by
+``A e`` with ``A = d q_prj / d q_cam`` (the local gradient from the phase fit). Writing
+``r_cam = q_cam(theta) - q_cam_obs`` (error ``-e``) and ``r_prj = q_prj(theta) - q_prj_obs``
+(error ``-A e - eps``), the projector residual used is ``r_prj - A r_cam`` (error ``-eps``, the
+phase error alone), whitened by the phase fit's sigma. This block-triangular change of the
+residuals is exactly generalised least squares with the correlated covariance of the two
+observations; without it the projector residuals repeat the camera's detection errors and the
+covariance treats them as independent. Reported pixel residuals and RMS stay the plain
+reprojection errors; ``stats["projector"]["rms_given_camera_px"]`` is the transferred one.
+
 Board warp (optional, as mrcal's): ``z += c_x (1 - xn^2) + c_y (1 - yn^2)`` with ``xn, yn`` the
 board coordinates scaled to [-1, 1] over the point extent; ``c`` in mm.
 
@@ -114,6 +126,7 @@ class BAConfig:
     loss_scale: float = 3.0            # in normalised units (sigma of a point)
     outlier_threshold: float | None = 5.0   # robust sigmas; None: no rejection
     reweight_devices: bool = True      # two devices: weight each by its own residual RMS
+    camera_error_transfer: bool = True  # joint: projector residual r_prj - A r_cam (module docstring)
     max_iterations: int = 300
     tolerance: float = 1e-15           # relative cost decrease that counts as converged
     progress: object = None            # callable(str) or None
@@ -220,6 +233,8 @@ class BAProblem:
     point_view: np.ndarray
     point_id: np.ndarray
     build_seconds: float
+    transfer_link: np.ndarray | None = None   # (P,) camera point index of each transferred projector point, -1
+    transfer_A: np.ndarray | None = None      # (P, 2, 2) d q_prj / d q_cam of those points (0 elsewhere)
 
     def param_index(self, name: str) -> int:
         return self.names.index(name)
@@ -307,6 +322,10 @@ def build_problem(obs, start: RigState, config: BAConfig) -> BAProblem:
     mid = (allX[:, :2].max(0) + allX[:, :2].min(0)) / 2
     residuals = []
     kpt = 0
+    transfer = config.mode == "joint" and config.camera_error_transfer
+    transfer_link = np.full(n_points, -1, dtype=np.int64)
+    transfer_A = np.zeros((n_points, 2, 2))
+    cam_rows = {}   # view -> (points (Nc,), first point index, raw residual rows ru (1,Nc), rv (1,Nc))
     for b in blocks:
         d, i, pts = b["device"], b["view"], b["points"]
         v = obs.views[i]
@@ -331,8 +350,27 @@ def build_problem(obs, start: RigState, config: BAConfig) -> BAProblem:
         u = fx * xd + s * yd + cx
         vv = fy * yd + cy
         ww = sqrt_w[kpt:kpt + len(pts)].T
-        ru = ww * (u - ca.DM(q_obs[:, 0]).T) / ca.DM(s_pt).T
-        rv = ww * (vv - ca.DM(q_obs[:, 1]).T) / ca.DM(s_pt).T
+        raw_u = u - ca.DM(q_obs[:, 0]).T
+        raw_v = vv - ca.DM(q_obs[:, 1]).T
+        if d == "camera":
+            cam_rows[i] = (pts, kpt, raw_u, raw_v)
+        elif transfer and i in cam_rows and v.dprj_dcam is not None:
+            c_pts, c_k0, c_u, c_v = cam_rows[i]
+            where = {int(p_): k for k, p_ in enumerate(c_pts)}
+            A = v.dprj_dcam[pts]
+            cols = np.array([where.get(int(p_), -1) for p_ in pts])
+            linked = (cols >= 0) & np.all(np.isfinite(A), axis=(1, 2))
+            if linked.any():
+                A = np.where(linked[:, None, None], A, 0.0)
+                cols = np.where(linked, cols, 0)
+                e_u, e_v = c_u[:, cols.tolist()], c_v[:, cols.tolist()]
+                raw_u = raw_u - (ca.DM(A[:, 0, 0]).T * e_u + ca.DM(A[:, 0, 1]).T * e_v)
+                raw_v = raw_v - (ca.DM(A[:, 1, 0]).T * e_u + ca.DM(A[:, 1, 1]).T * e_v)
+                k_idx = kpt + np.flatnonzero(linked)
+                transfer_link[k_idx] = c_k0 + cols[linked]
+                transfer_A[k_idx] = A[linked]
+        ru = ww * raw_u / ca.DM(s_pt).T
+        rv = ww * raw_v / ca.DM(s_pt).T
         residuals.append(ca.reshape(ca.vertcat(ru, rv), -1, 1))
         kpt += len(pts)
     r = ca.vertcat(*residuals)
@@ -342,4 +380,6 @@ def build_problem(obs, start: RigState, config: BAConfig) -> BAProblem:
     R0 = {pn: np.array(start.poses[pn][0], float) for pn in pose_names}
     return BAProblem(config, obs, names, np.array(theta0), np.array(free), F, pose_names, pose_index,
                      blocks, R0, n_points, np.concatenate(sig), np.array(pdev), np.array(pview),
-                     np.concatenate(pid), time.perf_counter() - t0)
+                     np.concatenate(pid), time.perf_counter() - t0,
+                     transfer_link if (transfer_link >= 0).any() else None,
+                     transfer_A if (transfer_link >= 0).any() else None)

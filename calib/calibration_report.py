@@ -126,6 +126,10 @@ def summary_table(cal: Calibration) -> str:
             s = cal.ba.stats[d]
             nrej = sum(1 for r in cal.ba.rejected if r["device"] == d)
             lines.append(f"{d:<12}{s['n']:>8}{s['rms_px']:>10.4f}{s['max_px']:>10.4f}{nrej:>10}")
+    g = cal.ba.stats.get("projector", {}).get("rms_given_camera_px")
+    if g is not None:
+        lines.append(f"projector pixels given the camera's (camera error transfer, "
+                     f"{cal.ba.stats['projector']['n_transferred']} points): RMS {g:.4f} px")
     t = cal.timings
     lines.append("")
     lines.append(f"time: init {t['init_s']:.3f} s, build {t['build_s']:.3f} s, solve {t['solve_s']:.3f} s, "

@@ -166,11 +166,12 @@ class PoseObservation:
     seconds: dict = field(default_factory=dict)
     image_size: tuple = (0, 0)
     image: np.ndarray | None = None     # float32 copy of the board image, for figures only
+    dprj_dcam: np.ndarray | None = None  # (N, 2, 2) d q_prj / d q_cam from the phase fit
 
     def view(self) -> ViewObservations:
         return ViewObservations(self.points_board, {"camera": self.q_cam, "projector": self.q_prj},
                                 {"projector": np.where(np.isfinite(self.sigma_prj), self.sigma_prj, 1.0)},
-                                self.ids, self.name)
+                                self.ids, self.name, self.dprj_dcam)
 
 
 def _board_image(source, white_path, results):
@@ -247,7 +248,8 @@ def observe_pose(session: CaptureSession, name: str, pose_dir: Path, *, method: 
     return PoseObservation(name, np.asarray(det.ids), np.asarray(det.points_board, np.float64),
                            np.asarray(det.q, np.float64), fit.q_prj, fit.sigma_point, used, notes,
                            {"unwrap": t1 - t0, "detect": t2 - t1, "phase_fit": t3 - t2},
-                           (shape[1], shape[0]), image.astype(np.float32) if keep_image else None)
+                           (shape[1], shape[0]), image.astype(np.float32) if keep_image else None,
+                           fit.dq_prj_dq_cam)
 
 
 @dataclass

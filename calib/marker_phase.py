@@ -55,6 +55,9 @@ class ProjectorPointFit:
     - rms_px: (N, 2) weighted RMS residual of the local fit, projector px.
     - ok: (N,) bool, both coordinates fitted.
     - reasons: {index: message} for each failed feature.
+    - dq_prj_dq_cam: (N, 2, 2) gradient of the fitted projector coordinates at the feature,
+      ``[[du_p/dx, du_p/dy], [dv_p/dx, dv_p/dy]]`` (projector px per camera px; NaN where failed):
+      how an error in the camera pixel carries into the projector pixel read there.
     """
 
     q_prj: np.ndarray
@@ -64,6 +67,7 @@ class ProjectorPointFit:
     rms_px: np.ndarray
     ok: np.ndarray
     reasons: dict = field(default_factory=dict)
+    dq_prj_dq_cam: np.ndarray | None = None
 
     @property
     def sigma_point(self) -> np.ndarray:
@@ -83,7 +87,8 @@ def _design_matrix(dx: np.ndarray, dy: np.ndarray, degree: int) -> np.ndarray:
 
 def _fit_one(dx, dy, values, weights, degree, reject_sigma, min_pixels):
     """Weighted polynomial fit of ``values`` at offsets (dx, dy) (px, already scaled); returns
-    (value at 0, standard error, n used, n rejected, weighted rms) or a failure string."""
+    (value at 0, standard error, n used, n rejected, weighted rms, gradient at 0 (2,) per scaled
+    unit) or a failure string."""
     keep = np.ones(len(values), bool)
     n_terms = N_TERMS[degree]
     for _ in range(3):
@@ -114,7 +119,7 @@ def _fit_one(dx, dy, values, weights, degree, reject_sigma, min_pixels):
     # s2 is the variance of a unit-weight residual; weights are normalised to mean 1 by the caller
     sigma = float(np.sqrt(s2 * cov_unit[0, 0]))
     rms = float(np.sqrt(np.sum(r_all[keep] ** 2) / np.sum(weights[keep])))
-    return float(coef[0]), sigma, int(keep.sum()), int(len(values) - keep.sum()), rms
+    return float(coef[0]), sigma, int(keep.sum()), int(len(values) - keep.sum()), rms, coef[1:3].copy()
 
 
 def fit_projector_points(q_cam, u_map, v_map, *, valid_u=None, valid_v=None, weight_u=None, weight_v=None,
@@ -185,6 +190,7 @@ def fit_projector_points(q_cam, u_map, v_map, *, valid_u=None, valid_v=None, wei
     n_pix = np.zeros((n, 2), int)
     n_rej = np.zeros((n, 2), int)
     rms = np.full((n, 2), np.nan)
+    grad = np.full((n, 2, 2), np.nan)
     reasons = {}
     for i, (x, y) in enumerate(q_cam):
         if not (np.isfinite(x) and np.isfinite(y)):
@@ -216,10 +222,11 @@ def fit_projector_points(q_cam, u_map, v_map, *, valid_u=None, valid_v=None, wei
             if isinstance(out, str):
                 reasons[i] = f"{name}_p: {out} within {r:.1f} px of ({x:.1f}, {y:.1f})"
                 continue
-            q_prj[i, j], sigma[i, j], n_pix[i, j], n_rej[i, j], rms[i, j] = out
+            q_prj[i, j], sigma[i, j], n_pix[i, j], n_rej[i, j], rms[i, j], g = out
+            grad[i, j] = g / r
     cols = [j for j, name in enumerate(("u", "v")) if name in maps]
     ok_all = np.all(np.isfinite(q_prj[:, cols]), axis=1)
-    return ProjectorPointFit(q_prj, sigma, n_pix, n_rej, rms, ok_all, reasons)
+    return ProjectorPointFit(q_prj, sigma, n_pix, n_rej, rms, ok_all, reasons, grad)
 
 
 def window_radii(q_cam, feature_px, *, fraction_of_spacing: float = 0.45, inner_factor: float = 1.6,

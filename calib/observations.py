@@ -12,7 +12,13 @@ Observation JSON schema (documented in docs/calib.md)::
                 "points_board": [[x, y, 0], ...],          # mm, board frame
                 "q_cam": [[u, v], ...] | null,              # px; null entries = not seen
                 "q_prj": [[u, v], ...] | null,
-                "sigma_cam": [s, ...] (optional, px), "sigma_prj": [s, ...] (optional, px)}]}
+                "sigma_cam": [s, ...] (optional, px), "sigma_prj": [s, ...] (optional, px),
+                "dprj_dcam": [[[du/dx, du/dy], [dv/dx, dv/dy]] | null, ...] (optional)}]}
+
+``dprj_dcam`` is the local derivative of the projector pixel read at a camera pixel with respect
+to that camera pixel (projector px per camera px, from the phase fit around the feature). With
+it, the adjustment knows that a camera detection error ``e`` moves the projector pixel by
+``dprj_dcam @ e`` (see ``calib.bundle_adjustment``, "camera error transfer").
 """
 from __future__ import annotations
 
@@ -49,6 +55,7 @@ class ViewObservations:
     - q: {"camera": (N, 2), "projector": (N, 2)} pixels, NaN rows = not observed.
     - sigma: same keys, (N,) px standard deviation per point (default 1: equal weights).
     - ids: (N,) int feature ids (board numbering), for reports.
+    - dprj_dcam: optional (N, 2, 2) ``d q_prj / d q_cam`` at each feature (NaN rows: unknown).
     """
 
     points_board: np.ndarray
@@ -56,6 +63,7 @@ class ViewObservations:
     sigma: dict = field(default_factory=dict)
     ids: np.ndarray | None = None
     name: str = ""
+    dprj_dcam: np.ndarray | None = None
 
     def __post_init__(self):
         label = self.name or "view"
@@ -83,6 +91,15 @@ class ViewObservations:
             sig[dev] = s
         self.sigma = sig
         self.ids = np.arange(n) if self.ids is None else np.asarray(self.ids, dtype=int)
+        if self.dprj_dcam is not None:
+            try:
+                g = np.asarray(self.dprj_dcam, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise ObservationError(f"{label}.dprj_dcam: cannot be read as numbers") from None
+            if g.shape != (n, 2, 2):
+                raise ObservationError(f"{label}.dprj_dcam: expected shape ({n}, 2, 2), got {g.shape}")
+            g = np.where(np.all(np.isfinite(g), axis=(1, 2))[:, None, None], g, np.nan)
+            self.dprj_dcam = g
 
     def seen(self, device: str) -> np.ndarray:
         """(N,) bool: points this device observed."""
@@ -171,7 +188,10 @@ def read_observations_json(path) -> Observations:
                 q[dev] = np.array([[np.nan, np.nan] if p is None else p for p in v[f"q_{short}"]], float)
                 if v.get(f"sigma_{short}") is not None:
                     sig[dev] = v[f"sigma_{short}"]
-        views.append(ViewObservations(v.get("points_board", []), q, sig, v.get("ids"), name))
+        g = v.get("dprj_dcam")
+        if g is not None:
+            g = [[[np.nan] * 2] * 2 if e is None else e for e in g]
+        views.append(ViewObservations(v.get("points_board", []), q, sig, v.get("ids"), name, g))
     return Observations(views, sizes, source=str(path))
 
 
@@ -185,6 +205,8 @@ def write_observations_json(obs: Observations, path) -> Path:
             if dev in v.q:
                 e[f"q_{short}"] = [None if not np.all(np.isfinite(p)) else p.tolist() for p in v.q[dev]]
                 e[f"sigma_{short}"] = v.sigma[dev].tolist()
+        if v.dprj_dcam is not None:
+            e["dprj_dcam"] = [None if not np.all(np.isfinite(g)) else g.tolist() for g in v.dprj_dcam]
         out["views"].append(e)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -40,9 +40,33 @@ def board_poses_world(n_views: int, rng, *, tilt_deg=(15.0, 35.0), shift_mm: flo
     return poses
 
 
+def projector_pixels_at_camera_pixels(system, R_world_board, t_world_board, q_cam):
+    """Where the projector lights the board point seen at camera pixels ``q_cam`` (N, 2): the
+    camera ray of each pixel met with the board plane, projected by the projector. What a phase
+    decoder reads at those camera pixels, noise-free. Returns (N, 2) projector px (NaN where the
+    ray misses the plane or the lens cannot be inverted)."""
+    origin, d, ok = system.camera.rays_world(q_cam)
+    n = R_world_board[:, 2]
+    denom = d @ n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = ((t_world_board - origin) @ n) / denom
+    ok = ok & np.isfinite(s) & (s > 0)
+    Xw = origin + s[:, None] * d
+    out = system.projector.project(np.where(ok[:, None], Xw, 0.0))
+    out[~ok] = np.nan
+    return out
+
+
 def simulate_observations(system, board, n_views: int, noise_px, rng, *, tilt_deg=(15.0, 35.0),
-                          poses=None, noise_prj_px=None):
+                          poses=None, noise_prj_px=None, projector_from_camera: bool = False):
     """Observations of ``board`` by both devices of ``system`` and the true board -> camera poses.
+
+    ``projector_from_camera`` False: both devices observe the board points independently
+    (Gaussian noise ``noise_px`` / ``noise_prj_px``). True: as a phase-shifting system measures
+    them: the camera pixel carries the detector's error (``noise_px``) and the projector pixel is
+    read at that detected camera pixel (``projector_pixels_at_camera_pixels``) with a phase error
+    ``noise_prj_px`` of its own, so the camera error carries into the projector pixel; the views
+    then hold ``dprj_dcam``, the exact local derivative of that read-out (central differences).
 
     RETURNED VALUE: (Observations, list of (R_cam_board, t_cam_board)).
     """
@@ -53,15 +77,25 @@ def simulate_observations(system, board, n_views: int, noise_px, rng, *, tilt_de
     for i, (Rwb, twb) in enumerate(poses):
         Xw = X @ Rwb.T + twb
         q = {}
+        grad = None
         for d, dev, s in (("camera", system.camera, noise_px), ("projector", system.projector, noise_prj_px)):
-            p = dev.project(Xw)
+            if d == "projector" and projector_from_camera:
+                qc = np.where(np.isfinite(q["camera"]), q["camera"], 0.0)
+                p = projector_pixels_at_camera_pixels(system, Rwb, twb, qc)
+                h_px = 1e-3
+                grad = np.stack([(projector_pixels_at_camera_pixels(system, Rwb, twb, qc + [h_px * (j == 0), h_px * (j == 1)])
+                                  - projector_pixels_at_camera_pixels(system, Rwb, twb, qc - [h_px * (j == 0), h_px * (j == 1)]))
+                                 / (2 * h_px) for j in range(2)], axis=2)
+                p[~np.isfinite(q["camera"][:, 0])] = np.nan
+            else:
+                p = dev.project(Xw)
             p = p + rng.normal(0.0, s, p.shape) if s > 0 else p
             w, h = dev.size
             out = ~((p[:, 0] > -0.5) & (p[:, 0] < w - 0.5) & (p[:, 1] > -0.5) & (p[:, 1] < h - 0.5))
             p[out] = np.nan
             q[d] = p
         sig = {"camera": np.full(len(X), 1.0), "projector": np.full(len(X), 1.0)}
-        views.append(ViewObservations(X, q, sig, name=f"pose_{i:02d}"))
+        views.append(ViewObservations(X, q, sig, name=f"pose_{i:02d}", dprj_dcam=grad))
         Rc, tc = system.camera.R, system.camera.t
         truth.append((Rc @ Rwb, Rc @ twb + tc))
     return Observations(views, {"camera": system.camera.size, "projector": system.projector.size},

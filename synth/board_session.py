@@ -64,11 +64,34 @@ def capture_toml(board: BoardSpec, steps, frequencies, camera_size, projector_si
     return "\n".join(lines)
 
 
+def pose_jitter(n_poses: int, rotation_deg: float, translation_mm: float, seed: int) -> list:
+    """``n_poses`` random rigid perturbations ``(R (3,3), t (3,) mm)`` of the board -> world pose:
+    rotation about a uniformly random axis by an angle uniform in [0, ``rotation_deg``] degrees,
+    translation uniform in the cube [-``translation_mm``, ``translation_mm``]^3. Models placing
+    the board again by hand for a repeated session (the detector's pixel-phase dependent centre
+    errors are then drawn anew, as in a real re-capture)."""
+    if not (rotation_deg >= 0 and translation_mm >= 0) or not np.isfinite(rotation_deg + translation_mm):
+        raise SynthError(f"pose jitter: expected finite values >= 0, got {rotation_deg!r} deg, {translation_mm!r} mm")
+    from calib.rotation import matrix_from_rotvec
+
+    rng = np.random.default_rng([int(seed), 7919])
+    out = []
+    for _ in range(n_poses):
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        angle = np.radians(rng.uniform(0.0, rotation_deg))
+        out.append((matrix_from_rotvec(axis * angle), rng.uniform(-translation_mm, translation_mm, 3)))
+    return out
+
+
 def render_board_session(out_dir, system=None, *, steps: int = 12, frequencies=(1, 8, 48), n_poses: int = 9,
                          bits: int = 8, seed: int = 0, noise: Noise | None = Noise(), board: BoardSpec = BoardSpec(),
-                         effects: Effects | None = None, truth_h5: bool = False, progress=None) -> dict:
+                         effects: Effects | None = None, truth_h5: bool = False, jitter=None,
+                         progress=None) -> dict:
     """Render the session into ``out_dir`` (capture.toml, pose_XX/*.png, truth.json); returns
-    the truth dictionary. ``noise`` None renders noise-free; its seed is offset per pose."""
+    the truth dictionary. ``noise`` None renders noise-free; its seed is offset per pose.
+    ``jitter`` ``(rotation_deg, translation_mm)`` perturbs every board pose at random
+    (``pose_jitter``, drawn from ``seed``): a repeated session with the board placed again."""
     from calib.io.calibration_json import system_to_dict
     from calib.system import default_system
 
@@ -82,19 +105,23 @@ def render_board_session(out_dir, system=None, *, steps: int = 12, frequencies=(
     poses, visible, timings = [], [], []
     Rc, tc = system.camera.R, system.camera.t
     pts = board.points_board()
+    perturb = pose_jitter(n_poses, *jitter, seed) if jitter is not None else None
     for i, (rx, ry) in enumerate(session_tilts(n_poses, seed)):
         t0 = time.perf_counter()
         R_wb = rotation_xyz_deg([rx, ry, 0.0])
+        t_wb = np.zeros(3)
+        if perturb is not None:
+            R_wb, t_wb = perturb[i][0] @ R_wb, perturb[i][1].copy()
         eff = replace(base, noise=replace(noise, seed=int(noise.seed) + 1000 * int(seed) + i) if noise else None)
-        scene = Scene(system, [Board("board", R_wb, np.zeros(3), board)], patterns, eff, name=f"pose_{i:02d}")
+        scene = Scene(system, [Board("board", R_wb, t_wb, board)], patterns, eff, name=f"pose_{i:02d}")
         result = render(scene)
         pose_dir = out_dir / f"pose_{i:02d}"
         write_pngs(result, pose_dir)
         if truth_h5:
             write_truth_h5(result, scene, pose_dir / "truth.h5")
         R_cb = Rc @ R_wb
-        poses.append({"R": R_cb.tolist(), "t": tc.tolist(), "tilt_deg": [rx, ry, 0.0]})
-        q = system.camera.project(pts @ R_wb.T)
+        poses.append({"R": R_cb.tolist(), "t": (Rc @ t_wb + tc).tolist(), "tilt_deg": [rx, ry, 0.0]})
+        q = system.camera.project(pts @ R_wb.T + t_wb)
         W, H = system.camera.size
         visible.append(int(np.sum((q[:, 0] >= 0) & (q[:, 0] <= W - 1) & (q[:, 1] >= 0) & (q[:, 1] <= H - 1))))
         timings.append(time.perf_counter() - t0)
@@ -108,6 +135,7 @@ def render_board_session(out_dir, system=None, *, steps: int = 12, frequencies=(
     truth.update({"board_poses": poses, "board": board.capture_toml_table(),
                   "board_points_in_view": visible, "pattern": {"steps": int(steps), "frequencies": freqs},
                   "effects": base.to_dict(), "noise": None if noise is None else vars(noise) if hasattr(noise, "__dict__") else str(noise),
-                  "seed": int(seed), "render_seconds": timings})
+                  "seed": int(seed), "jitter": None if jitter is None else [float(j) for j in jitter],
+                  "render_seconds": timings})
     (out_dir / "truth.json").write_text(json.dumps(truth, indent=1, default=str) + "\n")
     return truth

@@ -192,3 +192,40 @@ def test_capture_description_errors_name_the_key(tmp_path):
                                            "[pattern]\nsteps = 4\n")
     with pytest.raises(CaptureError, match="frequencies"):
         read_session(tmp_path)
+
+
+def test_camera_detection_error_carries_into_the_projector_pixel_as_the_fit_gradient_predicts(session):
+    """A phase-shifting projector pixel is read at the detected camera pixel: a detection error e
+    moves it by dprj_dcam @ e. With 0.05 px of camera error (more than the phase fit's ~0.001 px),
+    the projector pixel errors are explained by the fitted gradient down to the phase fit's own
+    standard error, and that gradient equals the exact derivative of the read-out."""
+    from calib.simulate import projector_pixels_at_camera_pixels
+
+    detect, system, truth = truth_detector(session, camera_noise_px=0.05)
+    exact, _, _ = truth_detector(session)
+    co = observations_from_captures(session, detector=detect)
+    Rc, tc = system.camera.R, system.camera.t
+    raw, explained, sig, grad_err = [], [], [], []
+    for i, p in enumerate(co.poses):
+        q_cam_true = exact(np.zeros((480, 640)), co.session.board).q
+        pose = truth["board_poses"][i]
+        R_wb = Rc.T @ np.asarray(pose["R"])
+        t_wb = Rc.T @ (np.asarray(pose["t"]) - tc)
+        e_cam = p.q_cam - q_cam_true
+        q_prj_true = projector_pixels_at_camera_pixels(system, R_wb, t_wb, q_cam_true)
+        A = p.dprj_dcam
+        assert A.shape == (len(p.ids), 2, 2) and np.isfinite(A).all()
+        h = 1e-3
+        A_exact = np.stack([(projector_pixels_at_camera_pixels(system, R_wb, t_wb, q_cam_true + [h * (j == 0), h * (j == 1)])
+                             - projector_pixels_at_camera_pixels(system, R_wb, t_wb, q_cam_true - [h * (j == 0), h * (j == 1)]))
+                            / (2 * h) for j in range(2)], axis=2)
+        grad_err.append(np.abs(A - A_exact).max() / np.abs(A_exact).max())
+        raw.append(p.q_prj - q_prj_true)
+        explained.append(p.q_prj - q_prj_true - np.einsum("kij,kj->ki", A, e_cam))
+        sig.append(p.sigma_prj)
+    raw, explained, sig = np.concatenate(raw), np.concatenate(explained), np.concatenate(sig)
+    rms = lambda a: float(np.sqrt(np.mean(a ** 2)))
+    print(f"gradient rel. error {max(grad_err):.2e}; projector error RMS raw {rms(raw):.5f} px, after A e {rms(explained):.5f} px, predicted {rms(sig):.5f} px")
+    assert max(grad_err) < 2e-3, grad_err
+    assert rms(raw) > 20 * rms(sig), (rms(raw), rms(sig))          # the camera error dominates the raw read-out
+    assert rms(explained) < 1.6 * rms(sig), (rms(explained), rms(sig))  # and the gradient explains it
