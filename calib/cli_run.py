@@ -51,6 +51,10 @@ def add_arguments(p):
     p.add_argument("--outlier-threshold", type=float, default=5.0,
                    help="reject points beyond this many robust sigmas (0: keep all)")
     p.add_argument("--board-warp", action="store_true", help="estimate a 2-parameter board warp (mrcal's)")
+    p.add_argument("--no-camera-error-transfer", action="store_true",
+                   help="treat projector pixels as independent of the camera's detection errors (default: "
+                        "model how a camera error moves the projector pixel read there, where the "
+                        "observations carry dprj_dcam)")
     p.add_argument("--skew-tol", type=float, default=0.01, help="px; see calib.io.mrcal_model")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
 
@@ -135,7 +139,7 @@ def run(args) -> int:
             projector=DeviceConfig(args.projector_distortion if args.projector_distortion is not None
                                    else args.distortion, args.skew, tuple(fixed["projector"]),
                                    tuple(values["projector"])),
-            board_warp=args.board_warp, loss=args.loss, loss_scale=args.loss_scale,
+            board_warp=args.board_warp, camera_error_transfer=not args.no_camera_error_transfer, loss=args.loss, loss_scale=args.loss_scale,
             outlier_threshold=args.outlier_threshold or None, progress=progress)
     except BundleAdjustmentError as exc:
         print(f"calib run: error: {exc}", file=sys.stderr)

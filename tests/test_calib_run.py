@@ -340,3 +340,16 @@ def test_with_camera_error_transfer_the_predicted_sigma_is_the_spread_over_repea
     assert ratio0["prj_cam.t2"] < 0.7
     assert cal0.ba.stats["projector"].get("rms_given_camera_px") is None
     assert cal0.ba.stats["projector"]["rms_px"] > 5 * cal.ba.stats["projector"]["rms_given_camera_px"]
+
+
+def test_observation_json_keeps_the_camera_to_projector_gradient(tmp_path):
+    s = default_system()
+    obs, _ = simulate_observations(s, Board("checkerboard", 5, 7, 20.0), 3, 0.05, np.random.default_rng(3),
+                                   noise_prj_px=0.01, projector_from_camera=True)
+    back = read_observations_json(write_observations_json(obs, tmp_path / "obs.json"))
+    for a, b in zip(obs.views, back.views):
+        assert np.array_equal(np.isfinite(a.dprj_dcam), np.isfinite(b.dprj_dcam))
+        assert np.allclose(a.dprj_dcam[np.isfinite(a.dprj_dcam)], b.dprj_dcam[np.isfinite(b.dprj_dcam)], rtol=0, atol=0)
+    with pytest.raises(ObservationError, match="dprj_dcam"):
+        from calib.observations import ViewObservations
+        ViewObservations(obs.views[0].points_board, obs.views[0].q, dprj_dcam=np.zeros((3, 2)))

@@ -6,6 +6,7 @@ import tomllib
 import cv2
 import h5py
 import numpy as np
+import pytest
 
 from calib.cli import main
 
@@ -83,3 +84,36 @@ def test_calib_render_board_writes_the_capture_layout_with_truth(tmp_path):
     R = np.array(truth["board_poses"][1]["R"])
     assert np.allclose(R @ R.T, np.eye(3), atol=1e-12)
     assert truth["board_poses"][1]["tilt_deg"] == [10.0, 0.0, 0.0]
+
+
+def test_pose_jitter_places_the_board_again_within_its_bounds_and_is_reproducible():
+    from calib.rotation import rotvec_from_matrix
+    from synth.board_session import pose_jitter
+    from synth.errors import SynthError
+
+    a = pose_jitter(50, 1.0, 5.0, seed=3)
+    b = pose_jitter(50, 1.0, 5.0, seed=3)
+    c = pose_jitter(50, 1.0, 5.0, seed=4)
+    angles = np.degrees([np.linalg.norm(rotvec_from_matrix(R)) for R, _ in a])
+    shifts = np.array([t for _, t in a])
+    assert angles.max() <= 1.0 + 1e-12 and angles.max() > 0.8
+    assert np.abs(shifts).max() <= 5.0 and np.abs(shifts).max() > 4.0
+    assert all(np.array_equal(Ra, Rb) and np.array_equal(ta, tb) for (Ra, ta), (Rb, tb) in zip(a, b))
+    assert not np.allclose(shifts, np.array([t for _, t in c]))
+    with pytest.raises(SynthError, match="jitter"):
+        pose_jitter(2, -1.0, 5.0, seed=0)
+
+
+def test_jittered_session_truth_poses_are_where_the_board_was_rendered(tmp_path):
+    from synth.board_session import pose_jitter, render_board_session
+    from synth.poses import rotation_xyz_deg
+    from calib import default_system
+
+    out = tmp_path / "s"
+    truth = render_board_session(out, steps=3, frequencies=(1,), n_poses=2, seed=5, jitter=(1.0, 5.0), noise=None)
+    s = default_system()
+    for i, (Rj, tj) in enumerate(pose_jitter(2, 1.0, 5.0, 5)):
+        R_wb = Rj @ rotation_xyz_deg(truth["board_poses"][i]["tilt_deg"])
+        assert np.allclose(truth["board_poses"][i]["R"], s.camera.R @ R_wb, atol=1e-12)
+        assert np.allclose(truth["board_poses"][i]["t"], s.camera.R @ tj + s.camera.t, atol=1e-9)
+    assert truth["jitter"] == [1.0, 5.0]
