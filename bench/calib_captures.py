@@ -101,14 +101,33 @@ def spread_interval(draws: int, level: float = 0.90) -> tuple[float, float]:
     return float(np.sqrt(chi2.ppf(a, dof) / dof)), float(np.sqrt(chi2.ppf(1 - a, dof) / dof))
 
 
-def spread_table(truth_system, work: Path, draws: int, out=sys.stdout, *, jitter=(1.0, 5.0)) -> dict:
+def spread_table(truth_system, work: Path, draws: int, out=sys.stdout, *, jitter=(1.0, 5.0), save=None) -> dict:
     """Repeat the paper's session ``draws`` times (new sensor noise; with ``jitter`` every board
     pose placed again at random, ``synth.board_session.pose_jitter``) and compare the spread of
     each intrinsic's estimate with its mean predicted sigma. Returns {parameter: spread / sigma}
-    plus ``"_pooled_rms_z"``: the RMS of (estimate - truth) / sigma over all draws and intrinsics."""
+    plus ``"_pooled_rms_z"``: the RMS of (estimate - truth) / sigma over all draws and intrinsics.
+    ``save``: a JSON-lines file; draws already in it (same seed and jitter) are reused, new ones
+    appended, so a long run can be resumed."""
+    import json
+
+    done = {}
+    if save is not None and Path(save).exists():
+        for line in Path(save).read_text().splitlines():
+            r = json.loads(line)
+            if r.get("jitter") == (list(jitter) if jitter else None):
+                done[r["seed"]] = r
     runs = []
     for k in range(draws):
-        runs.append(one_session(truth_system, work, seed=100 + k, jitter=jitter))
+        seed = 100 + k
+        if seed in done:
+            runs.append(done[seed])
+            continue
+        r = one_session(truth_system, work, seed=seed, jitter=jitter)
+        r.update(seed=seed, jitter=list(jitter) if jitter else None)
+        runs.append(r)
+        if save is not None:
+            with open(save, "a") as f:
+                f.write(json.dumps(r) + "\n")
         print(f"draw {k + 1}/{draws}: max |z| {runs[-1]['max_z']:.2f}, RMS cam/prj "
               f"{runs[-1]['rms']['camera']:.4f}/{runs[-1]['rms']['projector']:.4f} px", file=sys.stderr, flush=True)
     what = ("sensor noise and board poses (jitter: rotation <= %g deg, translation <= %g mm per pose)" % tuple(jitter)
@@ -144,6 +163,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--draws", type=int, default=10, help="noise draws of the spread table (default 10)")
     ap.add_argument("--only", choices=("cost", "spread"), help="run one table only")
+    ap.add_argument("--save", metavar="JSONL", help="keep every draw in this file and reuse it when run again")
     ap.add_argument("--jitter", type=float, nargs=2, default=(1.0, 5.0), metavar=("DEG", "MM"),
                     help="per-draw random board pose perturbation (default 1 deg, 5 mm; 0 0: noise only)")
     args = ap.parse_args(argv)
@@ -153,7 +173,8 @@ def main(argv=None) -> int:
         if args.only in (None, "cost"):
             cost_table(truth, work)
         if args.only in (None, "spread"):
-            spread_table(truth, work, args.draws, jitter=tuple(args.jitter) if any(args.jitter) else None)
+            spread_table(truth, work, args.draws, jitter=tuple(args.jitter) if any(args.jitter) else None,
+                         save=args.save)
     print("\n(2-core CPU; times are wall-clock seconds of this run)")
     return 0
 
