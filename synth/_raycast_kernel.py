@@ -1,0 +1,240 @@
+"""numba engine of :func:`synth.raycast.nearest_hits` for CPU tensors (imported only when numba is
+installed).
+
+The same algorithm and contract as the torch engine (see ``synth.raycast``): rays ``(x, y, 1)``
+leave the device centre; each triangle is projected into the normalised image plane and binned
+by the cells of its bounding box (a triangle with a vertex on or behind the plane ``z = NEAR_Z``
+gets the whole grid, one wholly behind is dropped); the exact float64 Moeller-Trumbore test, with
+the torch engine's operations and thresholds, decides. Ray-centric instead of pair-centric: every
+grid cell that holds rays gets the list of triangles whose box covers it, then the cells run in
+parallel (``prange``), each ray keeping its nearest hit, so no (triangle, ray) pair is ever
+stored. Ties (the same depth on two triangles, e.g. a shared edge) go to the lower triangle
+index.
+
+Memory: the per-ray outputs, the rays sorted by cell (8 bytes a ray), per-cell offsets (16 bytes
+a grid cell; the grid spans the rays' extent in cells, at most ``max(4 N, 2**20)`` cells: rays
+spread wider get coarser cells) and at most ``max_refs`` (triangle,
+cell) references at once (8 bytes each: 2**22 references = 32 MB by default); a larger mesh is
+processed in chunks of triangles, whatever its size.
+"""
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+_JIT = dict(cache=True, error_model="numpy", nogil=True)
+
+
+@nb.njit(**_JIT)
+def _sort_rays(xy, cell, gx0, gy0, nx, ny):
+    """Counting sort of the finite rays by grid cell: (cell_start (nx*ny+1,), rays_sorted)."""
+    n_cells = nx * ny
+    counts = np.zeros(n_cells + 1, dtype=np.int64)
+    cid = np.full(xy.shape[0], -1, dtype=np.int64)
+    for i in range(xy.shape[0]):
+        x = xy[i, 0]
+        y = xy[i, 1]
+        if math.isfinite(x) and math.isfinite(y):
+            c = (int(math.floor(y / cell)) - gy0) * nx + (int(math.floor(x / cell)) - gx0)
+            cid[i] = c
+            counts[c + 1] += 1
+    for c in range(n_cells):
+        counts[c + 1] += counts[c]
+    fill = counts[:-1].copy()
+    rays_sorted = np.empty(counts[n_cells], dtype=np.int64)
+    for i in range(xy.shape[0]):
+        c = cid[i]
+        if c >= 0:
+            rays_sorted[fill[c]] = i
+            fill[c] += 1
+    return counts, rays_sorted
+
+
+@nb.njit(**_JIT)
+def _triangle_boxes(tri, cell, gx0, gy0, nx, ny, near_z):
+    """Cell boxes (T,4) [bx0, by0, bx1, by1] of the triangles, bx0 = -1 for a dropped triangle."""
+    T = tri.shape[0]
+    box = np.empty((T, 4), dtype=np.int64)
+    for t in range(T):
+        n_behind = 0
+        for k in range(3):
+            if tri[t, k, 2] <= near_z:
+                n_behind += 1
+        if n_behind == 3:
+            box[t, 0] = -1
+            continue
+        if n_behind > 0:  # crosses the device plane: its projection is unbounded
+            box[t, 0] = 0
+            box[t, 1] = 0
+            box[t, 2] = nx - 1
+            box[t, 3] = ny - 1
+            continue
+        px0 = tri[t, 0, 0] / tri[t, 0, 2]
+        py0 = tri[t, 0, 1] / tri[t, 0, 2]
+        xmin = px0
+        xmax = px0
+        ymin = py0
+        ymax = py0
+        for k in range(1, 3):
+            px = tri[t, k, 0] / tri[t, k, 2]
+            py = tri[t, k, 1] / tri[t, k, 2]
+            xmin = min(xmin, px)
+            xmax = max(xmax, px)
+            ymin = min(ymin, py)
+            ymax = max(ymax, py)
+        lx = int(math.floor(xmin / cell)) - gx0
+        ly = int(math.floor(ymin / cell)) - gy0
+        hx = int(math.floor(xmax / cell)) - gx0
+        hy = int(math.floor(ymax / cell)) - gy0
+        if hx < 0 or hy < 0 or lx >= nx or ly >= ny:
+            box[t, 0] = -1
+            continue
+        box[t, 0] = max(lx, 0)
+        box[t, 1] = max(ly, 0)
+        box[t, 2] = min(hx, nx - 1)
+        box[t, 3] = min(hy, ny - 1)
+    return box
+
+
+@nb.njit(**_JIT)
+def _fill_refs(box, t_begin, t_end, ray_start, nx, ref_start, refs):
+    """Per grid cell with rays, the triangles of [t_begin, t_end) whose box covers it (CSR)."""
+    n_cells = ref_start.shape[0] - 1
+    ref_start[:] = 0
+    for t in range(t_begin, t_end):
+        if box[t, 0] < 0:
+            continue
+        for cy in range(box[t, 1], box[t, 3] + 1):
+            for cx in range(box[t, 0], box[t, 2] + 1):
+                c = cy * nx + cx
+                if ray_start[c + 1] > ray_start[c]:
+                    ref_start[c + 1] += 1
+    for c in range(n_cells):
+        ref_start[c + 1] += ref_start[c]
+    fill = ref_start[:-1].copy()
+    for t in range(t_begin, t_end):
+        if box[t, 0] < 0:
+            continue
+        for cy in range(box[t, 1], box[t, 3] + 1):
+            for cx in range(box[t, 0], box[t, 2] + 1):
+                c = cy * nx + cx
+                if ray_start[c + 1] > ray_start[c]:
+                    refs[fill[c]] = t
+                    fill[c] += 1
+
+
+@nb.njit(parallel=True, **_JIT)
+def _trace_cells(tri, xy, cells, ray_start, rays_sorted, ref_start, refs, near_z, s_best, tri_best, bary):
+    """Every ray of every listed cell against the cell's triangles: nearest hit kept."""
+    for j in nb.prange(cells.shape[0]):
+        c = cells[j]
+        r0 = ref_start[c]
+        r1 = ref_start[c + 1]
+        if r1 == r0:
+            continue
+        for k in range(ray_start[c], ray_start[c + 1]):
+            r = rays_sorted[k]
+            dx = xy[r, 0]
+            dy = xy[r, 1]
+            dz = 1.0
+            dn = math.sqrt(dx * dx + dy * dy + dz * dz)
+            sb = s_best[r]
+            tb = tri_best[r]
+            b1b = bary[r, 0]
+            b2b = bary[r, 1]
+            for m in range(r0, r1):
+                t = refs[m]
+                v0x = tri[t, 0, 0]
+                v0y = tri[t, 0, 1]
+                v0z = tri[t, 0, 2]
+                e1x = tri[t, 1, 0] - v0x
+                e1y = tri[t, 1, 1] - v0y
+                e1z = tri[t, 1, 2] - v0z
+                e2x = tri[t, 2, 0] - v0x
+                e2y = tri[t, 2, 1] - v0y
+                e2z = tri[t, 2, 2] - v0z
+                # pvec = d x e2
+                px = dy * e2z - dz * e2y
+                py = dz * e2x - dx * e2z
+                pz = dx * e2y - dy * e2x
+                det = e1x * px + e1y * py + e1z * pz
+                scale = (math.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+                         * math.sqrt(e2x * e2x + e2y * e2y + e2z * e2z) * dn)
+                if not abs(det) > 1e-12 * scale:  # in the triangle's plane, or degenerate
+                    continue
+                inv = 1.0 / det
+                tx = -v0x
+                ty = -v0y
+                tz = -v0z
+                b1 = (tx * px + ty * py + tz * pz) * inv
+                # qvec = tvec x e1
+                qx = ty * e1z - tz * e1y
+                qy = tz * e1x - tx * e1z
+                qz = tx * e1y - ty * e1x
+                b2 = (dx * qx + dy * qy + dz * qz) * inv
+                s = (e2x * qx + e2y * qy + e2z * qz) * inv
+                if (b1 >= -1e-12 and b2 >= -1e-12 and b1 + b2 <= 1.0 + 1e-12 and s > near_z
+                        and (s < sb or (s == sb and t < tb))):
+                    sb = s
+                    tb = t
+                    b1b = b1
+                    b2b = b2
+            s_best[r] = sb
+            tri_best[r] = tb
+            bary[r, 0] = b1b
+            bary[r, 1] = b2b
+
+
+@nb.njit(**_JIT)
+def _chunk_end(box, t_begin, max_refs):
+    """Largest end such that triangles [t_begin, end) have at most max_refs box cells (>= 1)."""
+    total = 0
+    t = t_begin
+    while t < box.shape[0]:
+        n = 0
+        if box[t, 0] >= 0:
+            n = (box[t, 2] - box[t, 0] + 1) * (box[t, 3] - box[t, 1] + 1)
+        if total + n > max_refs and t > t_begin:
+            break
+        total += n
+        t += 1
+    return t
+
+
+def nearest_hits_numba(tri: np.ndarray, xy: np.ndarray, cell: float, near_z: float, max_refs: int):
+    """numpy twin of ``synth.raycast.nearest_hits``: (s (N,), tri_index (N,), bary (N,2))."""
+    N = xy.shape[0]
+    s_best = np.full(N, np.inf)
+    tri_best = np.full(N, -1, dtype=np.int64)
+    bary = np.zeros((N, 2))
+    finite = np.isfinite(xy).all(axis=1)
+    if tri.shape[0] == 0 or not finite.any():
+        return s_best, tri_best, bary
+    g = np.floor(xy[finite] / cell)
+    gx0, gy0 = int(g[:, 0].min()), int(g[:, 1].min())
+    nx, ny = int(g[:, 0].max()) - gx0 + 1, int(g[:, 1].max()) - gy0 + 1
+    grid_limit = max(4 * N, 1 << 20)
+    if nx * ny > grid_limit:  # rays spread far apart: coarser cells bound the grid (binning stays exact)
+        cell *= math.ceil(math.sqrt(nx * ny / grid_limit))
+        g = np.floor(xy[finite] / cell)
+        gx0, gy0 = int(g[:, 0].min()), int(g[:, 1].min())
+        nx, ny = int(g[:, 0].max()) - gx0 + 1, int(g[:, 1].max()) - gy0 + 1
+    ray_start, rays_sorted = _sort_rays(xy, cell, gx0, gy0, nx, ny)
+    box = _triangle_boxes(tri, cell, gx0, gy0, nx, ny, near_z)
+    cells = np.flatnonzero(np.diff(ray_start) > 0).astype(np.int64)
+    ref_start = np.empty(nx * ny + 1, dtype=np.int64)
+    refs = np.empty(max_refs, dtype=np.int64)
+    t_begin = 0
+    while t_begin < tri.shape[0]:
+        t_end = _chunk_end(box, t_begin, max_refs)
+        if t_end == t_begin + 1:  # one triangle alone: its box may exceed max_refs (grid-wide)
+            n = 0 if box[t_begin, 0] < 0 else int((box[t_begin, 2] - box[t_begin, 0] + 1)
+                                                  * (box[t_begin, 3] - box[t_begin, 1] + 1))
+            if n > refs.size:
+                refs = np.empty(n, dtype=np.int64)
+        _fill_refs(box, t_begin, t_end, ray_start, nx, ref_start, refs)
+        _trace_cells(tri, xy, cells, ray_start, rays_sorted, ref_start, refs, near_z, s_best, tri_best, bary)
+        t_begin = t_end
+    return s_best, tri_best, bary
