@@ -70,6 +70,11 @@ class SceneObject:
     def intersect(self, rays: Rays) -> Hits:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def distance(self, rays: Rays) -> torch.Tensor:
+        """(N,) distance along each unit ray to the nearest hit (inf: none), e.g. for shadow
+        rays; objects override it when they can skip the normals and object-frame points."""
+        return self.intersect(rays).t
+
     def describe(self) -> dict:
         return {"name": self.name, "kind": self.kind, "R": self.R.tolist(), "t": self.t.tolist()}
 
@@ -191,7 +196,8 @@ class Mesh(SceneObject):
     def n_triangles(self) -> int:
         return int(self.tri.shape[0])
 
-    def intersect(self, rays: Rays) -> Hits:
+    def _tri_dev(self, rays: Rays) -> torch.Tensor:
+        """The triangles in the rays' device frame (cached for the last device pose)."""
         key = (rays.key, tuple(rays.R_dev_world.reshape(-1).tolist()), tuple(rays.t_dev_world.tolist()))
         tri_dev = self._cache.get(key)
         if tri_dev is None:
@@ -199,7 +205,14 @@ class Mesh(SceneObject):
             t_dev_obj = rays.R_dev_world @ self.t + rays.t_dev_world
             tri_dev = self.tri @ R_dev_obj.T + t_dev_obj
             self._cache = {key: tri_dev}
-        s, idx, bary = nearest_hits(tri_dev, rays.xy, rays.cell)
+        return tri_dev
+
+    def distance(self, rays: Rays) -> torch.Tensor:
+        s, idx, _ = nearest_hits(self._tri_dev(rays), rays.xy, rays.cell)
+        return torch.where(idx >= 0, s * torch.sqrt(1.0 + (rays.xy ** 2).sum(1)), torch.full_like(s, float("inf")))
+
+    def intersect(self, rays: Rays) -> Hits:
+        s, idx, bary = nearest_hits(self._tri_dev(rays), rays.xy, rays.cell)
         hit = idx >= 0
         ray_len = torch.sqrt(1.0 + (rays.xy ** 2).sum(1))
         t = torch.where(hit, s * ray_len, torch.full_like(s, float("inf")))
