@@ -13,7 +13,7 @@ import torch
 
 from .boards import BoardSpec
 from .errors import SynthError
-from .raycast import nearest_hits, triangle_areas
+from .raycast import nearest_hits, numba_engine_available, triangle_areas
 
 F64 = torch.float64
 
@@ -213,6 +213,8 @@ class Mesh(SceneObject):
 
     def intersect(self, rays: Rays) -> Hits:
         s, idx, bary = nearest_hits(self._tri_dev(rays), rays.xy, rays.cell)
+        if rays.xy.device.type == "cpu" and numba_engine_available():
+            return self._hits_numba(rays, s, idx, bary)
         hit = idx >= 0
         ray_len = torch.sqrt(1.0 + (rays.xy ** 2).sum(1))
         t = torch.where(hit, s * ray_len, torch.full_like(s, float("inf")))
@@ -226,6 +228,21 @@ class Mesh(SceneObject):
         o, d = self._to_local(rays)
         local = o + torch.where(hit, t, torch.zeros_like(t))[:, None] * d
         return Hits(t, n_obj @ self.R.T, local)
+
+    def _hits_numba(self, rays: Rays, s, idx, bary) -> Hits:
+        """The torch post-processing below in one fused pass (CPU tensors)."""
+        from ._raycast_kernel import mesh_hits
+
+        N = s.shape[0]
+        t = torch.empty(N, dtype=F64)
+        n_world = torch.empty((N, 3), dtype=F64)
+        local = torch.empty((N, 3), dtype=F64)
+        o_local = (rays.origin - self.t) @ self.R
+        normals = self.vertex_normal if self.smooth else self.face_normal
+        c = lambda x: x.detach().contiguous().numpy()  # noqa: E731
+        mesh_hits(c(s), c(idx), c(bary), c(rays.xy), c(rays.dirs), c(o_local), c(self.R), c(self.F),
+                  c(normals), self.smooth, t.numpy(), n_world.numpy(), local.numpy())
+        return Hits(t, n_world, local)
 
     def describe(self):
         return {**super().describe(), "triangles": self.n_triangles, "dropped_degenerate": self.dropped_degenerate,

@@ -141,3 +141,25 @@ def test_rays_spread_far_apart_get_a_bounded_grid_and_the_same_hits():
     s, i, _ = nearest_hits(tri, xy, 1e-3, engine="numba")
     assert i.tolist() == [0, 0, -1, 0]
     assert torch.allclose(s[i >= 0], torch.full((3,), 10.0, dtype=torch.float64), rtol=1e-15)
+
+
+@pytest.mark.parametrize("smooth", [True, False])
+def test_fused_mesh_hit_pass_equals_the_torch_post_processing(smooth, monkeypatch):
+    import synth.objects as objects
+    from synth import Mesh, blobs_heights, heightfield_mesh
+    from synth.geometry import camera_rays
+
+    from synth_helpers import small_system
+
+    V, F = heightfield_mesh(blobs_heights((220, 170), (60, 60), 10, 8.0, 20.0, 0), (220, 170))
+    R = np.array([[1.0, 0, 0], [0, 0.8, -0.6], [0, 0.6, 0.8]])
+    mesh = Mesh("relief", R, [5, -3, -40], V, F, smooth=smooth)
+    rays, _ = camera_rays(small_system(4).camera, True)
+    a = mesh.intersect(rays)
+    monkeypatch.setattr(objects, "numba_engine_available", lambda: False)
+    b = mesh.intersect(rays)
+    h = torch.isfinite(b.t)
+    assert int(h.sum()) > 1000 and torch.equal(torch.isfinite(a.t), h)
+    assert float(((a.t[h] - b.t[h]) / b.t[h]).abs().max()) <= 1e-15
+    assert float((a.normal[h] - b.normal[h]).abs().max()) <= 1e-15
+    assert float((a.local - b.local).abs().max()) <= 1e-12
