@@ -6,16 +6,16 @@ stay straight, and tested only against the rays whose normalised coordinates fal
 its bounding box. The exact Moeller-Trumbore test then decides, in float64.
 
 Two engines, one contract: tensors on the CPU go to the numba engine ``synth._raycast_kernel``
-(ray-centric: per grid cell the list of triangles covering it, cells in parallel; when numba is
-installed), others (GPU) to the torch engine below (pair-centric). Both use the same binning and
-the same float64 Moeller-Trumbore operations and thresholds; they agree on depth to 1e-12
-relative and on the triangle index except at exact ties (a ray through a shared edge), where the
-numba engine takes the lower index and the torch engine either (tests/test_synth_raycast.py).
+(triangle-major within bands of grid rows, the bands in parallel; when numba is installed),
+others (GPU) to the torch engine below (pair-centric). Both use the same binning and the same
+float64 Moeller-Trumbore operations and thresholds; they agree on depth to 1e-12 relative and on
+the triangle index except at exact ties (a ray through a shared edge), where the numba engine
+takes the lower index and the torch engine either (tests/test_synth_raycast.py).
 
 Memory is bounded whatever the mesh size: the torch engine processes triangles in chunks holding
 at most ``max_pairs`` (triangle, ray) candidate pairs (default 2**19; about 150 MB of
-temporaries); the numba engine holds at most ``max_refs`` (triangle, cell) references (default
-2**22, 32 MB) plus 16 bytes per grid cell and ~40 bytes per ray.
+temporaries); the numba engine stores no pairs at all (~56 bytes a ray, 8 a grid cell, ~90 a
+triangle; see its module).
 
 Frames: the triangles are given in the device frame (mm), rays are ``(x, y, 1)`` with ``(x, y)``
 undistorted normalised coordinates; the returned ``s`` is the device-frame depth ``z`` of the hit
@@ -45,7 +45,7 @@ def numba_engine_available() -> bool:
 
 
 def nearest_hits(tri_dev: torch.Tensor, xy: torch.Tensor, cell: float, *,
-                 max_pairs: int = 1 << 19, max_refs: int = 1 << 22,
+                 max_pairs: int = 1 << 19,
                  engine: str = "auto") -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Nearest hit of each ray ``(x, y, 1)`` among triangles ``tri_dev``.
 
@@ -54,7 +54,6 @@ def nearest_hits(tri_dev: torch.Tensor, xy: torch.Tensor, cell: float, *,
     - xy: (N,2) float64 normalised ray coordinates (non-finite rows never hit).
     - cell: binning cell size in normalised units (about one pixel: 1/focal length).
     - max_pairs: torch engine: bound on candidate pairs held at once (memory bound).
-    - max_refs: numba engine: bound on (triangle, cell) references held at once.
     - engine: "auto" (numba for CPU tensors when installed, else torch), "numba" or "torch".
 
     RETURNED VALUE: ``(s, tri_index, bary)``: depth (N,) (inf where no hit), triangle index (N,)
@@ -69,7 +68,7 @@ def nearest_hits(tri_dev: torch.Tensor, xy: torch.Tensor, cell: float, *,
         from ._raycast_kernel import nearest_hits_numba
         s, idx, bary = nearest_hits_numba(
             tri_dev.detach().to(torch.float64).contiguous().numpy(),
-            xy.detach().to(torch.float64).contiguous().numpy(), float(cell), NEAR_Z, int(max_refs))
+            xy.detach().to(torch.float64).contiguous().numpy(), float(cell), NEAR_Z)
         return torch.from_numpy(s), torch.from_numpy(idx), torch.from_numpy(bary)
     return _nearest_hits_torch(tri_dev, xy, cell, max_pairs)
 
