@@ -201,28 +201,57 @@ def _trace_bands(pre, xy, dn, box, band_start, band_tris, rows_per_band, ray_sta
                             bary[r, 1] = b2
 
 
+@nb.njit(**_JIT)
+def _extent(xy, cell):
+    """(n_finite, gx0, gy0, gx1, gy1): the finite rays' range of cells."""
+    n = 0
+    gx0 = gy0 = np.iinfo(np.int64).max
+    gx1 = gy1 = np.iinfo(np.int64).min
+    for i in range(xy.shape[0]):
+        x = xy[i, 0]
+        y = xy[i, 1]
+        if math.isfinite(x) and math.isfinite(y):
+            n += 1
+            gx = int(math.floor(x / cell))
+            gy = int(math.floor(y / cell))
+            gx0 = min(gx0, gx)
+            gx1 = max(gx1, gx)
+            gy0 = min(gy0, gy)
+            gy1 = max(gy1, gy)
+    return n, gx0, gy0, gx1, gy1
+
+
+@nb.njit(parallel=True, **_JIT)
+def _init_rays(xy, dn, s_best, tri_best, bary):
+    """Ray lengths ``|(x, y, 1)|`` and empty nearest-hit records."""
+    for i in nb.prange(xy.shape[0]):
+        dn[i] = math.sqrt(xy[i, 0] * xy[i, 0] + xy[i, 1] * xy[i, 1] + 1.0)
+        s_best[i] = math.inf
+        tri_best[i] = -1
+        bary[i, 0] = 0.0
+        bary[i, 1] = 0.0
+
+
 def nearest_hits_numba(tri: np.ndarray, xy: np.ndarray, cell: float, near_z: float):
     """numpy twin of ``synth.raycast.nearest_hits``: (s (N,), tri_index (N,), bary (N,2))."""
     N = xy.shape[0]
-    s_best = np.full(N, np.inf)
-    tri_best = np.full(N, -1, dtype=np.int64)
-    bary = np.zeros((N, 2))
-    finite = np.isfinite(xy).all(axis=1)
-    if tri.shape[0] == 0 or not finite.any():
+    s_best = np.empty(N)
+    tri_best = np.empty(N, dtype=np.int64)
+    bary = np.empty((N, 2))
+    dn = np.empty(N)
+    _init_rays(xy, dn, s_best, tri_best, bary)
+    n_finite, gx0, gy0, gx1, gy1 = _extent(xy, cell)
+    if tri.shape[0] == 0 or n_finite == 0:
         return s_best, tri_best, bary
-    g = np.floor(xy[finite] / cell)
-    gx0, gy0 = int(g[:, 0].min()), int(g[:, 1].min())
-    nx, ny = int(g[:, 0].max()) - gx0 + 1, int(g[:, 1].max()) - gy0 + 1
+    nx, ny = gx1 - gx0 + 1, gy1 - gy0 + 1
     grid_limit = max(4 * N, 1 << 20)
     if nx * ny > grid_limit:  # rays spread far apart: coarser cells bound the grid (binning stays exact)
         cell *= math.ceil(math.sqrt(nx * ny / grid_limit))
-        g = np.floor(xy[finite] / cell)
-        gx0, gy0 = int(g[:, 0].min()), int(g[:, 1].min())
-        nx, ny = int(g[:, 0].max()) - gx0 + 1, int(g[:, 1].max()) - gy0 + 1
+        n_finite, gx0, gy0, gx1, gy1 = _extent(xy, cell)
+        nx, ny = gx1 - gx0 + 1, gy1 - gy0 + 1
     ray_start, rays_sorted = _sort_rays(xy, cell, gx0, gy0, nx, ny)
     box = _triangle_boxes(tri, cell, gx0, gy0, nx, ny, near_z)
     pre = _edges(tri)
-    dn = np.sqrt(xy[:, 0] * xy[:, 0] + xy[:, 1] * xy[:, 1] + 1.0)
     n_bands = min(ny, 64)
     rows_per_band = -(-ny // n_bands)
     n_bands = -(-ny // rows_per_band)
