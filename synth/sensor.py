@@ -43,18 +43,18 @@ def add_noise(images: torch.Tensor, noise, generator: torch.Generator) -> torch.
     exact (Poisson) between 0 and 50 electrons, its normal approximation N(e, e) above; plus
     N(0, read^2).
 
-    Contiguous float32 stacks on the CPU run the fused numba passes of ``synth._noise_kernel``
-    (when numba is installed): the same random draws and float32 operations in ~3 passes over
-    the stack instead of ~8; the output equals the torch version's up to one ulp of the noise
-    standard deviation (torch's vectorised float32 square root is not correctly rounded)."""
+    Contiguous float32 stacks on the CPU run ``synth._noise_kernel`` (when numba is
+    installed): the same model and float32 arithmetic in one fused pass, with its own random
+    numbers (ziggurat normals, Poisson by inversion, one counter-seeded stream per block of
+    pixels, the seed drawn from ``generator``), so its noise is another draw of the same
+    distribution than the torch version's; statistics checked in tests/test_synth_reference.py."""
     if (images.device.type == "cpu" and images.dtype == torch.float32 and images.is_contiguous()
             and _noise_kernel_available()):
         from ._noise_kernel import add_noise_numba
 
-        z = torch.randn(images.shape, generator=generator, dtype=images.dtype)
-        add_noise_numba(images.view(-1).numpy(), z.view(-1).numpy(), float(noise.full_well_e),
-                        float(noise.read_noise_e), float(POISSON_BELOW_E),
-                        lambda rate: torch.poisson(torch.from_numpy(rate), generator=generator).numpy())
+        seed = int(torch.randint(0, 1 << 62, (1,), generator=generator, dtype=torch.int64))
+        add_noise_numba(images.view(-1).numpy(), seed, float(noise.full_well_e), float(noise.read_noise_e),
+                        float(POISSON_BELOW_E))
         return images
     return _add_noise_torch(images, noise, generator)
 
