@@ -8,6 +8,11 @@ defocus + noise, and on the same mesh with exactly the effects of the 1-sample C
 ``--repeats`` runs (the machine may be shared). The compiled (numba) kernels are loaded from
 numba's on-disk cache once per process; that one-time cost is timed first and reported apart.
 
+On a machine where another job holds a core, run with ``OMP_WAIT_POLICY=PASSIVE``: torch's
+OpenMP threads otherwise spin at every operation's barrier while their partner thread is
+descheduled (measured in session 3: the plane's twin stack took 1.3 s of geometry with 2 threads
+against 0.19 s with passive waiting or 1 thread). Cycles (TBB) is not affected by the variable.
+
 - geometry, cold: the whole geometry stage with an empty camera-ray cache (a camera seen for
   the first time: includes inverting its lens distortion for every pixel);
 - geometry, new pose: the same once the camera's rays are cached (every further scene pose or
@@ -195,10 +200,12 @@ def main(argv=None) -> int:
     if blender:
         print("\nThe same frame as Cycles (twin system: no distortion, square pixels), per frame of the "
               "72-image stack including geometry:\n")
-        print("| scene | ours s/frame (cold / new pose) | Cycles s/frame (1 sample) | speed-up (cold / new pose) |")
-        print("|---|---|---|---|")
+        print("| scene | ours s/frame (cold / new pose) | Cycles s/frame (1 sample) | speed-up (cold / new pose) "
+              "| real system with distortion: speed-up (cold / new pose) |")
+        print("|---|---|---|---|---|")
         for name, K, b, whole, whole_pose, cyc, tw, tw_pose in rows:
-            print(f"| {name} | {tw:.5f} / {tw_pose:.5f} | {cyc:.3f} | {cyc / tw:.0f}x / {cyc / tw_pose:.0f}x |")
+            print(f"| {name} | {tw:.5f} / {tw_pose:.5f} | {cyc:.3f} | {cyc / tw:.0f}x / {cyc / tw_pose:.0f}x "
+                  f"| {cyc * K / whole:.0f}x / {cyc * K / whole_pose:.0f}x |")
     print("\nTime per stage (ms, whole 72-image stack, minimum over repeats):")
     for name, K, b, *_ in rows:
         stages = {k: v for k, v in b.items() if k not in ("total", "geometry cold", "geometry new pose")}
