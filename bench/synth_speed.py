@@ -11,7 +11,7 @@ numba's on-disk cache once per process; that one-time cost is timed first and re
 On a machine where another job holds a core, run with ``OMP_WAIT_POLICY=PASSIVE``: torch's
 OpenMP threads otherwise spin at every operation's barrier while their partner thread is
 descheduled (measured in session 3: the plane's twin stack took 1.3 s of geometry with 2 threads
-against 0.19 s with passive waiting or 1 thread). Cycles (TBB) is not affected by the variable.
+against 0.13-0.20 s with passive waiting or 1 thread). Cycles (TBB) is not affected by the variable.
 
 - geometry, cold: the whole geometry stage with an empty camera-ray cache (a camera seen for
   the first time: includes inverting its lens distortion for every pixel);

@@ -12,9 +12,9 @@ exactly one band, so each thread owns the nearest-hit records it updates and no 
 pair is ever stored. Ties (the same depth on two triangles, e.g. a shared edge) go to the lower
 triangle index (met first).
 
-Memory, whatever the mesh size: ~56 bytes a ray (outputs, sort, ray length), 8 bytes a grid cell
+Memory, whatever the mesh size: ~56 bytes a ray (outputs, sort, ray length), 16 bytes a grid cell
 (the grid spans the rays' extent in cells, at most ``max(4 N, 2**20)`` cells: rays spread wider
-get coarser cells), ~90 bytes a triangle (edges, box, band lists; a triangle whose box spans k
+get coarser cells), ~120 bytes a triangle (edges 80, box 32, band lists 8; a triangle whose box spans k
 bands is listed k times). Work: a triangle crossing the device plane is tested against every
 ray, as in the torch engine.
 

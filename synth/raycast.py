@@ -14,7 +14,7 @@ takes the lower index and the torch engine either (tests/test_synth_raycast.py).
 
 Memory is bounded whatever the mesh size: the torch engine processes triangles in chunks holding
 at most ``max_pairs`` (triangle, ray) candidate pairs (default 2**19; about 150 MB of
-temporaries); the numba engine stores no pairs at all (~56 bytes a ray, 8 a grid cell, ~90 a
+temporaries); the numba engine stores no pairs at all (~56 bytes a ray, 16 a grid cell, ~120 a
 triangle; see its module).
 
 Frames: the triangles are given in the device frame (mm), rays are ``(x, y, 1)`` with ``(x, y)``
