@@ -55,6 +55,14 @@ def _sort_rays(xy, cell, gx0, gy0, nx, ny):
     return counts, rays_sorted
 
 
+_BIG = float(1 << 60)  # cell indices are clamped here before the integer conversion (no overflow)
+
+
+@nb.njit(inline="always", **_JIT)
+def _cell_of(v, cell):
+    return int(math.floor(min(max(v / cell, -_BIG), _BIG)))
+
+
 @nb.njit(**_JIT)
 def _triangle_boxes(tri, cell, gx0, gy0, nx, ny, near_z):
     """Cell boxes (T,4) [bx0, by0, bx1, by1] of the triangles, bx0 = -1 for a dropped triangle."""
@@ -62,10 +70,13 @@ def _triangle_boxes(tri, cell, gx0, gy0, nx, ny, near_z):
     box = np.empty((T, 4), dtype=np.int64)
     for t in range(T):
         n_behind = 0
+        finite = True
         for k in range(3):
             if tri[t, k, 2] <= near_z:
                 n_behind += 1
-        if n_behind == 3:
+            for j in range(3):
+                finite = finite and math.isfinite(tri[t, k, j])
+        if n_behind == 3 or not finite:  # wholly behind, or not a triangle: never hit
             box[t, 0] = -1
             continue
         if n_behind > 0:  # crosses the device plane: its projection is unbounded
@@ -87,10 +98,10 @@ def _triangle_boxes(tri, cell, gx0, gy0, nx, ny, near_z):
             xmax = max(xmax, px)
             ymin = min(ymin, py)
             ymax = max(ymax, py)
-        lx = int(math.floor(xmin / cell)) - gx0
-        ly = int(math.floor(ymin / cell)) - gy0
-        hx = int(math.floor(xmax / cell)) - gx0
-        hy = int(math.floor(ymax / cell)) - gy0
+        lx = _cell_of(xmin, cell) - gx0
+        ly = _cell_of(ymin, cell) - gy0
+        hx = _cell_of(xmax, cell) - gx0
+        hy = _cell_of(ymax, cell) - gy0
         if hx < 0 or hy < 0 or lx >= nx or ly >= ny:
             box[t, 0] = -1
             continue
@@ -202,6 +213,20 @@ def _trace_bands(pre, xy, dn, box, band_start, band_tris, rows_per_band, ray_sta
 
 
 @nb.njit(**_JIT)
+def _max_abs(xy):
+    """(number of finite rays, largest |x| or |y| among them)."""
+    n = 0
+    m = 0.0
+    for i in range(xy.shape[0]):
+        x = xy[i, 0]
+        y = xy[i, 1]
+        if math.isfinite(x) and math.isfinite(y):
+            n += 1
+            m = max(m, abs(x), abs(y))
+    return n, m
+
+
+@nb.njit(**_JIT)
 def _extent(xy, cell):
     """(n_finite, gx0, gy0, gx1, gy1): the finite rays' range of cells."""
     n = 0
@@ -240,9 +265,11 @@ def nearest_hits_numba(tri: np.ndarray, xy: np.ndarray, cell: float, near_z: flo
     bary = np.empty((N, 2))
     dn = np.empty(N)
     _init_rays(xy, dn, s_best, tri_best, bary)
-    n_finite, gx0, gy0, gx1, gy1 = _extent(xy, cell)
+    n_finite, max_abs = _max_abs(xy)
     if tri.shape[0] == 0 or n_finite == 0:
         return s_best, tri_best, bary
+    cell = max(cell, max_abs / 2.0 ** 52)  # ray cell indices stay exact integers (binning stays exact)
+    n_finite, gx0, gy0, gx1, gy1 = _extent(xy, cell)
     nx, ny = gx1 - gx0 + 1, gy1 - gy0 + 1
     grid_limit = max(4 * N, 1 << 20)
     if nx * ny > grid_limit:  # rays spread far apart: coarser cells bound the grid (binning stays exact)

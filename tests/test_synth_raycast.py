@@ -163,3 +163,17 @@ def test_fused_mesh_hit_pass_equals_the_torch_post_processing(smooth, monkeypatc
     assert float(((a.t[h] - b.t[h]) / b.t[h]).abs().max()) <= 1e-15
     assert float((a.normal[h] - b.normal[h]).abs().max()) <= 1e-15
     assert float((a.local - b.local).abs().max()) <= 1e-12
+
+
+def test_huge_coordinates_and_non_finite_triangles_neither_overflow_nor_hit():
+    # a triangle barely in front of the device plane projects to ~1e21 normalised units; rays at
+    # 1e15 would overflow 64-bit cell indices without the guards
+    tri = torch.tensor([[[-1e4, -1e4, 10.0], [1e4, -1e4, 10.0], [0.0, 1e4, 10.0]],
+                        [[1e12, 0.0, 2e-9], [1e12, 1.0, 2e-9], [1e12 + 1, 0.0, 2e-9]],
+                        [[0.0, 0.0, float("nan")], [1.0, 0.0, 5.0], [0.0, 1.0, 5.0]]], dtype=torch.float64)
+    xy = torch.tensor([[0.0, 0.0], [0.1, 0.1], [1e15, 0.0], [5e20, 1e13]], dtype=torch.float64)
+    s, i, _ = nearest_hits(tri, xy, 1e-3, engine="numba")
+    assert i.tolist()[:2] == [0, 0] and torch.allclose(s[:2], torch.full((2,), 10.0, dtype=torch.float64))
+    assert (i[2:] != 2).all()
+    d = dense_nearest(tri.numpy()[:2], xy.numpy())
+    assert i.tolist() == d[1].tolist()
