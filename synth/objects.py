@@ -197,14 +197,16 @@ class Mesh(SceneObject):
         return int(self.tri.shape[0])
 
     def _tri_dev(self, rays: Rays) -> torch.Tensor:
-        """The triangles in the rays' device frame (cached for the last device pose)."""
+        """The triangles in the rays' device frame (cached for the last pose of each device:
+        the camera pass and the projector's shadow pass alternate)."""
         key = (rays.key, tuple(rays.R_dev_world.reshape(-1).tolist()), tuple(rays.t_dev_world.tolist()))
         tri_dev = self._cache.get(key)
         if tri_dev is None:
             R_dev_obj = rays.R_dev_world @ self.R
             t_dev_obj = rays.R_dev_world @ self.t + rays.t_dev_world
             tri_dev = self.tri @ R_dev_obj.T + t_dev_obj
-            self._cache = {key: tri_dev}
+            self._cache = {k: v for k, v in self._cache.items() if k[0] != rays.key}
+            self._cache[key] = tri_dev
         return tri_dev
 
     def distance(self, rays: Rays) -> torch.Tensor:
