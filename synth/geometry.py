@@ -245,7 +245,9 @@ def compute_geometry(scene, *, shadows: bool | None = None, log=LOG) -> Geometry
             if cand.numel():
                 prays = Rays(C_p, -dir_p[cand], xy_prj[cand], torch.tensor(prj.R), torch.tensor(prj.t),
                              1.0 / max(prj.fx, prj.fy), "projector")
-                t_block, _, _, _ = nearest_surface(scene.objects, prays)
+                t_block = torch.full((cand.numel(),), float("inf"), dtype=F64)
+                for o in scene.objects:  # distances only: no normals or object-frame points
+                    t_block = torch.minimum(t_block, o.distance(prays))
                 d = dist_p[cand]
                 shadow[cand] = t_block < d * (1 - 1e-6)
             log.info("cast shadows: computed (%s): %d shadowed pixel(s)", why, int(shadow.sum()))

@@ -13,7 +13,7 @@ import torch
 
 from .boards import BoardSpec
 from .errors import SynthError
-from .raycast import nearest_hits, triangle_areas
+from .raycast import nearest_hits, numba_engine_available, triangle_areas
 
 F64 = torch.float64
 
@@ -69,6 +69,11 @@ class SceneObject:
 
     def intersect(self, rays: Rays) -> Hits:  # pragma: no cover - abstract
         raise NotImplementedError
+
+    def distance(self, rays: Rays) -> torch.Tensor:
+        """(N,) distance along each unit ray to the nearest hit (inf: none), e.g. for shadow
+        rays; objects override it when they can skip the normals and object-frame points."""
+        return self.intersect(rays).t
 
     def describe(self) -> dict:
         return {"name": self.name, "kind": self.kind, "R": self.R.tolist(), "t": self.t.tolist()}
@@ -191,15 +196,27 @@ class Mesh(SceneObject):
     def n_triangles(self) -> int:
         return int(self.tri.shape[0])
 
-    def intersect(self, rays: Rays) -> Hits:
+    def _tri_dev(self, rays: Rays) -> torch.Tensor:
+        """The triangles in the rays' device frame (cached for the last pose of each device:
+        the camera pass and the projector's shadow pass alternate)."""
         key = (rays.key, tuple(rays.R_dev_world.reshape(-1).tolist()), tuple(rays.t_dev_world.tolist()))
         tri_dev = self._cache.get(key)
         if tri_dev is None:
             R_dev_obj = rays.R_dev_world @ self.R
             t_dev_obj = rays.R_dev_world @ self.t + rays.t_dev_world
             tri_dev = self.tri @ R_dev_obj.T + t_dev_obj
-            self._cache = {key: tri_dev}
-        s, idx, bary = nearest_hits(tri_dev, rays.xy, rays.cell)
+            self._cache = {k: v for k, v in self._cache.items() if k[0] != rays.key}
+            self._cache[key] = tri_dev
+        return tri_dev
+
+    def distance(self, rays: Rays) -> torch.Tensor:
+        s, idx, _ = nearest_hits(self._tri_dev(rays), rays.xy, rays.cell)
+        return torch.where(idx >= 0, s * torch.sqrt(1.0 + (rays.xy ** 2).sum(1)), torch.full_like(s, float("inf")))
+
+    def intersect(self, rays: Rays) -> Hits:
+        s, idx, bary = nearest_hits(self._tri_dev(rays), rays.xy, rays.cell)
+        if rays.xy.device.type == "cpu" and numba_engine_available():
+            return self._hits_numba(rays, s, idx, bary)
         hit = idx >= 0
         ray_len = torch.sqrt(1.0 + (rays.xy ** 2).sum(1))
         t = torch.where(hit, s * ray_len, torch.full_like(s, float("inf")))
@@ -213,6 +230,21 @@ class Mesh(SceneObject):
         o, d = self._to_local(rays)
         local = o + torch.where(hit, t, torch.zeros_like(t))[:, None] * d
         return Hits(t, n_obj @ self.R.T, local)
+
+    def _hits_numba(self, rays: Rays, s, idx, bary) -> Hits:
+        """The torch post-processing below in one fused pass (CPU tensors)."""
+        from ._raycast_kernel import mesh_hits
+
+        N = s.shape[0]
+        t = torch.empty(N, dtype=F64)
+        n_world = torch.empty((N, 3), dtype=F64)
+        local = torch.empty((N, 3), dtype=F64)
+        o_local = (rays.origin - self.t) @ self.R
+        normals = self.vertex_normal if self.smooth else self.face_normal
+        c = lambda x: x.detach().contiguous().numpy()  # noqa: E731
+        mesh_hits(c(s), c(idx), c(bary), c(rays.xy), c(rays.dirs), c(o_local), c(self.R), c(self.F),
+                  c(normals), self.smooth, t.numpy(), n_world.numpy(), local.numpy())
+        return Hits(t, n_world, local)
 
     def describe(self):
         return {**super().describe(), "triangles": self.n_triangles, "dropped_degenerate": self.dropped_degenerate,

@@ -5,8 +5,17 @@ projected (pinhole, no distortion) into the device's normalised image plane, whe
 stay straight, and tested only against the rays whose normalised coordinates fall in cells of
 its bounding box. The exact Moeller-Trumbore test then decides, in float64.
 
-Memory is bounded: triangles are processed in chunks holding at most ``max_pairs`` (triangle,
-ray) candidate pairs (default 2**19; about 150 MB of temporaries), whatever the mesh size.
+Two engines, one contract: tensors on the CPU go to the numba engine ``synth._raycast_kernel``
+(triangle-major within bands of grid rows, the bands in parallel; when numba is installed),
+others (GPU) to the torch engine below (pair-centric). Both use the same binning and the same
+float64 Moeller-Trumbore operations and thresholds; they agree on depth to 1e-12 relative and on
+the triangle index except at exact ties (a ray through a shared edge), where the numba engine
+takes the lower index and the torch engine either (tests/test_synth_raycast.py).
+
+Memory is bounded whatever the mesh size: the torch engine processes triangles in chunks holding
+at most ``max_pairs`` (triangle, ray) candidate pairs (default 2**19; about 150 MB of
+temporaries); the numba engine stores no pairs at all (~56 bytes a ray, 16 a grid cell, ~120 a
+triangle; see its module).
 
 Frames: the triangles are given in the device frame (mm), rays are ``(x, y, 1)`` with ``(x, y)``
 undistorted normalised coordinates; the returned ``s`` is the device-frame depth ``z`` of the hit
@@ -16,6 +25,8 @@ from __future__ import annotations
 
 import torch
 
+from .errors import SynthError
+
 NEAR_Z = 1e-9  # mm; vertices closer to the device plane count as "behind"
 
 
@@ -24,19 +35,46 @@ def triangle_areas(tri: torch.Tensor) -> torch.Tensor:
     return 0.5 * torch.linalg.norm(torch.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], dim=-1), dim=-1)
 
 
+def numba_engine_available() -> bool:
+    """True when numba is importable (the CPU engine can run)."""
+    try:
+        from . import _raycast_kernel  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
 def nearest_hits(tri_dev: torch.Tensor, xy: torch.Tensor, cell: float, *,
-                 max_pairs: int = 1 << 19) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                 max_pairs: int = 1 << 19,
+                 engine: str = "auto") -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Nearest hit of each ray ``(x, y, 1)`` among triangles ``tri_dev``.
 
     ARGUMENTS
     - tri_dev: (T,3,3) float64 triangle vertices in the device frame (mm).
     - xy: (N,2) float64 normalised ray coordinates (non-finite rows never hit).
     - cell: binning cell size in normalised units (about one pixel: 1/focal length).
-    - max_pairs: bound on candidate pairs held at once (memory bound).
+    - max_pairs: torch engine: bound on candidate pairs held at once (memory bound).
+    - engine: "auto" (numba for CPU tensors when installed, else torch), "numba" or "torch".
 
     RETURNED VALUE: ``(s, tri_index, bary)``: depth (N,) (inf where no hit), triangle index (N,)
     int64 (-1 where no hit), barycentric ``(b1, b2)`` (N,2) of the hit (weights of vertices 1, 2).
     """
+    if engine not in ("auto", "numba", "torch"):
+        raise SynthError(f"nearest_hits: engine must be 'auto', 'numba' or 'torch', got {engine!r}")
+    on_cpu = xy.device.type == "cpu" and tri_dev.device.type == "cpu"
+    if engine == "numba" or (engine == "auto" and on_cpu and numba_engine_available()):
+        if not on_cpu:
+            raise SynthError("nearest_hits: the numba engine needs CPU tensors")
+        from ._raycast_kernel import nearest_hits_numba
+        s, idx, bary = nearest_hits_numba(
+            tri_dev.detach().to(torch.float64).contiguous().numpy(),
+            xy.detach().to(torch.float64).contiguous().numpy(), float(cell), NEAR_Z)
+        return torch.from_numpy(s), torch.from_numpy(idx), torch.from_numpy(bary)
+    return _nearest_hits_torch(tri_dev, xy, cell, max_pairs)
+
+
+def _nearest_hits_torch(tri_dev, xy, cell, max_pairs):
+    """The torch engine of :func:`nearest_hits` (any device)."""
     dev = xy.device
     N = xy.shape[0]
     s_best = torch.full((N,), float("inf"), dtype=torch.float64, device=dev)

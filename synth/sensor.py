@@ -35,13 +35,43 @@ def camera_defocus(images: torch.Tensor, sigma: torch.Tensor, levels: int = 6) -
     return out.reshape(K, H, W)
 
 
+POISSON_BELOW_E = 50  # electrons: exact Poisson shot noise below, its normal approximation above
+
+
 def add_noise(images: torch.Tensor, noise, generator: torch.Generator) -> torch.Tensor:
     """Poisson-Gaussian noise in electrons, in place: ``e = value * full_well``; shot noise
     exact (Poisson) between 0 and 50 electrons, its normal approximation N(e, e) above; plus
-    N(0, read^2)."""
+    N(0, read^2).
+
+    Contiguous float32 stacks on the CPU run ``synth._noise_kernel`` (when numba is
+    installed): the same model and float32 arithmetic in one fused pass, with its own random
+    numbers (ziggurat normals, Poisson by inversion, one counter-seeded stream per block of
+    pixels, the seed drawn from ``generator``), so its noise is another draw of the same
+    distribution than the torch version's; statistics checked in tests/test_synth_reference.py."""
+    if (images.device.type == "cpu" and images.dtype == torch.float32 and images.is_contiguous()
+            and _noise_kernel_available()):
+        from ._noise_kernel import add_noise_numba
+
+        seed = int(torch.randint(0, 1 << 62, (1,), generator=generator, dtype=torch.int64))
+        add_noise_numba(images.view(-1).numpy(), seed, float(noise.full_well_e), float(noise.read_noise_e),
+                        float(POISSON_BELOW_E))
+        return images
+    return _add_noise_torch(images, noise, generator)
+
+
+def _noise_kernel_available() -> bool:
+    try:
+        from . import _noise_kernel  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _add_noise_torch(images: torch.Tensor, noise, generator: torch.Generator) -> torch.Tensor:
+    """The torch version of :func:`add_noise` (any device and dtype)."""
     e = images.clamp_(min=0).mul_(noise.full_well_e)
     # dark pixels (e = 0: unlit, shadowed) draw Poisson(0) = 0 exactly: read noise only
-    low = (e > 0) & (e < 50)
+    low = (e > 0) & (e < POISSON_BELOW_E)
     z = torch.randn(e.shape, generator=generator, dtype=e.dtype)
     shot_low = torch.poisson(e[low].to(torch.float64), generator=generator).to(e.dtype) if bool(low.any()) else None
     std = (e + noise.read_noise_e ** 2).sqrt_()

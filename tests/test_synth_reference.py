@@ -181,14 +181,21 @@ def test_gain_saturation_and_quantisation_follow_the_closed_form(bits):
 
 # --- Poisson-Gaussian noise ---------------------------------------------------------------------
 
+@pytest.mark.parametrize("engine", ["cpu kernel", "torch"])
 @pytest.mark.parametrize("value, full_well, read", [(0.3, 10000.0, 5.0), (0.002, 10000.0, 5.0), (0.0003, 10000.0, 0.0),
                                                     (0.0, 10000.0, 5.0)])
-def test_poisson_gaussian_noise_has_mean_e_and_variance_e_plus_read_squared(value, full_well, read):
+def test_poisson_gaussian_noise_has_mean_e_and_variance_e_plus_read_squared(value, full_well, read, engine):
     """In electrons e = value * full_well: mean e, variance e + read^2 (shot noise exact Poisson
-    below 50 e-: with no read noise the counts are integers with P(0) = exp(-e))."""
+    below 50 e-: with no read noise the counts are integers with P(0) = exp(-e)); for the CPU
+    kernel (its own random numbers) and the torch version alike."""
+    from synth.sensor import _add_noise_torch
+
+    if engine == "cpu kernel":
+        _noise_kernel()
     n = 400_000
     gen = torch.Generator().manual_seed(1)
-    out = add_noise(torch.full((n,), value, dtype=torch.float32), Noise(full_well, read), gen).numpy()
+    noisy = add_noise if engine == "cpu kernel" else _add_noise_torch
+    out = noisy(torch.full((n,), value, dtype=torch.float32), Noise(full_well, read), gen).numpy()
     e = out.astype(np.float64) * full_well
     mean_e = value * full_well
     var = mean_e + read ** 2
@@ -199,6 +206,81 @@ def test_poisson_gaussian_noise_has_mean_e_and_variance_e_plus_read_squared(valu
         assert np.allclose(e, np.round(e), atol=1e-3)
         p0 = np.mean(np.round(e) == 0)
         assert abs(p0 - math.exp(-mean_e)) < 5 * math.sqrt(p0 * (1 - p0) / n)
+
+
+def _noise_kernel():
+    from synth.sensor import _noise_kernel_available
+
+    if not _noise_kernel_available():
+        pytest.skip("numba is not installed")
+    from synth import _noise_kernel
+    return _noise_kernel
+
+
+def test_kernel_normal_deviates_are_standard_normal_in_moments_tails_and_distribution():
+    """The CPU noise pass draws its own normals (ziggurat, splitmix64 streams per block): their
+    moments, the tail beyond the ziggurat's R = 3.44 (a separate branch), a Kolmogorov-Smirnov
+    test and the correlation at lag 1 and across blocks are those of N(0, 1)."""
+    from scipy import stats
+
+    K = _noise_kernel()
+    n = 4_000_000
+    z = np.empty(n)
+    K.normal_array(np.uint64(20240611), z, K.ZIG_X, K.ZIG_RATIO)
+    se = 1 / math.sqrt(n)
+    assert abs(z.mean()) < 5 * se and abs(z.var() - 1) < 5 * math.sqrt(2) * se
+    assert abs(stats.skew(z)) < 5 * math.sqrt(6) * se and abs(stats.kurtosis(z)) < 5 * math.sqrt(24) * se
+    for a in (1.0, 2.0, 3.0, K._ZIG_R, 4.0):
+        p = 2 * stats.norm.sf(a)
+        assert abs(np.mean(np.abs(z) > a) - p) < 5 * math.sqrt(p * (1 - p) / n), a
+    assert stats.kstest(z[:1_000_000], "norm").pvalue > 1e-3
+    for lag in (1, K.BLOCK):
+        assert abs(np.corrcoef(z[:-lag], z[lag:])[0, 1]) < 5 * se
+    z2 = np.empty(n)
+    K.normal_array(np.uint64(20240612), z2, K.ZIG_X, K.ZIG_RATIO)
+    assert abs(np.corrcoef(z, z2)[0, 1]) < 5 * se  # neighbouring seeds: independent streams
+
+
+@pytest.mark.parametrize("lam", [0.3, 3.0, 20.0, 49.9])
+def test_kernel_poisson_counts_follow_the_poisson_law(lam):
+    from scipy import stats
+
+    K = _noise_kernel()
+    n = 1_000_000
+    k = np.empty(n, dtype=np.int64)
+    K.poisson_array(np.uint64(99), lam, k)
+    top = int(lam + 6 * math.sqrt(lam) + 6)
+    observed = np.bincount(np.minimum(k, top), minlength=top + 1)
+    expected = stats.poisson.pmf(np.arange(top + 1), lam) * n
+    expected[-1] = stats.poisson.sf(top - 1, lam) * n
+    keep = expected > 20
+    chi2 = ((observed[keep] - expected[keep]) ** 2 / expected[keep]).sum()
+    assert stats.chi2.sf(chi2, keep.sum() - 1) > 1e-3
+    assert abs(k.mean() - lam) < 5 * math.sqrt(lam / n)
+
+
+def test_cpu_noise_is_reproducible_independent_of_threads_and_keeps_nan_and_dark_pixels():
+    import numba
+
+    _noise_kernel()
+    img = torch.rand((4, 120, 160), generator=torch.Generator().manual_seed(3), dtype=torch.float32)
+    img[0, :10] = float("nan")
+    img[1] = -0.5  # clamps to 0: read noise only
+    runs = []
+    before = numba.get_num_threads()
+    try:
+        for threads in (1, before):
+            numba.set_num_threads(threads)
+            runs.append(add_noise(img.clone(), Noise(), torch.Generator().manual_seed(8)))
+    finally:
+        numba.set_num_threads(before)
+    a, b = runs
+    assert torch.equal(torch.isnan(a), torch.isnan(b)) and torch.equal(a[~torch.isnan(a)], b[~torch.isnan(b)])
+    assert bool(torch.isnan(a[0, :10]).all()) and not bool(torch.isnan(a[1:]).any())
+    dark = a[1].double() * 1e4  # N(0, 5^2) electrons
+    assert abs(float(dark.mean())) < 5 * 5 / math.sqrt(dark.numel()) and abs(float(dark.std()) / 5 - 1) < 0.02
+    c = add_noise(img.clone(), Noise(), torch.Generator().manual_seed(9))
+    assert not torch.equal(c[1:], a[1:])  # another seed, another draw
 
 
 # --- the fused fast path equals the staged path ------------------------------------------------
