@@ -356,10 +356,9 @@ def build_problem(obs, start: RigState, config: BAConfig) -> BAProblem:
             cam_rows[i] = (pts, kpt, raw_u, raw_v)
         elif transfer and i in cam_rows and v.dprj_dcam is not None:
             c_pts, c_k0, c_u, c_v = cam_rows[i]
-            where = {int(p_): k for k, p_ in enumerate(c_pts)}
             A = v.dprj_dcam[pts]
-            cols = np.array([where.get(int(p_), -1) for p_ in pts])
-            linked = (cols >= 0) & np.all(np.isfinite(A), axis=(1, 2))
+            cols = np.minimum(np.searchsorted(c_pts, pts), len(c_pts) - 1)   # c_pts is sorted
+            linked = (c_pts[cols] == pts) & np.all(np.isfinite(A), axis=(1, 2))
             if linked.any():
                 A = np.where(linked[:, None, None], A, 0.0)
                 cols = np.where(linked, cols, 0)

@@ -57,6 +57,18 @@ def projector_pixels_at_camera_pixels(system, R_world_board, t_world_board, q_ca
     return out
 
 
+def projector_readout_jacobian(system, R_world_board, t_world_board, q_cam, h_px: float = 1e-3):
+    """(N, 2, 2) ``d q_prj / d q_cam`` of :func:`projector_pixels_at_camera_pixels` at ``q_cam``
+    (N, 2), by central differences of step ``h_px``: rows u_p, v_p; columns x, y (camera px)."""
+    q_cam = np.asarray(q_cam, dtype=np.float64)
+    cols = []
+    for step in ([h_px, 0.0], [0.0, h_px]):
+        plus = projector_pixels_at_camera_pixels(system, R_world_board, t_world_board, q_cam + step)
+        minus = projector_pixels_at_camera_pixels(system, R_world_board, t_world_board, q_cam - step)
+        cols.append((plus - minus) / (2 * h_px))
+    return np.stack(cols, axis=2)
+
+
 def simulate_observations(system, board, n_views: int, noise_px, rng, *, tilt_deg=(15.0, 35.0),
                           poses=None, noise_prj_px=None, projector_from_camera: bool = False):
     """Observations of ``board`` by both devices of ``system`` and the true board -> camera poses.
@@ -66,7 +78,7 @@ def simulate_observations(system, board, n_views: int, noise_px, rng, *, tilt_de
     them: the camera pixel carries the detector's error (``noise_px``) and the projector pixel is
     read at that detected camera pixel (``projector_pixels_at_camera_pixels``) with a phase error
     ``noise_prj_px`` of its own, so the camera error carries into the projector pixel; the views
-    then hold ``dprj_dcam``, the exact local derivative of that read-out (central differences).
+    then hold ``dprj_dcam``, the exact local derivative of that read-out (``projector_readout_jacobian``).
 
     RETURNED VALUE: (Observations, list of (R_cam_board, t_cam_board)).
     """
@@ -82,10 +94,7 @@ def simulate_observations(system, board, n_views: int, noise_px, rng, *, tilt_de
             if d == "projector" and projector_from_camera:
                 qc = np.where(np.isfinite(q["camera"]), q["camera"], 0.0)
                 p = projector_pixels_at_camera_pixels(system, Rwb, twb, qc)
-                h_px = 1e-3
-                grad = np.stack([(projector_pixels_at_camera_pixels(system, Rwb, twb, qc + [h_px * (j == 0), h_px * (j == 1)])
-                                  - projector_pixels_at_camera_pixels(system, Rwb, twb, qc - [h_px * (j == 0), h_px * (j == 1)]))
-                                 / (2 * h_px) for j in range(2)], axis=2)
+                grad = projector_readout_jacobian(system, Rwb, twb, qc)
                 p[~np.isfinite(q["camera"][:, 0])] = np.nan
             else:
                 p = dev.project(Xw)

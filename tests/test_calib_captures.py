@@ -199,7 +199,7 @@ def test_camera_detection_error_carries_into_the_projector_pixel_as_the_fit_grad
     moves it by dprj_dcam @ e. With 0.05 px of camera error (more than the phase fit's ~0.001 px),
     the projector pixel errors are explained by the fitted gradient down to the phase fit's own
     standard error, and that gradient equals the exact derivative of the read-out."""
-    from calib.simulate import projector_pixels_at_camera_pixels
+    from calib.simulate import projector_pixels_at_camera_pixels, projector_readout_jacobian
 
     detect, system, truth = truth_detector(session, camera_noise_px=0.05)
     exact, _, _ = truth_detector(session)
@@ -215,10 +215,7 @@ def test_camera_detection_error_carries_into_the_projector_pixel_as_the_fit_grad
         q_prj_true = projector_pixels_at_camera_pixels(system, R_wb, t_wb, q_cam_true)
         A = p.dprj_dcam
         assert A.shape == (len(p.ids), 2, 2) and np.isfinite(A).all()
-        h = 1e-3
-        A_exact = np.stack([(projector_pixels_at_camera_pixels(system, R_wb, t_wb, q_cam_true + [h * (j == 0), h * (j == 1)])
-                             - projector_pixels_at_camera_pixels(system, R_wb, t_wb, q_cam_true - [h * (j == 0), h * (j == 1)]))
-                            / (2 * h) for j in range(2)], axis=2)
+        A_exact = projector_readout_jacobian(system, R_wb, t_wb, q_cam_true)
         grad_err.append(np.abs(A - A_exact).max() / np.abs(A_exact).max())
         raw.append(p.q_prj - q_prj_true)
         explained.append(p.q_prj - q_prj_true - np.einsum("kij,kj->ki", A, e_cam))
