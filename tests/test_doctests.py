@@ -4,7 +4,9 @@ import importlib
 
 import pytest
 
-MODULES = ["calib.device", "calib.distortion", "calib.rotation", "calib.marker_phase", "unwrap.patterns", "twin_mapping.euler"]
+MODULES = ["calib.device", "calib.distortion", "calib.rotation", "calib.marker_phase", "unwrap.patterns", "twin_mapping.euler",
+           "unwrap.learned.config", "unwrap.learned.network", "unwrap.learned.metrics", "unwrap.learned.baselines",
+           "unwrap.learned.synthetic"]
 
 
 @pytest.mark.parametrize("name", MODULES)

@@ -1,0 +1,229 @@
+"""Score models and baselines on held-out test data: the S5 / S6 layouts, real captures, speed.
+
+Error rate and mask rule: :mod:`unwrap.learned.metrics` (wrong orders / pixels with valid inputs
+and a true or reference order; every method on the same pixels). Frequency pairs per fringe
+frequency ``f``: MF ``(1, f)``, MW ``(f - 1, f)`` (beat of one period), NT ``(f - 1, f)`` (coprime).
+
+SYNOPSIS
+
+    from unwrap.learned.evaluate import TestSource, score
+    src = TestSource(files=["test.h5"])                       # or TestSource(synthetic=(20, (96, 128), 5))
+    rows = score(src, "mf", 96, {"DP-TPU": "runs/a/model.pt"})
+    rows["Traditional"].rate, rows["DP-TPU"].rate
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from .baselines import filtered_order
+from .checkpoint import load_model
+from .data import MethodTagged
+from .errors import ModelError
+from .features import METHOD_INDEX
+from .infer import check_frequency_range, predict
+from .metrics import ErrorCount, keep_drop_curve
+
+log = logging.getLogger("unwrap.learned")
+
+DROPS = (0.0, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2)
+
+
+def pair_for(method: str, f: float) -> tuple[float, float]:
+    """The (low, high) pair scored for a method at fringe frequency ``f`` (module docstring)."""
+    if method == "mf":
+        return (1.0, float(f))
+    if method in ("mw", "nt"):
+        return (float(f) - 1.0, float(f))
+    raise ModelError(f"method {method!r}: expected 'mf', 'mw' or 'nt'")
+
+
+@dataclass
+class TestSource:
+    """Where test items come from: HDF5 ``files`` (the reader) or ``synthetic`` = (n, (H, W), seed).
+
+    ``orientations`` to score; ``max_samples``: at most this many scenes (the first ones).
+    ``label``: a name for reports."""
+    files: list = field(default_factory=list)
+    synthetic: tuple | None = None
+    orientations: tuple = ("v", "h")
+    max_samples: int | None = None
+    label: str = ""
+
+    def dataset(self, method: str, f: float, orientation: str):
+        """The contract dataset of one (method, f, orientation), or None when the source lacks the pair."""
+        pair = pair_for(method, f)
+        if self.files:
+            from ..dataset import FringeOrderDataset
+            if not _files_hold(self.files, pair, orientation):
+                log.info("skip %s f=%g %s: not in %s", method, f, orientation, self.files)
+                return None
+            ds = FringeOrderDataset(self.files, method=method, frequencies=pair, orientation=orientation,
+                                    crop=None, flip=False, seed=0)
+        elif self.synthetic is not None:
+            from .synthetic import SyntheticFringeDataset
+            n, size, seed = self.synthetic
+            ds = SyntheticFringeDataset(n, size=size, method=method, frequencies=pair, orientation=orientation,
+                                        seed=seed)
+        else:
+            raise ModelError("TestSource: give files or synthetic")
+        if self.max_samples is not None and len(ds) > self.max_samples:
+            ds.samples = ds.samples[: self.max_samples]
+        return MethodTagged(ds, method)
+
+
+def _files_hold(files, pair, orientation: str) -> bool:
+    """Whether every file holds both frequencies of ``pair`` and the orientation."""
+    import h5py
+
+    from ..dataset_schema import read_attrs
+    for p in files:
+        with h5py.File(p, "r") as h5:
+            a = read_attrs(h5)
+        freqs = [float(f) for f in a.get("frequencies", [])]
+        if orientation not in a.get("orientations", []) or any(float(f) not in freqs for f in pair):
+            return False
+    return True
+
+
+def _models(models: dict) -> dict:
+    return {name: (m if isinstance(m, tuple) else load_model(m)) for name, m in models.items()}
+
+
+@dataclass
+class Scored:
+    """Error counts per row, plus the confidence of each model's counted pixels (for curves)."""
+    counts: dict
+    confidence: dict
+    wrong: dict
+    checks: dict
+    items: int = 0
+
+
+def score(source: TestSource, method: str, f: float, models: dict, *, filtered_window: int | None = 15,
+          keep_pixels: int = 2_000_000, example: bool = False) -> Scored | None:
+    """Score the traditional order, the filtered baseline and each model at (method, f).
+
+    ``models``: {row name: checkpoint path or (net, ck)}. Returns None when the source has no
+    data for the pair. ``example``: keep the first item's maps (for figures) under
+    ``Scored.checks['example']``.
+    """
+    models = _models(models)
+    pair = pair_for(method, f)
+    counts = {"Traditional": ErrorCount()}
+    if filtered_window:
+        counts[f"Filtered {filtered_window}x{filtered_window}"] = ErrorCount()
+    counts.update({name: ErrorCount() for name in models})
+    conf = {name: [] for name in models}
+    wrong = {name: [] for name in models}
+    checks: dict = {}
+    n_items = 0
+    for orientation in source.orientations:
+        ds = source.dataset(method, f, orientation)
+        if ds is None:
+            continue
+        widths = ds.ds.attrs.get("widths")
+        width = float(widths[orientation]) if isinstance(widths, dict) and orientation in widths else None
+        for i in range(len(ds)):
+            item = ds[i]
+            n_items += 1
+            batch = torch.utils.data.default_collate([item])
+            true = item["order_true"].numpy()
+            valid = item["valid"].numpy()
+            counts["Traditional"] += ErrorCount.of(item["order_traditional"].numpy(), true, valid)
+            if filtered_window:
+                k = filtered_order(method, item["phase_low"][0].numpy(), item["phase_high"][0].numpy(), pair, valid,
+                                   window=filtered_window, width=width)
+                counts[f"Filtered {filtered_window}x{filtered_window}"] += ErrorCount.of(k, true, valid)
+            ex = {"traditional": item["order_traditional"].numpy(), "true": true, "valid": valid} \
+                if example and "example" not in checks else None
+            for name, (net, ck) in models.items():
+                if name not in checks:
+                    checks[name] = check_frequency_range(ck["meta"], method, pair, item["phase_high"][0].numpy(),
+                                                         valid, on_outside="ignore")
+                order, c = predict(net, ck, batch)
+                order, c = order[0].numpy(), c[0].numpy()
+                counts[name] += ErrorCount.of(order, true, valid)
+                m = valid & (true >= 0)
+                conf[name].append(c[m])
+                wrong[name].append(order[m] != true[m])
+                if ex is not None:
+                    ex[name] = order
+                    ex[name + " confidence"] = c
+            if ex is not None:
+                checks["example"] = ex
+    if n_items == 0:
+        return None
+    rng = np.random.default_rng(0)
+    for name in models:
+        c, w = np.concatenate(conf[name]), np.concatenate(wrong[name])
+        if c.size > keep_pixels:
+            sel = rng.choice(c.size, keep_pixels, replace=False)
+            c, w = c[sel], w[sel]
+        conf[name], wrong[name] = c, w
+    return Scored(counts, conf, wrong, checks, n_items)
+
+
+def confidence_curve(scored: Scored, name: str, drops=DROPS):
+    """[(fraction dropped, error rate kept)] of one model (least confident pixels dropped first)."""
+    return keep_drop_curve(scored.confidence[name], scored.wrong[name], drops)
+
+
+# ---------------------------------------------------------------- speed
+def _time(fn, repeats: int) -> float:
+    fn()
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best * 1e3
+
+
+def speed_table(model, *, size=(480, 640), repeats: int = 5, device: str = "cpu") -> dict:
+    """Milliseconds per frame (minimum over ``repeats``) of one orientation, MF (1, 48), 12 steps:
+
+    - ``traditional_from_phases``: mf_unwrap of two wrapped phases (the prior and the rounding);
+    - ``traditional_from_frames``: the fused kernel from 2 x 12 uint8 frames (wrapped phases + MF);
+    - ``filtered``: the 15x15 filtered baseline from the wrapped phases;
+    - ``network_forward``: the network alone; ``learned_total``: prior + features + network + decode.
+    """
+    from ..fused_mf import mf_unwrap_stacks
+    from ..patterns import fringe_intensity
+    from ..temporal import mf_unwrap
+    from .infer import unwrap_learned
+
+    net, ck = model if isinstance(model, tuple) else load_model(model, device)
+    H, W = size
+    rng = np.random.default_rng(0)
+    u = np.tile(np.linspace(100, 800, W), (H, 1)) + rng.normal(0, 0.2, (H, W))
+    Phi = {f: 2 * np.pi * f * u / 912 for f in (1, 48)}
+    stacks = [np.clip(np.rint(255 * fringe_intensity(Phi[f][None], np.arange(12)[:, None, None], 12, 0.5, 0.35)
+                              + rng.normal(0, 2, (12, H, W))), 0, 255).astype(np.uint8) for f in (1, 48)]
+    from ..phase_shift import wrapped_phase
+    ws = [wrapped_phase(s) for s in stacks]
+    phi = [np.nan_to_num(w.phase) for w in ws]
+    mods = [w.B / 255.0 for w in ws]
+    valid = ws[0].valid & ws[1].valid
+    x = torch.zeros(1, ck["arch"]["in_channels"], H, W, device=device)
+    out = {"size": f"{W}x{H}", "threads": torch.get_num_threads(), "device": device}
+    out["traditional_from_phases_ms"] = _time(lambda: mf_unwrap(phi, (1, 48), width=912, valid=valid), repeats)
+    out["traditional_from_frames_ms"] = _time(lambda: mf_unwrap_stacks(stacks, (1, 48), width=912), repeats)
+    out["filtered_ms"] = _time(lambda: filtered_order("mf", phi[0], phi[1], (1, 48), valid, width=912), repeats)
+    with torch.no_grad():
+        def fwd():
+            net(x)
+            if device != "cpu":
+                torch.cuda.synchronize()
+        out["network_forward_ms"] = _time(fwd, repeats)
+    out["learned_total_ms"] = _time(lambda: unwrap_learned("mf", phi[0], phi[1], mods[0], mods[1], valid, (1, 48),
+                                                           width=912, model=(net, ck), on_outside="ignore"), repeats)
+    return out
+
+
+def method_index(method: str) -> int:
+    return METHOD_INDEX[method]

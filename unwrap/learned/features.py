@@ -1,0 +1,164 @@
+"""Network inputs, training targets and the decoding of network outputs into fringe orders.
+
+Two model kinds share everything but this file:
+
+``physics`` (the physics-aware model, the paper's DP-TPU idea). Inputs, none of which depends on
+the absolute high frequency ``f``:
+
+====  =====================================================================================
+ch    meaning
+====  =====================================================================================
+0     ``2 r`` with ``r = prior - round(prior)`` in [-0.5, 0.5]: how far the physics prior is from
+      its decision, in periods of the high frequency. Noise-free it is 0 everywhere; where the
+      low-frequency phase is biased (global illumination) it drifts smoothly and wraps through
+      +-0.5 exactly where the traditional order goes wrong, *not* at the fringe edges (there the
+      prior and its rounding jump together). It is the same quantity for MF and MW (fringe order
+      estimate) and NT (residue), and the same at 16 or 96 periods.
+1-3   ``sin phi_h, cos phi_h, phi_h / pi``: the high wrapped phase, i.e. where the fringe edges are
+      (the only places where the true order may change) and the spatial continuity to use.
+4-5   modulation of the low / high pattern (x 4, clipped to 2): how noisy each phase is.
+6     valid mask (1 / 0); every other channel is 0 at invalid pixels.
+====  =====================================================================================
+
+Output: ``2 K + 1`` logits per pixel for the integer correction ``c`` in ``[-K, K]`` (K = 2) added
+to the traditional order (``round(prior)`` clipped for MF/MW, the lookup-table order for NT).
+Why this generalises to an unseen frequency: the rounding already carries the absolute part of the
+answer (0..f), which the network never has to produce; what is left is a small integer whose
+meaning (one fringe too many or too few) is the same at every frequency, decided from inputs that
+are themselves frequency-free. A network that outputs the order itself must map its inputs onto
+0..48 when trained at 48 and has no way to output 0..96 (the prior-free row of table S5).
+The softmax probability of the chosen correction is the per-pixel confidence.
+
+``prior_free`` (the paper's DT-TPU baseline): the wrapped low and high phases (sin, cos, phase/pi),
+both modulations, the valid mask and the method as three one-hot channels; one output channel,
+the order divided by ``order_scale`` (64), regressed directly.
+
+Every input is made NaN-free here (``torch.where``, never a product with the mask), and pixels
+with a non-finite input leave the valid mask, so NaN never reaches the network or the loss.
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+
+from .._xp import TIE_BAND
+from .errors import ModelError
+
+KINDS = ("physics", "prior_free")
+METHOD_INDEX = {"mf": 0, "mw": 1, "nt": 2}
+MODULATION_GAIN = 4.0
+ORDER_SCALE = 64.0
+
+
+def input_channels(kind: str) -> int:
+    """Number of input channels of a model kind."""
+    if kind == "physics":
+        return 7
+    if kind == "prior_free":
+        return 12
+    raise ModelError(f"model kind {kind!r}: expected one of {KINDS}")
+
+
+def output_channels(kind: str, max_correction: int = 2) -> int:
+    """Output channels: ``2 K + 1`` correction logits (physics) or one order (prior_free)."""
+    input_channels(kind)
+    return 2 * int(max_correction) + 1 if kind == "physics" else 1
+
+
+def _round_order(x: torch.Tensor) -> torch.Tensor:
+    """unwrap's rounding (ties down) on a tensor."""
+    return torch.ceil(x - (0.5 + TIE_BAND))
+
+
+def valid_mask(batch: dict) -> torch.Tensor:
+    """(B, H, W) bool: the item's ``valid`` and every input finite at the pixel."""
+    ok = batch["valid"].bool()
+    for key in ("prior", "phase_low", "phase_high", "modulation_low", "modulation_high"):
+        ok = ok & torch.isfinite(batch[key][:, 0])
+    return ok
+
+
+def make_inputs(batch: dict, kind: str) -> tuple[torch.Tensor, torch.Tensor]:
+    """(x float32 (B, C, H, W), valid bool (B, H, W)) from a collated batch of items.
+
+    ``batch`` holds the contract's tensors with a leading batch axis (``prior`` (B,1,H,W), ...);
+    ``method`` (B,) int64 (0 mf, 1 mw, 2 nt) is needed by ``prior_free`` only.
+    """
+    ok = valid_mask(batch)
+    okc = ok[:, None]
+    zero = torch.zeros((), dtype=torch.float32)
+
+    def clean(key):
+        return torch.where(okc, batch[key].to(torch.float32), zero)
+
+    phi_h = clean("phase_high")
+    m_lo = torch.clamp(clean("modulation_low") * MODULATION_GAIN, 0.0, 2.0)
+    m_hi = torch.clamp(clean("modulation_high") * MODULATION_GAIN, 0.0, 2.0)
+    v = okc.to(torch.float32)
+    if kind == "physics":
+        prior = clean("prior")
+        r = prior - _round_order(prior)
+        chans = [2.0 * r, torch.sin(phi_h) * v, torch.cos(phi_h) * v, phi_h / math.pi, m_lo, m_hi, v]
+    elif kind == "prior_free":
+        phi_l = clean("phase_low")
+        if "method" not in batch:
+            raise ModelError("the prior-free model needs the batch's 'method' (0 mf, 1 mw, 2 nt)")
+        onehot = torch.nn.functional.one_hot(batch["method"].long(), 3).to(torch.float32)
+        onehot = onehot[:, :, None, None].expand(-1, -1, *phi_h.shape[-2:]) * v
+        chans = [torch.sin(phi_l) * v, torch.cos(phi_l) * v, phi_l / math.pi,
+                 torch.sin(phi_h) * v, torch.cos(phi_h) * v, phi_h / math.pi, m_lo, m_hi, v, onehot]
+    else:
+        raise ModelError(f"model kind {kind!r}: expected one of {KINDS}")
+    return torch.cat(chans, dim=1), ok
+
+
+def targets(batch: dict, kind: str, max_correction: int = 2) -> tuple[torch.Tensor, torch.Tensor]:
+    """(target float32 (B, H, W), mask bool (B, H, W)) of the training loss.
+
+    physics: the correction ``order_true - order_traditional`` clipped to [-K, K]; prior_free: the
+    true order / ``ORDER_SCALE``. ``mask``: valid inputs and a true order (>= 0).
+    """
+    ok = valid_mask(batch) & (batch["order_true"] >= 0)
+    true = batch["order_true"]
+    if kind == "physics":
+        c = (true - batch["order_traditional"]).clamp(-max_correction, max_correction)
+        t = c.to(torch.float32)
+    elif kind == "prior_free":
+        t = true.to(torch.float32) / ORDER_SCALE
+    else:
+        raise ModelError(f"model kind {kind!r}: expected one of {KINDS}")
+    return torch.where(ok, t, torch.zeros((), dtype=torch.float32)), ok
+
+
+def expected_map(out: torch.Tensor, kind: str, max_correction: int = 2) -> torch.Tensor:
+    """The differentiable fringe-order map the loss compares with :func:`targets` (B, H, W).
+
+    physics: the expected correction ``sum_c p_c c`` under the softmax; prior_free: the output.
+    """
+    if kind == "physics":
+        c = torch.arange(-max_correction, max_correction + 1, dtype=out.dtype, device=out.device)
+        return (torch.softmax(out, dim=1) * c[None, :, None, None]).sum(dim=1)
+    return out[:, 0]
+
+
+def decode(out: torch.Tensor, batch: dict, kind: str, max_correction: int = 2):
+    """Network output -> (order int64 (B,H,W) -1 invalid, confidence float32 (B,H,W) in [0, 1]).
+
+    physics: the most probable correction added to the traditional order, clipped to
+    [0, round(f_high)]; confidence = its probability. prior_free: the rounded regressed order;
+    confidence = 1 - 2 |distance to the nearest integer| (a margin, not a probability).
+    """
+    ok = valid_mask(batch)
+    kmax = torch.floor(batch["frequency_high"].to(torch.float64) + 0.5).to(torch.int64)[:, None, None]
+    if kind == "physics":
+        p = torch.softmax(out.float(), dim=1)
+        conf, cls = p.max(dim=1)
+        order = batch["order_traditional"] + cls - max_correction
+    else:
+        k = out[:, 0].float() * ORDER_SCALE
+        order = torch.round(k).to(torch.int64)
+        conf = 1.0 - 2.0 * (k - torch.round(k)).abs()
+    order = torch.minimum(order.clamp(min=0), kmax)
+    order = torch.where(ok, order, torch.full_like(order, -1))
+    return order, torch.where(ok, conf, torch.zeros_like(conf))

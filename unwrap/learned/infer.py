@@ -1,0 +1,162 @@
+"""Apply a trained model: wrapped phases in, fringe order and per-pixel confidence out.
+
+SYNOPSIS
+
+    from unwrap.learned import unwrap_learned
+    r = unwrap_learned("mf", phi_1, phi_48, m_1, m_48, valid, (1, 48), width=912, model="learned")
+    r.order, r.confidence, r.order_traditional, r.frequency_check
+
+``model``: ``"learned"`` (the checkpoint shipped with sltwin, :func:`shipped_model_path`), a
+checkpoint path, or a ``(model, checkpoint)`` pair from :func:`unwrap.learned.checkpoint.load_model`.
+
+Frequency range (:func:`check_frequency_range`): what the network sees depends on the frequency
+only through two quantities, and both are checked before it runs:
+
+- the noise gain of the prior, the ratio ``R = f_hi / f_coarse`` (MF: ``f_hi / f_lo``; MW / NT: ``f_hi``
+  over the beat). Relative to the ratio it was trained at, up to 2.5x is the tested range
+  (table S5's unseen f = 96 is 2x), 2.5-4x runs with a :class:`FrequencyRangeWarning`, more than 4x
+  (or less than 1/8) is refused: the prior's noise alone then decides most pixels.
+- the fringe period on the camera, measured from the high wrapped phase (median over valid
+  pixels of ``2 pi / |grad phi|``): below :data:`MIN_PERIOD_PX` pixels the phase is aliased and
+  no order can be trusted, so it is refused.
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .. import _xp
+from . import features as Fe
+from .checkpoint import load_model
+from .errors import FrequencyRangeWarning, ModelError
+from .synthetic import traditional
+
+#: Refuse fringe periods on the camera shorter than this (px).
+MIN_PERIOD_PX = 3.0
+#: Ratio factor (relative to training) beyond which a warning / a refusal happens.
+WARN_RATIO, MAX_RATIO, MIN_RATIO = 2.5, 4.0, 1.0 / 8.0
+
+_SHIPPED = Path(__file__).resolve().parent / "data" / "shipped" / "model.pt"
+
+
+def shipped_model_path() -> Path:
+    """The checkpoint that ships with sltwin (trained on the twin; see docs/learned.md)."""
+    if not _SHIPPED.is_file():
+        raise ModelError(f"the shipped model is missing ({_SHIPPED}); reinstall sltwin or pass a checkpoint path")
+    return _SHIPPED
+
+
+def resolve_model(model, device="cpu"):
+    """(network in eval mode, checkpoint dict) from "learned", a path or a (model, ck) pair."""
+    if isinstance(model, tuple):
+        return model
+    path = shipped_model_path() if model in (None, "learned", "default") else Path(model)
+    return load_model(path, device)
+
+
+def coarse_ratio(method: str, f_lo: float, f_hi: float) -> float:
+    """Noise gain of the prior: f_hi over the coarse (unit or beat) frequency."""
+    return f_hi / f_lo if method == "mf" else f_hi / (f_hi - f_lo)
+
+
+def fringe_period_px(phase_high, valid) -> float:
+    """Median fringe period on the camera (px) from wrapped-phase differences between neighbours."""
+    phi = np.asarray(phase_high, dtype=np.float64)
+    v = np.asarray(valid, dtype=bool)
+    gx = _xp.wrap(np.diff(phi, axis=1))
+    gy = _xp.wrap(np.diff(phi, axis=0))
+    okx, oky = v[:, 1:] & v[:, :-1], v[1:, :] & v[:-1, :]
+    g = np.hypot(np.where(okx[:-1, :], gx[:-1, :], 0.0), np.where(oky[:, :-1], gy[:, :-1], 0.0))
+    ok = okx[:-1, :] & oky[:, :-1]
+    if not ok.any():
+        return float("nan")
+    med = float(np.median(g[ok]))
+    return _xp.TWO_PI / med if med > 0 else float("inf")
+
+
+def check_frequency_range(meta: dict, method: str, frequencies, phase_high=None, valid=None,
+                          *, on_outside: str = "raise") -> dict:
+    """Compare a (method, frequency pair) with what the model was trained on (module docstring).
+
+    RETURNED VALUE: {"ratio", "trained_ratio", "ratio_factor", "period_px", "status"} with status
+    "ok", "warn" or "refused". ``on_outside``: "raise" (:class:`ModelError` when refused), "warn"
+    (a warning instead) or "ignore"; "warn" status always issues a :class:`FrequencyRangeWarning`.
+    """
+    f_lo, f_hi = (float(f) for f in frequencies)
+    trained = meta.get("frequencies", {}).get(method)
+    if trained is None:
+        known = sorted(meta.get("frequencies", {}))
+        raise ModelError(f"the model was not trained for method {method!r} (trained: {known})")
+    r, r0 = coarse_ratio(method, f_lo, f_hi), coarse_ratio(method, *map(float, trained))
+    fac = r / r0
+    period = fringe_period_px(phase_high, valid) if phase_high is not None else float("nan")
+    status, why = "ok", ""
+    if fac > MAX_RATIO or fac < MIN_RATIO:
+        status, why = "refused", (f"frequency ratio {r:g} is {fac:.2f}x the trained {r0:g} (allowed "
+                                  f"{MIN_RATIO:g}x to {MAX_RATIO:g}x)")
+    elif period == period and period < MIN_PERIOD_PX:
+        status, why = "refused", f"fringe period on the camera {period:.2f} px < {MIN_PERIOD_PX} px (aliased)"
+    elif fac > WARN_RATIO:
+        status, why = "warn", f"frequency ratio {r:g} is {fac:.2f}x the trained {r0:g}: outside the tested range"
+    out = {"ratio": r, "trained_ratio": r0, "ratio_factor": fac, "period_px": period, "status": status,
+           "reason": why}
+    msg = f"{method} ({f_lo:g}, {f_hi:g}): {why}"
+    if status == "refused" and on_outside == "raise":
+        raise ModelError(msg + "; the model cannot unwrap this reliably (use the traditional method)")
+    if status == "warn" or (status == "refused" and on_outside == "warn"):
+        warnings.warn(msg, FrequencyRangeWarning, stacklevel=2)
+    return out
+
+
+@torch.no_grad()
+def predict(model, ck: dict, batch: dict):
+    """(order int64 (B,H,W) -1 invalid, confidence float32 (B,H,W)) of a collated batch."""
+    kind, K = ck["arch"]["kind"], ck["arch"]["max_correction"]
+    dev = next(model.parameters()).device
+    batch = {k: (v.to(dev) if torch.is_tensor(v) else v) for k, v in batch.items()}
+    x, _ = Fe.make_inputs(batch, kind)
+    return Fe.decode(model(x).float(), batch, kind, K)
+
+
+@dataclass
+class LearnedResult:
+    """Output of :func:`unwrap_learned` (numpy, camera image shape)."""
+    order: np.ndarray            # int64, -1 where invalid
+    confidence: np.ndarray       # float32 in [0, 1], 0 where invalid
+    order_traditional: np.ndarray
+    prior: np.ndarray            # float64, 0 where invalid
+    valid: np.ndarray
+    frequency_check: dict = field(default_factory=dict)
+
+
+def unwrap_learned(method: str, phase_low, phase_high, modulation_low, modulation_high, valid, frequencies, *,
+                   width: float, model="learned", on_outside: str = "raise") -> LearnedResult:
+    """Fringe order of the high frequency from one orientation's wrapped phases, by the network.
+
+    ARGUMENTS: method ("mf", "mw", "nt"); wrapped phases (rad, (H, W), NaN allowed where invalid);
+    modulations (fraction of full scale); valid (H, W) bool; frequencies (low, high); width =
+    projector pixels across the fringes; model (module docstring); on_outside (see
+    :func:`check_frequency_range`).
+    """
+    net, ck = resolve_model(model)
+    f_lo, f_hi = (float(f) for f in frequencies)
+    phi_lo, phi_hi = (np.asarray(a, dtype=np.float64) for a in (phase_low, phase_high))
+    valid = np.asarray(valid, dtype=bool) & np.isfinite(phi_lo) & np.isfinite(phi_hi)
+    if phi_lo.shape != phi_hi.shape or valid.shape != phi_hi.shape or phi_hi.ndim != 2:
+        raise ModelError(f"phases {phi_lo.shape}, {phi_hi.shape} and valid {valid.shape}: expected one (H, W) shape")
+    check = check_frequency_range(ck["meta"], method, (f_lo, f_hi), phi_hi, valid, on_outside=on_outside)
+    prior, order_trad, valid = traditional(method, np.nan_to_num(phi_lo), np.nan_to_num(phi_hi), f_lo, f_hi,
+                                           float(width), valid)
+    z = lambda a: torch.from_numpy(np.where(valid, np.nan_to_num(np.asarray(a, dtype=np.float64)), 0.0)  # noqa: E731
+                                   .astype(np.float32))[None, None]
+    batch = {"prior": z(prior), "phase_low": z(phi_lo), "phase_high": z(phi_hi),
+             "modulation_low": z(modulation_low), "modulation_high": z(modulation_high),
+             "order_traditional": torch.from_numpy(order_trad)[None], "valid": torch.from_numpy(valid)[None],
+             "frequency_high": torch.tensor([f_hi], dtype=torch.float64),
+             "method": torch.tensor([Fe.METHOD_INDEX[method]])}
+    order, conf = predict(net, ck, batch)
+    return LearnedResult(order[0].cpu().numpy(), conf[0].cpu().numpy(), order_trad, prior, valid, check)

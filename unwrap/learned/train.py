@@ -1,0 +1,429 @@
+"""Training loop of the fringe-order network (``calib train`` calls :func:`train`).
+
+A run folder holds::
+
+    config.toml      the resolved config (defaults <- file <- overrides)
+    last.pt          full training state, written atomically every ``run.checkpoint_every`` steps
+    best.pt          the same at the best validation error rate so far
+    model.pt         the inference-only best model (what ships; see checkpoint.export_model)
+    train.csv        step, epoch, loss and its parts, learning rate, samples/s (every log_every)
+    val.csv          step, validation loss, traditional and model error rates
+    metrics.json     summary: final and best numbers, samples/s, wall time, data split
+    metrics.png      training loss and validation error rate vs step
+    log.txt          the log of the run
+
+``resume=RUN`` continues a run from ``RUN/last.pt``: model, optimiser, scheduler, AMP scaler,
+step, epoch, position in the epoch and every RNG state; data order and augmentation depend only
+on (seed, epoch, index), so a killed and resumed run ends with the weights of an uninterrupted
+one (tested). The loop runs under ``torchrun`` (DistributedDataParallel: gloo on CPU, NCCL on
+CUDA; each rank a disjoint share of every epoch; only rank 0 writes) and uses mixed precision
+(bfloat16 autocast, or float16 with a gradient scaler) on CUDA only; losses stay float32.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import math
+import os
+import random
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from . import features as Fe
+from .checkpoint import FORMAT, FORMAT_VERSION, arch_from_config, build_model, export_model, read_checkpoint, save_atomic
+from .config import resolve_config, to_toml
+from .data import ResumableSampler, build_datasets
+from .errors import ConfigError, DatasetTooSmallError
+from .losses import LossWeights, composite_loss
+from .metrics import ErrorCount
+from .progress import StepBar
+
+log = logging.getLogger("unwrap.learned")
+
+#: What may change when a run is resumed (everything else must match the saved config).
+RESUMABLE_OVERRIDES = ("optim.steps", "run.log_every", "run.val_every", "run.checkpoint_every", "run.threads",
+                       "data.workers")
+TRAIN_FIELDS = ("step", "epoch", "loss", "mse", "fourier", "ce", "lr", "samples_per_s", "time_s")
+VAL_FIELDS = ("step", "loss", "error_traditional", "error_model", "pixels")
+
+
+@dataclass
+class TrainResult:
+    """What a finished :func:`train` returns (rank 0; other ranks get ``run_dir`` None)."""
+    run_dir: Path | None
+    step: int
+    best_error: float
+    final_loss: float
+    samples_per_s: float
+
+
+# ---------------------------------------------------------------- setup helpers
+def seed_everything(seed: int):
+    random.seed(seed)
+    np.random.seed(seed % 2 ** 32)
+    torch.manual_seed(seed)
+
+
+def set_deterministic(on: bool):
+    """Deterministic kernels (CPU and CUDA) or the fast defaults."""
+    if on:
+        os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
+    torch.use_deterministic_algorithms(bool(on))
+    torch.backends.cudnn.deterministic = bool(on)
+    torch.backends.cudnn.benchmark = not on
+
+
+def rng_state() -> dict:
+    st = {"torch": torch.get_rng_state(), "python": list(map(_jsonable, random.getstate())),
+          "numpy": _numpy_state()}
+    if torch.cuda.is_available():
+        st["cuda"] = torch.cuda.get_rng_state_all()
+    return st
+
+
+def _jsonable(x):
+    return list(x) if isinstance(x, tuple) else x
+
+
+def _numpy_state() -> dict:
+    name, keys, pos, has_gauss, cached = np.random.get_state()
+    return {"name": name, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos),
+            "has_gauss": int(has_gauss), "cached": float(cached)}
+
+
+def set_rng_state(st: dict):
+    torch.set_rng_state(st["torch"])
+    v, internal, gauss = st["python"]
+    random.setstate((v, tuple(internal), gauss))
+    n = st["numpy"]
+    np.random.set_state((n["name"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached"]))
+    if "cuda" in st and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(st["cuda"])
+
+
+def _dist_env():
+    """(rank, world, local_rank) from torchrun's environment (1 process without it)."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    return int(os.environ.get("RANK", "0")), world, int(os.environ.get("LOCAL_RANK", "0"))
+
+
+def _device(cfg, local_rank: int) -> torch.device:
+    want = cfg["run"]["device"]
+    if want == "cuda" or (want == "auto" and torch.cuda.is_available()):
+        if not torch.cuda.is_available():
+            raise ConfigError("run.device = 'cuda' but CUDA is not available")
+        torch.cuda.set_device(local_rank)
+        return torch.device("cuda", local_rank)
+    return torch.device("cpu")
+
+
+def lr_factor(step: int, cfg: dict) -> float:
+    """Learning-rate multiplier: linear warm-up, then cosine to 2 % (or constant)."""
+    o = cfg["optim"]
+    w = o["warmup_steps"]
+    if step < w:
+        return (step + 1) / w
+    if o["schedule"] == "constant":
+        return 1.0
+    t = min((step - w) / max(o["steps"] - w, 1), 1.0)
+    return 0.02 + 0.98 * 0.5 * (1.0 + math.cos(math.pi * t))
+
+
+def _to(batch: dict, device) -> dict:
+    return {k: (v.to(device, non_blocking=True) if torch.is_tensor(v) else v) for k, v in batch.items()}
+
+
+def training_step_loss(model, batch, cfg, weights: LossWeights, amp_dtype=None):
+    """(loss, parts) of one batch: inputs -> network -> float32 composite loss."""
+    kind, K = cfg["model"]["kind"], cfg["model"]["max_correction"]
+    x, _ = Fe.make_inputs(batch, kind)
+    target, mask = Fe.targets(batch, kind, K)
+    if amp_dtype is not None:
+        with torch.autocast(device_type="cuda", dtype=amp_dtype):
+            out = model(x)
+    else:
+        out = model(x)
+    out = out.float()
+    pred = Fe.expected_map(out, kind, K)
+    return composite_loss(weights, pred, target, mask, logits=out if kind == "physics" else None,
+                          max_correction=K)
+
+
+@torch.no_grad()
+def validate(model, val, cfg, weights, device) -> dict:
+    """Loss and error rates (traditional and model) over the validation scenes, full frames."""
+    model.eval()
+    kind, K = cfg["model"]["kind"], cfg["model"]["max_correction"]
+    loader = torch.utils.data.DataLoader(val, batch_size=1, shuffle=False, num_workers=0)
+    trad, net, losses = ErrorCount(), ErrorCount(), []
+    for batch in loader:
+        batch = _to(batch, device)
+        loss, _ = training_step_loss(model, batch, cfg, weights)
+        losses.append(float(loss))
+        x, ok = Fe.make_inputs(batch, kind)
+        order, _ = Fe.decode(model(x).float(), batch, kind, K)
+        m = (ok & (batch["order_true"] >= 0)).cpu()
+        trad = trad + ErrorCount.of(batch["order_traditional"].cpu(), batch["order_true"].cpu(), m)
+        net = net + ErrorCount.of(order.cpu(), batch["order_true"].cpu(), m)
+    model.train()
+    return {"loss": float(np.mean(losses)) if losses else float("nan"), "error_traditional": trad.rate,
+            "error_model": net.rate, "pixels": net.counted}
+
+
+# ---------------------------------------------------------------- run-folder helpers
+class RunFiles:
+    """The run folder's logs (rank 0 only)."""
+
+    def __init__(self, run_dir: Path, resume_step: int | None):
+        self.dir = run_dir
+        for name, fields in (("train.csv", TRAIN_FIELDS), ("val.csv", VAL_FIELDS)):
+            path = run_dir / name
+            rows = []
+            if resume_step is not None and path.exists():   # drop rows written after the checkpoint
+                with open(path, newline="") as fh:
+                    rows = [r for r in csv.DictReader(fh) if int(r["step"]) <= resume_step]
+            with open(path, "w", newline="") as fh:
+                w = csv.DictWriter(fh, fieldnames=fields)
+                w.writeheader()
+                w.writerows(rows)
+
+    def append(self, name: str, fields, row: dict):
+        with open(self.dir / name, "a", newline="") as fh:
+            csv.DictWriter(fh, fieldnames=fields).writerow({k: row.get(k, "") for k in fields})
+
+    def read(self, name: str) -> list[dict]:
+        with open(self.dir / name, newline="") as fh:
+            return list(csv.DictReader(fh))
+
+
+def plot_metrics(run_dir: Path) -> Path | None:
+    """metrics.png: training loss and validation error rates vs step."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    files = RunFiles.__new__(RunFiles)
+    files.dir = run_dir
+    tr, va = files.read("train.csv"), files.read("val.csv")
+    if not tr:
+        return None
+    fig, ax = plt.subplots(1, 2, figsize=(10, 3.6))
+    ax[0].semilogy([int(r["step"]) for r in tr], [float(r["loss"]) for r in tr], lw=1)
+    ax[0].set(xlabel="step", ylabel="training loss", title="loss")
+    if va:
+        s = [int(r["step"]) for r in va]
+        ax[1].plot(s, [100 * float(r["error_traditional"]) for r in va], "k--", label="traditional")
+        ax[1].plot(s, [100 * float(r["error_model"]) for r in va], "o-", label="model")
+        ax[1].legend()
+    ax[1].set(xlabel="step", ylabel="fringe-order error rate [%]", title="validation")
+    fig.tight_layout()
+    path = run_dir / "metrics.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _resume_config(run_dir: Path, overrides) -> dict:
+    saved = resolve_config(run_dir / "config.toml")
+    for text in overrides or ():
+        name = text.split("=", 1)[0].strip()
+        if name not in RESUMABLE_OVERRIDES:
+            raise ConfigError(f"--resume: {name!r} cannot change in a resumed run (allowed: "
+                              f"{', '.join(RESUMABLE_OVERRIDES)})")
+    return resolve_config(run_dir / "config.toml", overrides) if overrides else saved
+
+
+def _attach_file_log(run_dir: Path):
+    h = logging.FileHandler(run_dir / "log.txt")
+    h.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
+    log.addHandler(h)
+    log.setLevel(logging.INFO)
+    return h
+
+
+# ---------------------------------------------------------------- the loop
+def train(config=None, overrides=(), out_dir=None, *, resume=None, deterministic: bool | None = None,
+          progress: bool = True, stop_after: int | None = None, on_step=None) -> TrainResult:
+    """Train (or resume) a fringe-order network; see the module docstring for the run folder.
+
+    ARGUMENTS
+    - config: TOML file (or None for the defaults); overrides: ``section.key=value`` strings.
+    - out_dir: the run folder (created); resume: an existing run folder to continue (then
+      ``config`` must be None and only :data:`RESUMABLE_OVERRIDES` may be overridden).
+    - deterministic: force ``run.deterministic`` on / off; progress: show the bar.
+    - stop_after: stop (after writing last.pt) once this step is reached - for time-boxed
+      sessions; on_step: optional ``callback(step, loss)`` after every step (rank 0).
+    RETURNED VALUE: :class:`TrainResult`.
+    """
+    rank, world, local_rank = _dist_env()
+    distributed = world > 1
+    if resume is not None:
+        if config is not None:
+            raise ConfigError("give either a config (new run) or --resume RUN, not both")
+        run_dir = Path(resume)
+        if not (run_dir / "last.pt").is_file():
+            raise ConfigError(f"--resume {run_dir}: no last.pt there (not a run folder, or it never saved)")
+        cfg = _resume_config(run_dir, overrides)
+    else:
+        cfg = resolve_config(config, overrides)
+        if out_dir is None:
+            out_dir = Path("runs") / time.strftime("%Y%m%d-%H%M%S")
+        run_dir = Path(out_dir)
+        if (run_dir / "last.pt").exists():
+            raise ConfigError(f"{run_dir} already holds a run (last.pt); use --resume {run_dir} or another -o")
+    if deterministic is not None:
+        cfg["run"]["deterministic"] = bool(deterministic)
+    set_deterministic(cfg["run"]["deterministic"])
+    if cfg["run"]["threads"]:
+        torch.set_num_threads(int(cfg["run"]["threads"]))
+    device = _device(cfg, local_rank)
+    if distributed and not torch.distributed.is_initialized():
+        torch.distributed.init_process_group("nccl" if device.type == "cuda" else "gloo")
+    seed = int(cfg["run"]["seed"])
+    seed_everything(seed)
+
+    train_ds, val_ds, info = build_datasets(cfg)
+    bs = int(cfg["optim"]["batch_size"])
+    sampler = ResumableSampler(len(train_ds), seed=seed, rank=rank, world=world)
+    if sampler.per_rank() < bs:
+        raise DatasetTooSmallError(f"training set too small: {len(train_ds)} items for {world} process(es) x "
+                                   f"batch {bs}; lower optim.batch_size or add data")
+    steps_per_epoch = sampler.per_rank() // bs
+
+    arch = arch_from_config(cfg["model"])
+    model = build_model(arch).to(device)
+    o = cfg["optim"]
+    opt = torch.optim.AdamW(model.parameters(), lr=o["lr"], weight_decay=o["weight_decay"]) if o["name"] == "adamw" \
+        else torch.optim.SGD(model.parameters(), lr=o["lr"], momentum=0.9, weight_decay=o["weight_decay"])
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: lr_factor(s, cfg))
+    amp_dtype, scaler = None, None
+    if device.type == "cuda" and cfg["run"]["amp"]:
+        amp_dtype = torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16
+        if amp_dtype == torch.float16:
+            scaler = torch.amp.GradScaler("cuda")
+    step, epoch, batch_in_epoch, best = 0, 0, 0, float("inf")
+    if resume is not None:
+        ck = read_checkpoint(run_dir / "last.pt")
+        model.load_state_dict(ck["model"])
+        opt.load_state_dict(ck["optimizer"])
+        sched.load_state_dict(ck["scheduler"])
+        if scaler is not None and ck.get("scaler"):
+            scaler.load_state_dict(ck["scaler"])
+        step, epoch, batch_in_epoch, best = ck["step"], ck["epoch"], ck["batch_in_epoch"], ck["best"]
+        set_rng_state(ck["rng"])
+    net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[local_rank] if device.type == "cuda" else None) \
+        if distributed else model
+    writer = rank == 0
+    files = handler = None
+    if writer:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / "config.toml").write_text(to_toml(cfg))
+        files = RunFiles(run_dir, step if resume is not None else None)
+        handler = _attach_file_log(run_dir)
+        log.info("%s run %s: %d training items (%d scenes), %d validation items, %d step(s)/epoch, world %d, "
+                 "device %s%s", "resumed" if resume else "new", run_dir, info["train_items"],
+                 len(info["train_scenes"]), info["val_items"], steps_per_epoch, world, device,
+                 f", step {step}" if resume else "")
+    weights = LossWeights(**cfg["loss"])
+    meta = {"methods": cfg["data"]["methods"], "orientations": cfg["data"]["orientations"],
+            "frequencies": {m: cfg["data"][f"{m}_frequencies"] for m in cfg["data"]["methods"]},
+            "data": cfg["data"]["train"] or f"synthetic:{cfg['data']['synthetic_samples']}",
+            "val_scenes": info["val_scenes"], "loss": cfg["loss"]}
+
+    def state(best_value):
+        return {"format": FORMAT, "format_version": FORMAT_VERSION, "arch": arch, "model": model.state_dict(),
+                "meta": {**meta, "step": step}, "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
+                "scaler": scaler.state_dict() if scaler is not None else {}, "step": step, "epoch": epoch,
+                "batch_in_epoch": batch_in_epoch, "best": best_value, "rng": rng_state(),
+                "config": to_toml(cfg)}
+
+    total = int(cfg["optim"]["steps"])
+    bar = StepBar(total, start=step, enabled=progress and writer)
+    model.train()
+    t_train, n_seen, last_loss, val_row = 0.0, 0, float("nan"), None
+    t_start = time.perf_counter()
+    while step < total:
+        sampler.set_epoch(epoch, batch_in_epoch * bs)
+        train_ds.set_epoch(epoch)
+        loader = torch.utils.data.DataLoader(train_ds, batch_size=bs, sampler=sampler, drop_last=True,
+                                             num_workers=int(cfg["data"]["workers"]),
+                                             persistent_workers=False)
+        for batch in loader:
+            t0 = time.perf_counter()
+            batch = _to(batch, device)
+            loss, parts = training_step_loss(net, batch, cfg, weights, amp_dtype)
+            if not torch.isfinite(loss):
+                raise DatasetTooSmallError(f"step {step}: the loss is not finite ({float(loss)}); the batch "
+                                           "has no usable pixels or the learning rate is too high")
+            opt.zero_grad(set_to_none=True)
+            if scaler is not None:
+                scaler.scale(loss).backward()
+                scaler.unscale_(opt)
+            else:
+                loss.backward()
+            if cfg["optim"]["grad_clip"] > 0:
+                torch.nn.utils.clip_grad_norm_(model.parameters(), cfg["optim"]["grad_clip"])
+            if scaler is not None:
+                scaler.step(opt)
+                scaler.update()
+            else:
+                opt.step()
+            sched.step()
+            step += 1
+            batch_in_epoch += 1
+            t_train += time.perf_counter() - t0
+            n_seen += bs * world
+            last_loss = float(loss.detach())
+            sps = n_seen / t_train if t_train > 0 else 0.0
+            if writer:
+                if step % cfg["run"]["log_every"] == 0 or step == total:
+                    files.append("train.csv", TRAIN_FIELDS, {
+                        "step": step, "epoch": epoch, "loss": f"{last_loss:.6g}", **{k: f"{v:.6g}" for k, v in parts.items()},
+                        "lr": f"{sched.get_last_lr()[0]:.6g}", "samples_per_s": f"{sps:.4g}",
+                        "time_s": f"{time.perf_counter() - t_start:.1f}"})
+                bar.update(step, loss=last_loss, samples_per_s=sps)
+                if val_ds is not None and (step % cfg["run"]["val_every"] == 0 or step == total):
+                    val_row = validate(model, val_ds, cfg, weights, device)
+                    files.append("val.csv", VAL_FIELDS, {"step": step, **val_row})
+                    log.info("step %d: val loss %.4g, error traditional %.4f %%, model %.4f %%", step, val_row["loss"],
+                             100 * val_row["error_traditional"], 100 * val_row["error_model"])
+                    score = val_row["error_model"]
+                    if score == score and score < best:
+                        best = score
+                        save_atomic(state(best), run_dir / "best.pt")
+                if step % cfg["run"]["checkpoint_every"] == 0 or step == total:
+                    save_atomic(state(best), run_dir / "last.pt")
+                if on_step is not None:
+                    on_step(step, last_loss)
+            if step >= total or (stop_after is not None and step >= stop_after):
+                break
+        if step >= total or (stop_after is not None and step >= stop_after):
+            break
+        epoch += 1
+        batch_in_epoch = 0
+    if batch_in_epoch >= steps_per_epoch:   # the loop ended exactly at an epoch's end
+        epoch, batch_in_epoch = epoch + 1, 0
+    result = TrainResult(run_dir if writer else None, step, best, last_loss, n_seen / t_train if t_train else 0.0)
+    if writer:
+        save_atomic(state(best), run_dir / "last.pt")
+        bar.update(step, force=True, loss=last_loss)
+        bar.close()
+        if step >= total:
+            src = run_dir / "best.pt" if (run_dir / "best.pt").exists() else run_dir / "last.pt"
+            export_model(read_checkpoint(src), run_dir / "model.pt")
+        summary = {"run": str(run_dir), "step": step, "steps": total, "final_loss": last_loss,
+                   "best_val_error": None if best == float("inf") else best, "last_val": val_row,
+                   "train_samples_per_s": result.samples_per_s, "world_size": world, "device": str(device),
+                   "threads": torch.get_num_threads(), "wall_s_this_session": time.perf_counter() - t_start,
+                   "train_items": info["train_items"], "val_items": info["val_items"],
+                   "train_scenes": len(info["train_scenes"]), "val_scenes": info["val_scenes"]}
+        (run_dir / "metrics.json").write_text(json.dumps(summary, indent=1))
+        plot_metrics(run_dir)
+        log.removeHandler(handler)
+        handler.close()
+    return result
