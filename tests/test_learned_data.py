@@ -57,7 +57,7 @@ def test_low_frequency_bias_makes_coherent_errors_that_noise_free_data_shows():
             wrong += int((s["order_traditional"][v] != s["order_true"][v]).sum())
             counted += int(v.sum())
         err[method] = wrong / counted
-    assert err["mf"] > 0.01 and err["mw"] < err["mf"] / 4
+    assert err["mf"] > 0.01 and err["mw"] < err["mf"] / 2
 
 
 def test_physics_inputs_do_not_depend_on_the_absolute_frequency():

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +42,7 @@ class OrientationResult:
     result: Unwrapped
     modulation: np.ndarray
     background: np.ndarray
+    extras: dict = field(default_factory=dict)   # more per-pixel maps for unwrap.h5 (e.g. confidence)
 
 
 def _default_min_modulation(dtype) -> float:
@@ -161,7 +162,8 @@ def write_results(results: dict, out_dir, *, previews: bool = True, attrs: dict 
                      "extra": {"prior": np.asarray(u.prior, dtype=np.float64),
                                "modulation": np.asarray(r.modulation, np.float64),
                                "projector_coordinate": projector_coordinate(np.asarray(u.phase), u.frequency,
-                                                                            r.width)},
+                                                                            r.width),
+                               **r.extras},
                      "attrs": {"method": u.method, "width": r.width, "valid_fraction": float(np.mean(u.valid))}}
     path = write_phase_file(Path(out_dir) / "unwrap.h5", groups, attrs=attrs)
     if previews:

@@ -3,9 +3,9 @@
 (The plain traditional TPU is the dataset's ``order_traditional``; the prior-free network, the
 paper's DT-TPU, is the ``prior_free`` model kind of the same code.)
 
-The coarse absolute phase of each method is averaged over a ``window x window`` box of valid
-pixels (a normalised convolution: invalid pixels neither contribute nor get a value), and the
-method's rounding is redone with it:
+The coarse absolute phase of each method is filtered over the valid pixels of a
+``window x window`` box (a local least-squares plane by default, or the mean:
+:mod:`unwrap.learned.smoothing`), and the method's rounding is redone with it:
 
 - MF: the unit-frequency phase ``Phi_lo`` (absolute), ``prior = (f_hi/f_lo Phi_lo - phi_hi) / 2 pi``;
 - MW: the beat phase ``wrap(phi_hi - phi_lo)`` of ``f_hi - f_lo <= 1`` periods (absolute),
@@ -38,52 +38,36 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import ndimage
-
-from .._xp import TWO_PI, round_order, wrap
-from ..temporal import base_phase
+from .._xp import round_order
 from .errors import ModelError
 
 
-def masked_box_mean(x: np.ndarray, valid: np.ndarray, window: int) -> np.ndarray:
-    """Mean of ``x`` over the valid pixels of each ``window x window`` box (NaN where none)."""
-    if int(window) < 1:
-        raise ModelError(f"filter window {window}: expected >= 1 pixel")
-    v = valid.astype(np.float64)
-    num = ndimage.uniform_filter(np.where(valid, x, 0.0), int(window), mode="constant")
-    den = ndimage.uniform_filter(v, int(window), mode="constant")
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(den > 1e-12, num / np.where(den > 1e-12, den, 1.0), np.nan)
-
-
-def coarse_phase(method: str, phase_low, phase_high, frequencies, width=None):
-    """(absolute coarse phase (rad), its frequency) of a method's pair (see the module docstring)."""
-    f_lo, f_hi = (float(f) for f in frequencies)
-    if method == "mf":
-        return base_phase(np.asarray(phase_low, dtype=np.float64), f_lo, width), f_lo
-    if method in ("mw", "nt"):
-        beat = f_hi - f_lo
-        if beat > 1 + 1e-9:
-            raise ModelError(f"{method} pair ({f_lo:g}, {f_hi:g}): the filtered baseline needs a beat of at most "
-                             f"1 period (an absolute coarse phase); this pair's is {beat:g}")
-        d = wrap(np.asarray(phase_high, dtype=np.float64) - np.asarray(phase_low, dtype=np.float64))
-        return base_phase(d, beat, width), beat
-    raise ModelError(f"method {method!r}: expected 'mf', 'mw' or 'nt'")
-
-
 def filtered_order(method: str, phase_low, phase_high, frequencies, valid, *, window: int = 15,
-                   width=None) -> np.ndarray:
-    """Fringe order (int64, -1 invalid) of the high frequency with the coarse phase box-filtered.
+                   fit: str = "plane", width=None) -> np.ndarray:
+    """Fringe order (int64, -1 invalid) of the high frequency with the coarse phase filtered.
 
     ARGUMENTS: method; wrapped phases (rad, (H, W)); frequencies (low, high); valid (H, W) bool;
-    window (px, odd or even); width = projector pixels across the fringes (places the 2 pi cut of
-    the coarse phase as unwrap.temporal does; optional).
+    window (px, odd); fit "plane" (local least-squares plane, default) or "mean" (box mean); width =
+    projector pixels across the fringes (places the 2 pi cut of the coarse phase as
+    unwrap.temporal does; optional).
     """
-    valid = np.asarray(valid, dtype=bool)
+    import torch
+
+    from .smoothing import smoothed_prior
+
+    if method not in ("mf", "mw", "nt"):
+        raise ModelError(f"method {method!r}: expected 'mf', 'mw' or 'nt'")
     f_lo, f_hi = (float(f) for f in frequencies)
-    Phi, f_c = coarse_phase(method, phase_low, phase_high, frequencies, width)
-    Phi_f = masked_box_mean(Phi, valid, window)
-    prior = (f_hi / f_c * Phi_f - np.asarray(phase_high, dtype=np.float64)) / TWO_PI
+    if method != "mf" and f_hi - f_lo > 1 + 1e-9:
+        raise ModelError(f"{method} pair ({f_lo:g}, {f_hi:g}): the filtered baseline needs a beat of at most "
+                         f"1 period (an absolute coarse phase); this pair's is {f_hi - f_lo:g}")
+    valid = np.asarray(valid, dtype=bool)
+    t = lambda a: torch.from_numpy(np.where(valid, np.nan_to_num(np.asarray(a, dtype=np.float64)), 0.0))[None, None]  # noqa: E731
+    one = lambda f: torch.full((1, 1, 1, 1), f, dtype=torch.float64)  # noqa: E731
+    prior, _ = smoothed_prior(t(phase_low), t(phase_high), one(f_lo), one(f_hi),
+                              torch.tensor(method == "mf").reshape(1, 1, 1, 1), torch.from_numpy(valid)[None, None],
+                              window=window, fit=fit, width=width)
+    prior = prior[0, 0].numpy()
     ok = valid & np.isfinite(prior)
     k = np.clip(round_order(np.where(ok, prior, 0.0)), 0, math.floor(f_hi + 0.5))
     return np.where(ok, k, -1).astype(np.int64)

@@ -14,10 +14,19 @@ ch    meaning
       +-0.5 exactly where the traditional order goes wrong, *not* at the fringe edges (there the
       prior and its rounding jump together). It is the same quantity for MF and MW (fringe order
       estimate) and NT (residue), and the same at 16 or 96 periods.
-1-3   ``sin phi_h, cos phi_h, phi_h / pi``: the high wrapped phase, i.e. where the fringe edges are
+1-2   ``2 r_s`` for the *smoothed prior*, whose coarse absolute phase (MF: the unit phase; MW, NT:
+      the beat of the pair, absolute for pairs one period apart) is filtered by a local plane fit
+      over the valid pixels of a box (:data:`SMOOTH_WINDOWS` = 7 and 15 px; the filtered baseline
+      of :mod:`unwrap.learned.baselines`) before the rounding. A network cannot average the coarse
+      phase itself: it only sees it wrapped into the prior, whose integer part it must not know
+      (that is the frequency).
+3-4   ``(round(prior_s) - order_traditional) / 2`` clipped to [-1, 1] for both windows: where the
+      smoothed and the pixel's own prior disagree (noise that the filter removes, or a depth
+      step the box smears).
+5-7   ``sin phi_h, cos phi_h, phi_h / pi``: the high wrapped phase, i.e. where the fringe edges are
       (the only places where the true order may change) and the spatial continuity to use.
-4-5   modulation of the low / high pattern (x 4, clipped to 2): how noisy each phase is.
-6     valid mask (1 / 0); every other channel is 0 at invalid pixels.
+8-9   modulation of the low / high pattern (x 4, clipped to 2): how noisy each phase is.
+10    valid mask (1 / 0); every other channel is 0 at invalid pixels.
 ====  =====================================================================================
 
 Output: ``2 K + 1`` logits per pixel for the integer correction ``c`` in ``[-K, K]`` (K = 2) added
@@ -49,12 +58,14 @@ KINDS = ("physics", "prior_free")
 METHOD_INDEX = {"mf": 0, "mw": 1, "nt": 2}
 MODULATION_GAIN = 4.0
 ORDER_SCALE = 64.0
+#: Boxes (px) over which the smoothed priors filter the coarse phase.
+SMOOTH_WINDOWS = (7, 15)
 
 
 def input_channels(kind: str) -> int:
     """Number of input channels of a model kind."""
     if kind == "physics":
-        return 7
+        return 5 + 3 * len(SMOOTH_WINDOWS)
     if kind == "prior_free":
         return 12
     raise ModelError(f"model kind {kind!r}: expected one of {KINDS}")
@@ -79,6 +90,24 @@ def valid_mask(batch: dict) -> torch.Tensor:
     return ok
 
 
+def smoothed_prior(batch: dict, ok: torch.Tensor, window: int) -> torch.Tensor:
+    """(B, 1, H, W) float32: the prior with the coarse phase plane-filtered over a ``window`` box
+    (:func:`unwrap.learned.smoothing.smoothed_prior`; float64 inside: ratio x phase reaches 600 rad
+    at 96 periods). An NT pair without an absolute beat keeps its own prior. Uses the batch's
+    ``method`` (B,) (MF assumed without it)."""
+    from .smoothing import smoothed_prior as _sp
+
+    B = ok.shape[0]
+    method = batch["method"].reshape(B, 1, 1, 1) if "method" in batch else torch.zeros(B, 1, 1, 1, dtype=torch.long)
+    zero = torch.zeros((), dtype=torch.float64)
+    okc = ok[:, None]
+    prior_s, usable = _sp(torch.where(okc, batch["phase_low"].double(), zero),
+                          torch.where(okc, batch["phase_high"].double(), zero),
+                          batch["frequency_low"].reshape(B, 1, 1, 1), batch["frequency_high"].reshape(B, 1, 1, 1),
+                          method == METHOD_INDEX["mf"], okc, window=window)
+    return torch.where(usable, prior_s, batch["prior"].double()).to(torch.float32)
+
+
 def make_inputs(batch: dict, kind: str) -> tuple[torch.Tensor, torch.Tensor]:
     """(x float32 (B, C, H, W), valid bool (B, H, W)) from a collated batch of items.
 
@@ -99,7 +128,13 @@ def make_inputs(batch: dict, kind: str) -> tuple[torch.Tensor, torch.Tensor]:
     if kind == "physics":
         prior = clean("prior")
         r = prior - _round_order(prior)
-        chans = [2.0 * r, torch.sin(phi_h) * v, torch.cos(phi_h) * v, phi_h / math.pi, m_lo, m_hi, v]
+        trad = batch["order_traditional"][:, None].to(torch.float32)
+        r_s, d = [], []
+        for w in SMOOTH_WINDOWS:
+            prior_s = torch.where(okc, smoothed_prior(batch, ok, w), zero)
+            r_s.append(2.0 * (prior_s - _round_order(prior_s)))
+            d.append(torch.where(okc, torch.clamp((_round_order(prior_s) - trad) / 2.0, -1.0, 1.0), zero))
+        chans = [2.0 * r, *r_s, *d, torch.sin(phi_h) * v, torch.cos(phi_h) * v, phi_h / math.pi, m_lo, m_hi, v]
     elif kind == "prior_free":
         phi_l = clean("phase_low")
         if "method" not in batch:

@@ -5,8 +5,9 @@ It serves the same item dict as :class:`unwrap.dataset.FringeOrderDataset` (the 
 HDF5 file, in seconds. Each sample is drawn from ``(seed, index)`` alone:
 
 - a camera image ``size = (H, W)`` of a projector coordinate map ``u`` (px across the fringes): a
-  tilted plane (0.8-1.6 projector px per camera px, the built-in system's scale), smooth bumps, and
-  one object whose parallax shifts ``u`` by a step at its silhouette, with a cast-shadow band
+  tilted plane (0.8-1.6 projector px per camera px, the built-in system's scale), smooth relief
+  (1-12 px of parallax, i.e. up to ~50 mm of depth, over 15-50 camera px), and one object whose
+  parallax shifts ``u`` by up to 40 px at its silhouette, with a cast-shadow band
   beside it and an unlit border where ``u`` leaves the pattern;
 - albedo texture, exposure and ambient light (``A``, ``B`` of ``I_n = A + B cos(Phi - 2 pi n/N)``);
 - a **low-frequency bias** standing for global illumination: light arriving from another surface
@@ -121,10 +122,11 @@ def synthetic_sample(index: int, *, size=(96, 128), method: str = "mf", frequenc
     a = rng.normal(0.0, 0.15)
     along = (xx * math.cos(a) + yy * math.sin(a)) if orientation == "v" else (yy * math.cos(a) + xx * math.sin(a))
     g = rng.uniform(0.8, 1.6) * rng.choice((-1.0, 1.0))
-    u = g * along + rng.uniform(5, 40) * _smooth_field(rng, (H, W), rng.uniform(10, 40))
+    # relief: 1 projector px of parallax is ~4 mm of depth at the built-in system's 800 mm
+    u = g * along + rng.uniform(1, 12) * _smooth_field(rng, (H, W), rng.uniform(15, 50))
     obj = _blob(rng, (H, W))
-    step = rng.uniform(-60, 60)
-    u = u + np.where(obj, step + rng.uniform(3, 25) * _smooth_field(rng, (H, W), rng.uniform(6, 20)), 0.0)
+    step = rng.uniform(-40, 40)
+    u = u + np.where(obj, step + rng.uniform(0.5, 6) * _smooth_field(rng, (H, W), rng.uniform(8, 30)), 0.0)
     u = u - u.min() + rng.uniform(-20, max(width - (u.max() - u.min()), 0.0))
     # cast shadow: the object's silhouette moved sideways, outside the object
     dy, dx = rng.integers(-6, 7, size=2)
@@ -135,8 +137,8 @@ def synthetic_sample(index: int, *, size=(96, 128), method: str = "mf", frequenc
     A = albedo * (ambient + np.where(lit, 0.5 * exposure, 0.0))
     B = albedo * np.where(lit, 0.5 * exposure, 0.0)
     r_ind = rng.uniform(*indirect)
-    shift = rng.normal(0.0, 0.3 * min(H, W), size=2)
-    sigma_ind = rng.uniform(0.08, 0.2) * min(H, W)
+    shift = rng.normal(0.0, 60.0, size=2)        # light from surfaces ~60 px away
+    sigma_ind = rng.uniform(10.0, 40.0)
     sub, sigma_sub = rng.uniform(*subsurface), rng.uniform(0.5, 3.0)
     defocus = rng.uniform(*defocus)
     sigma_noise = rng.uniform(*noise)

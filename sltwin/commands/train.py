@@ -1,0 +1,47 @@
+"""``calib train [CONFIG.toml] [section.key=value ...] -o RUN`` / ``--resume RUN``: train the learned
+fringe-order network (unwrap.learned.train). Several processes: ``torchrun --nproc_per_node=N -m
+sltwin.cli train CONFIG.toml -o RUN`` (gloo on CPU, NCCL on CUDA; only rank 0 writes)."""
+from __future__ import annotations
+
+from sltwin.errors import CommandError
+
+HELP = "train the learned fringe-order network (config + overrides, resumable, torchrun for DDP)"
+
+
+def add_arguments(parser):
+    parser.add_argument("items", nargs="*", metavar="CONFIG|KEY=VALUE",
+                        help="a TOML config (optional) followed by section.key=value overrides, "
+                             "e.g. optim.steps=2000 data.train='[\"train.h5\"]'")
+    parser.add_argument("-o", "--output", default=None, help="run folder (default runs/<date-time>)")
+    parser.add_argument("--resume", default=None, metavar="RUN", help="continue the run in this folder")
+    parser.add_argument("--deterministic", action="store_true", help="deterministic kernels (slower)")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or messages")
+
+
+def split_items(items):
+    """(config path or None, overrides) from the positional items."""
+    config, overrides = None, []
+    for i, it in enumerate(items):
+        if "=" in it:
+            overrides.append(it)
+        elif i == 0:
+            config = it
+        else:
+            raise CommandError(f"{it!r}: expected section.key=value after the config file")
+    return config, overrides
+
+
+def run(args) -> int:
+    from unwrap.learned.train import train
+
+    config, overrides = split_items(args.items)
+    if args.resume and args.output:
+        raise CommandError("--resume RUN continues in RUN; do not give -o as well")
+    r = train(config, overrides, args.output, resume=args.resume,
+              deterministic=True if args.deterministic else None, progress=not args.quiet)
+    if r.run_dir is not None:
+        best = "n/a" if r.best_error == float("inf") else f"{100 * r.best_error:.3f} %"
+        print(f"step {r.step}: final loss {r.final_loss:.4g}, best validation error {best}, "
+              f"{r.samples_per_s:.2f} training samples/s")
+        print(f"wrote {r.run_dir} (model.pt, last.pt, best.pt, train.csv, val.csv, metrics.json, metrics.png)")
+    return 0

@@ -1,0 +1,81 @@
+"""Unwrap a capture folder with a trained model (``calib unwrap CAPTURE --model learned``).
+
+Per orientation: the N-step wrapped phase of the pair the model takes (MF: the lowest, unit
+frequency and the highest; MW / NT: the two highest, one period apart), the traditional prior and
+order, then :func:`unwrap.learned.infer.unwrap_learned`. The result is an
+:class:`unwrap.pipeline.OrientationResult` like the traditional path's (so ``write_results``
+writes the same ``unwrap.h5``), with ``order`` / ``phase`` from the network and two more maps:
+``confidence`` (probability of the chosen correction, 0 where invalid) and ``order_traditional``.
+Intermediate frequencies of a longer MF ladder are not used: the model was trained on the pair.
+"""
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+from .._xp import TWO_PI
+from ..capture import load_capture, read_stack
+from ..phase_shift import wrapped_phase
+from ..pipeline import OrientationResult, _default_min_modulation
+from ..temporal import Unwrapped
+from .errors import ModelError
+from .infer import resolve_model, unwrap_learned
+
+log = logging.getLogger("unwrap.learned")
+
+
+def _pair(method: str, freqs: list) -> tuple[int, int]:
+    """Indices (low, high) into the sorted frequencies for a method."""
+    if len(freqs) < 2:
+        raise ModelError(f"the learned unwrapping needs two fringe frequencies, the capture has {freqs}")
+    if method == "mf":
+        return 0, len(freqs) - 1
+    if method in ("mw", "nt"):
+        return len(freqs) - 2, len(freqs) - 1
+    raise ModelError(f"method {method!r}: the learned unwrapping supports 'mf', 'mw' and 'nt'")
+
+
+def learned_orientation(oc, method: str, model, *, min_modulation=None, on_outside: str = "raise",
+                        progress: bool = False) -> OrientationResult:
+    """One orientation of a capture (:class:`unwrap.capture.OrientationCapture`) by the network."""
+    sets = sorted(oc.sets, key=lambda s: s.frequency)
+    freqs = [float(s.frequency) for s in sets]
+    i_lo, i_hi = _pair(method, freqs)
+    w = {}
+    for i in (i_lo, i_hi):
+        stack = read_stack(sets[i].files)
+        mm = _default_min_modulation(stack.dtype) if min_modulation is None else min_modulation
+        full = float(np.iinfo(stack.dtype).max) if np.issubdtype(stack.dtype, np.integer) else 1.0
+        ph = wrapped_phase(stack, sets[i].shifts, min_modulation=mm)
+        w[i] = (ph, full)
+        log.log(logging.INFO if progress else logging.DEBUG, "  [%s] f = %g: %d frames", oc.orientation,
+                freqs[i], len(sets[i].files))
+    (lo, full_lo), (hi, full_hi) = w[i_lo], w[i_hi]
+    valid = lo.valid & hi.valid
+    r = unwrap_learned(method, lo.phase, hi.phase, lo.B / full_lo, hi.B / full_hi, valid, (freqs[i_lo], freqs[i_hi]),
+                       width=oc.width, model=model, on_outside=on_outside)
+    ok = r.order >= 0
+    phase = np.where(ok, np.nan_to_num(hi.phase) + TWO_PI * r.order, math.nan)
+    res = Unwrapped(phase, np.where(ok, r.order, -1).astype(np.int32), ok, np.where(r.valid, r.prior, math.nan),
+                    freqs[i_hi], f"{method}+learned")
+    extras = {"confidence": r.confidence.astype(np.float32), "order_traditional": r.order_traditional.astype(np.int32)}
+    log.log(logging.INFO if progress else logging.DEBUG, "  [%s] learned: %d of %d valid pixels changed from the "
+            "traditional order; frequency check %s", oc.orientation, int((r.order != r.order_traditional)[ok].sum()),
+            int(ok.sum()), r.frequency_check.get("status"))
+    return OrientationResult(oc.orientation, oc.width, res, hi.B, hi.A, extras=extras)
+
+
+def unwrap_capture_learned(folder, method: str = "mf", model="learned", *, preset=None, pose=None,
+                           min_modulation=None, on_outside: str = "raise", progress: bool = False) -> dict:
+    """Every orientation of a capture folder by the network: {"v": OrientationResult, ...}."""
+    cap = load_capture(folder, preset, pose)
+    net = resolve_model(model)
+    out = {}
+    for o, oc in cap.orientations.items():
+        log.log(logging.INFO if progress else logging.DEBUG, "unwrap %s [%s] orientation %s, method %s + learned",
+                cap.folder, cap.preset, o, method)
+        out[o] = learned_orientation(oc, method, net, min_modulation=min_modulation, on_outside=on_outside,
+                                     progress=progress)
+    return out
