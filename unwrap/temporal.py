@@ -3,7 +3,9 @@
 Conventions (DESIGN.md): a wrapped phase ``phi`` lies in (-pi, pi] (atan2); the absolute phase of
 a pattern with ``f`` periods across the projector is ``Phi = 2*pi*f*u_p/W_p`` in [0, 2*pi*f); the
 fringe order is ``k = (Phi - phi) / (2*pi)``, an integer in [0, round(f)] (k = f on the last half
-period). Every method returns :class:`Unwrapped` with the absolute phase of its highest
+period). The order is the prior rounded to the nearest integer, a prior within 1e-9 of a half
+integer (a tie: the two phases disagree by exactly pi) going to the lower order on every path and
+machine (:func:`unwrap._xp.round_order`). Every method returns :class:`Unwrapped` with the absolute phase of its highest
 frequency, ``k``, a validity mask and the *physics prior*: the real-valued quantity inside
 ``Round[]`` of eqs. 7-9 of the paper's supplementary (for MF/MW the real fringe-order estimate,
 for NT the real-valued residue ``(f1*phi2 - f2*phi1) / (2*pi)``).
@@ -31,7 +33,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ._xp import TWO_PI, is_torch, namespace, wrap
+from ._xp import TWO_PI, is_torch, namespace, round_order, wrap
 from .errors import UnreliableFringesWarning, UnwrapError
 
 
@@ -132,7 +134,7 @@ def refine(Phi_coarse, ratio: float, phi):
     """
     xp = namespace(Phi_coarse, phi)
     prior = (ratio * Phi_coarse - phi) / TWO_PI
-    k = xp.round(prior)
+    k = round_order(prior, xp)
     return prior, k, phi + TWO_PI * k
 
 
@@ -329,7 +331,7 @@ def nt_unwrap(phases, frequencies, *, width=None, valid=None, phase_sigma=None, 
                            f"NT pair ({f1}, {f2}) at phase noise {np.round(sig, 4).tolist()} rad")
     ok = _finite_mask(namespace(phi1), (phi1, phi2), valid)
     prior = (f1 * phi2 - f2 * phi1) / TWO_PI
-    m = np.round(np.where(ok, prior, 0.0)).astype(np.int64)
+    m = round_order(np.where(ok, prior, 0.0)).astype(np.int64)
     k1 = table[np.clip(m + offset, 0, table.size - 1)].astype(np.int64)
     # k1 = 0 and k1 = f1 share the residue: below u = -0.5 px it is the last half period (k1 = f1)
     k1 = np.where((k1 == 0) & (phi1 < -TWO_PI * f1 * edge_fraction(width)), f1, k1)
