@@ -83,7 +83,8 @@ def export_dataset(config, out, *, shard=None, progress: bool = True) -> dict:
     indices = shard_range(cfg.samples, i, n)
     path = shard_path(out, i, n)
     attrs = {**dataset_attrs(cfg, system), "shard": [i, n]}
-    writer = ShardWriter(path, indices, attrs, cfg.codec, attrs["fingerprint"])
+    groups = {o: {"frequencies": list(cfg.frequencies), "steps": list(cfg.steps)} for o in cfg.orientations}
+    writer = ShardWriter(path, indices, attrs, cfg.codec, attrs["fingerprint"], groups)
     stages = {k: 0.0 for k in ("geometry", "patterns", "noise", "phase", "labels", "write")}
     t0 = time.perf_counter()
     if writer.complete():

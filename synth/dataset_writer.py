@@ -134,7 +134,8 @@ class ShardWriter:
     ``attrs``: root attributes (schema, system, config, ...); ``fingerprint``: what a resumed run
     must share with the first (config + system + schema)."""
 
-    def __init__(self, out, indices: range, attrs: dict, codec: str, fingerprint: str):
+    def __init__(self, out, indices: range, attrs: dict, codec: str, fingerprint: str, group_attrs=None):
+        self.group_attrs = group_attrs or {}
         self.out = Path(out)
         self.indices = indices
         self.attrs = dict(attrs)
@@ -245,6 +246,8 @@ class ShardWriter:
                                 d.id.write_direct_chunk((k,) + offset[1:], data, mask)
                 for n in _SMALL:
                     dsets[n][...] = np.stack(small[n]) if n != "params" else np.array(small[n], dtype=object)
+                for g, ga in self.group_attrs.items():
+                    out[g].attrs.update(ga)
                 for key, v in {**self.attrs, "n_samples": S, "first_sample": self.indices.start,
                                "complete": True}.items():
                     out.attrs[key] = v
@@ -358,6 +361,10 @@ def combine(shards, out, *, progress=None) -> Path:
                 h5.create_virtual_dataset(name, layout, **kw)
                 if progress is not None:
                     progress(name)
+            with h5py.File(infos[0][0], "r") as first:
+                for g in first:
+                    if isinstance(first[g], h5py.Group):
+                        h5[g].attrs.update(dict(first[g].attrs))
             for k, v in infos[0][1].items():
                 if k in ("widths", "config_json", "system_dict"):
                     v = json.dumps(v)

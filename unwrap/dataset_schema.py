@@ -43,7 +43,9 @@ Root attributes (self-description): ``schema`` (:data:`SCHEMA`), ``schema_versio
 pixels across the fringes per orientation), ``camera_size`` [W, H], ``bits``, ``min_modulation``
 (fraction of full scale), ``system`` (calibration.json text), ``config`` (the export config TOML
 text) and ``config_json`` (resolved), ``seed``, ``code_version`` (git describe), ``codec``,
-``samples_total``, ``shard`` [i, n], ``first_sample``, ``n_samples``, ``complete``.
+``samples_total``, ``shard`` [i, n], ``first_sample``, ``n_samples``, ``complete``. Each orientation
+group carries ``frequencies`` and ``steps`` of its own (a capture may differ per orientation; the
+root lists the union).
 """
 from __future__ import annotations
 
@@ -112,6 +114,16 @@ def read_attrs(h5) -> dict:
     return out
 
 
+def orientation_frequencies(h5, orientation: str) -> list:
+    """Frequencies (periods) stored for one orientation: the group's ``frequencies`` attribute
+    (captures may differ per orientation), else the root's."""
+    g = h5.get(orientation)
+    f = g.attrs.get("frequencies") if g is not None else None
+    if f is None:
+        f = h5.attrs["frequencies"]
+    return [float(x) for x in np.asarray(f).ravel()]
+
+
 def check_schema(h5, path="", *, require_complete: bool = True) -> dict:
     """Check that an open h5py file is a fringe-order dataset of a version this code reads.
 
@@ -136,9 +148,9 @@ def check_schema(h5, path="", *, require_complete: bool = True) -> dict:
         raise DatasetSchemaError(f"{name}: the export did not finish (complete = False); rerun it to resume")
     S = int(attrs["n_samples"])
     W, H = (int(v) for v in attrs["camera_size"])
-    F = len(attrs["frequencies"])
     expect = {"masks": (S, H, W), "sample_index": (S,)}
     for o in attrs["orientations"]:
+        F = len(orientation_frequencies(h5, o))
         for k in ("phase", "modulation", "flags"):
             expect[f"{o}/{k}"] = (S, F, H, W)
     for k, shape in expect.items():
