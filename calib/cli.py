@@ -23,6 +23,7 @@ COMMANDS = [
     ("plan-fringes", "unwrap.cli_plan", "predicted fringe-order error rate vs number of images"),
     ("render", "synth.cli_render", "render a scene TOML to PNG images + HDF5 ground truth"),
     ("render-board", "synth.cli_render_board", "render the paper's calibration session from the twin"),
+    ("export", "synth.cli_export", "twin training data or a real capture as sharded, resumable HDF5"),
 ]
 
 
