@@ -137,7 +137,7 @@ def _capture_sample(folder, preset, reference, cloud, system):
 
 
 def export_capture(folder, out, *, preset=None, reference: str = "auto", reference_cloud=None,
-                   reference_system=None, codec: str = "lzf") -> dict:
+                   reference_system=None, codec: str = "gzip-1") -> dict:
     """Export the capture(s) in ``folder`` to ``out`` (see the module docstring).
 
     ``reference``: "auto" (Gray code when the capture has it, else the cloud when given, else

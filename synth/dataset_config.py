@@ -53,7 +53,7 @@ render plan of each sample says so)::
     shadows = "auto"
 
     [output]
-    codec = "lzf"                 # "lzf" | "gzip" | "gzip-N" | "none"
+    codec = "gzip-1"              # "gzip-N" (N = 1..9; "gzip" = 4) | "lzf" | "none"
 """
 from __future__ import annotations
 
@@ -122,7 +122,7 @@ class ExportConfig:
     texture: float = 0.5
     texture_contrast: Range = Range(0.1, 0.6)
     effects: dict = field(default_factory=dict)  # name -> Range or {sub: Range}; plus bits, shadows
-    codec: str = "lzf"
+    codec: str = "gzip-1"
     text: str = ""
     base_dir: Path = Path(".")
 
@@ -307,7 +307,7 @@ def config_from_dict(d: dict, base_dir=Path("."), text: str = "") -> ExportConfi
 
     cfg.effects = _effects(d.get("effects", {}))
     out = _table(d.get("output", {}), "output", {"codec"})
-    cfg.codec = out.get("codec", "lzf")
+    cfg.codec = out.get("codec", "gzip-1")
     if cfg.codec not in CODECS:
         _fail("output.codec", f"expected one of lzf, gzip, gzip-1..9, none; got {cfg.codec!r}")
     return cfg

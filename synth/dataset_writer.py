@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import errno
 import hashlib
+import io
 import json
 import logging
 import os
@@ -120,6 +121,9 @@ def _fsync_path(path: Path):
 
 
 def _disk_error(exc: OSError, what: str, parts_dir: Path, done: int) -> ExportError:
+    if exc.errno == errno.ENOSPC and exc.strerror and exc.strerror != os.strerror(errno.ENOSPC):
+        return ExportError(f"cannot write {what}: {exc.strerror}. {done} finished sample(s) are kept in "
+                           f"{parts_dir}; free space and rerun the same command to resume")
     why = {errno.ENOSPC: "disk full", errno.EFBIG: "file size limit reached", errno.EDQUOT: "disk quota exceeded",
            errno.EACCES: "permission denied", errno.EROFS: "read-only file system"}.get(exc.errno, exc.strerror or str(exc))
     return ExportError(f"cannot write {what}: {why}. {done} finished sample(s) are kept in {parts_dir}; "
@@ -200,15 +204,21 @@ class ShardWriter:
 
         path = self.part_path(index)
         tmp = path.with_name(path.name + ".tmp")
+        # built in memory, then written by plain file I/O: a full disk is a clean OSError, never a
+        # half-closed HDF5 file
+        buf = io.BytesIO()
+        with h5py.File(buf, "w", libver="latest") as h5:
+            _create(h5, "sample_index", (1,), np.int64, self.codec)[0] = index
+            _create(h5, "params", (1,), None, self.codec)[0] = params
+            _create(h5, "label_check", (1,) + label_check.shape, np.int32, self.codec)[0] = label_check
+            for name in sorted(arrays):
+                a = arrays[name]
+                _create(h5, name, (1,) + a.shape, a.dtype, self.codec)[0] = a
         try:
-            with h5py.File(tmp, "w", libver="latest") as h5:
-                _create(h5, "sample_index", (1,), np.int64, self.codec)[0] = index
-                _create(h5, "params", (1,), None, self.codec)[0] = params
-                _create(h5, "label_check", (1,) + label_check.shape, np.int32, self.codec)[0] = label_check
-                for name in sorted(arrays):
-                    a = arrays[name]
-                    _create(h5, name, (1,) + a.shape, a.dtype, self.codec)[0] = a
-            _fsync_path(tmp)
+            with open(tmp, "wb") as fh:
+                fh.write(buf.getbuffer())
+                fh.flush()
+                os.fsync(fh.fileno())
             os.replace(tmp, path)
         except OSError as exc:
             tmp.unlink(missing_ok=True)
@@ -216,6 +226,20 @@ class ShardWriter:
         except BaseException:
             tmp.unlink(missing_ok=True)
             raise
+
+    def _check_space(self, parts_bytes: int):
+        """Refuse to assemble when the shard file (about the parts' size) cannot fit: free disk
+        space, or the process's file size limit (RLIMIT_FSIZE)."""
+        import resource
+        import shutil
+
+        need = int(parts_bytes * 1.02) + (1 << 20)
+        free = shutil.disk_usage(self.out.parent).free
+        limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+        if free < need or (limit != resource.RLIM_INFINITY and limit < need):
+            why = (f"{free / 1e6:.1f} MB free" if free < need else f"file size limit {limit / 1e6:.1f} MB")
+            raise _disk_error(OSError(errno.ENOSPC, f"the shard file needs about {need / 1e6:.1f} MB, {why}"),
+                              f"the shard file {self.out}", self.parts, self.done_count())
 
     def assemble(self) -> Path:
         """Build the shard file from the parts (all must exist), atomically; remove the parts."""
@@ -226,6 +250,7 @@ class ShardWriter:
             raise ExportError(f"{self.out}: {len(missing)} sample(s) missing in {self.parts} (first {missing[:5]})")
         tmp = self.out.with_name(self.out.name + ".tmp")
         S = len(self.indices)
+        self._check_space(sum(self.part_path(i).stat().st_size for i in self.indices))
         try:
             with h5py.File(tmp, "w", libver="latest") as out:
                 first = None
@@ -253,8 +278,10 @@ class ShardWriter:
                     out.attrs[key] = v
             _fsync_path(tmp)
             os.replace(tmp, self.out)
-        except OSError as exc:
+        except (OSError, RuntimeError) as exc:  # h5py reports some failed writes as RuntimeError
             tmp.unlink(missing_ok=True)
+            if not isinstance(exc, OSError):
+                exc = OSError(errno.EIO, str(exc).split("(")[0].strip())
             raise _disk_error(exc, f"the shard file {tmp}", self.parts, self.done_count()) from None
         except BaseException:
             tmp.unlink(missing_ok=True)
