@@ -66,13 +66,14 @@ def test_prior_and_traditional_order_are_unwraps_own_on_the_stored_phases(twin_f
         ph = decode_phase(h5["v/phase"][2])            # (F, H, W)
         flags = h5["v/flags"][2]
         lit = (h5["masks"][2] & 2) != 0
-    valid = lit & (flags == 0).all(0)
+    valid = lit & (flags[[0, 2]] == 0).all(0)
     ds = FringeOrderDataset(twin_file, method="mf", frequencies=(1, 16))
     item = ds[2]
     assert torch.equal(item["valid"], torch.from_numpy(valid))
     r = mf_unwrap([ph[0], ph[2]], (1, 16), width=912, valid=valid)
     np.testing.assert_array_equal(item["order_traditional"].numpy()[r.valid], r.order[r.valid])
     np.testing.assert_allclose(item["prior"][0].numpy()[valid], r.prior[valid].astype(np.float32), rtol=0, atol=0)
+    valid = lit & (flags[[1, 2]] == 0).all(0)      # the mw / nt pair (15, 16)
     r = mw_unwrap([ph[1], ph[2]], (15, 16), width=912, valid=valid)
     np.testing.assert_array_equal(FringeOrderDataset(twin_file, method="mw", frequencies=(15, 16))[2]
                                   ["order_traditional"].numpy()[r.valid], r.order[r.valid])
@@ -140,7 +141,7 @@ def test_reader_refuses_foreign_files_versions_pairs_and_subsets_clearly(twin_fi
                     (dict(method="mw", frequencies=(1, 16)), "beat 15 periods exceeds 1"),
                     (dict(method="nt", frequencies=(15, 30)), "coprime"),
                     (dict(method="mf", frequencies=(15, 16)), "unit frequency"),
-                    (dict(orientation="h"), "not 'h'"), (dict(samples=[0, 3]), r"\[0, 3\)")):
+                    (dict(orientation="h"), "not 'h'"), (dict(samples=[0, 3], frequencies=(1, 16)), r"\[0, 3\)")):
         with pytest.raises(UnwrapError, match=msg):
             FringeOrderDataset(twin_file, **kw)
     ds = open_dataset([twin_file, twin_file], samples=[4, 5], frequencies=(1, 16))
