@@ -6,8 +6,9 @@ Both renderers render each scene twice, direct light only and with subsurface sc
 each is compared with *itself*: so radiometric scale and Cycles' own conventions cancel, and what
 is compared is what global illumination does to the fringes:
 
-- contrast loss of a high frequency: median over interior pixels of ``B_gi / B_direct`` (N-step
-  modulation), ours vs Cycles;
+- contrast loss of a high frequency: median over interior pixels of ``(B/A)_gi / (B/A)_direct``
+  (N-step modulation over background: independent of how much light each renderer's subsurface
+  model returns in total), ours vs Cycles;
 - phase bias of a low frequency: ``wrap(phi_gi - phi_direct)`` per pixel, ours vs Cycles (RMS of
   each, RMS of their difference, correlation).
 
@@ -26,7 +27,7 @@ from .blender_twin import render_in_blender
 from .effects import Effects, GlobalIllumination
 from .meshes import sphere_mesh
 from .objects import Mesh, Sphere
-from .parity import _phase_and_modulation, parity_system
+from .parity import parity_system
 from .render import render
 from .scene import DEFAULT_BALL_RADIUS_MM, Scene
 from .sequence import phase_sequence
@@ -40,6 +41,15 @@ def slab_mesh(half_mm: float = 400.0, thickness_mm: float = 40.0):
     F = np.array([[0, 1, 2], [0, 2, 3], [4, 6, 5], [4, 7, 6], [0, 4, 5], [0, 5, 1], [1, 5, 6], [1, 6, 2],
                   [2, 6, 7], [2, 7, 3], [3, 7, 4], [3, 4, 0]])
     return V, F
+
+
+def _phase_contrast(stack):
+    """N-step wrapped phase and contrast B/A (H,W) float64 (unwrap's least squares)."""
+    from unwrap.phase_shift import wrapped_phase
+
+    w = wrapped_phase(np.asarray(stack, dtype=np.float64), saturation=None, fill_invalid=False)
+    A = np.asarray(w.A)
+    return np.asarray(w.phase), np.where(A > 1e-6, np.asarray(w.B) / np.where(A > 1e-6, A, 1.0), 0.0)
 
 
 def _interior(mask: np.ndarray, r: int = 3) -> np.ndarray:
@@ -104,8 +114,8 @@ def gi_versus_cycles(kind: str, *, weight: float = 0.8, radius_mm: float = 4.0, 
     a_direct_c = {}
     for j, f in enumerate(frequencies):
         sl = slice(j * n, (j + 1) * n)
-        pc, bc = _phase_and_modulation(cyc_direct[sl])
-        pg, bg = _phase_and_modulation(cyc_gi[sl])
+        pc, bc = _phase_contrast(cyc_direct[sl])
+        pg, bg = _phase_contrast(cyc_gi[sl])
         a_direct_c[f] = (pc, bc, pg, bg)
     m_top = lit & (a_direct_c[f_top][1] > 1e-3)
     contrast_cycles_top = float(np.median(a_direct_c[f_top][3][m_top] / a_direct_c[f_top][1][m_top]))
@@ -116,8 +126,8 @@ def gi_versus_cycles(kind: str, *, weight: float = 0.8, radius_mm: float = 4.0, 
     a, b = direct.images.numpy().astype(np.float64), gi.images.numpy().astype(np.float64)
     for j, f in enumerate(frequencies):
         sl = slice(j * n, (j + 1) * n)
-        po, bo = _phase_and_modulation(a[sl])
-        pgo, bgo = _phase_and_modulation(b[sl])
+        po, bo = _phase_contrast(a[sl])
+        pgo, bgo = _phase_contrast(b[sl])
         pc, bc, pg, bg = a_direct_c[f]
         m = lit & (bc > 1e-3) & (bo > 1e-3)
         bias_c = np.angle(np.exp(1j * (pg - pc)))[m]
