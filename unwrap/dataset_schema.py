@@ -38,6 +38,16 @@ the MF prior at a ratio of 96; modulation in uint16 has a step of 1.5e-5 of full
 coordinate in float32 carries at most 3e-5 px (2e-5 rad of absolute phase at 96 periods over 912
 px), far inside the half period that decides an order. Orders are stored exactly.
 
+SYNOPSIS
+
+    >>> import numpy as np
+    >>> from unwrap.dataset_schema import decode_phase, encode_phase
+    >>> p = encode_phase(np.array([0.0, 1.0, np.pi, -np.pi, np.nan]))
+    >>> p.tolist()                      # pi and -pi are one phase: both stored as -pi
+    [0, 10430, -32768, -32768, 0]
+    >>> bool(abs(decode_phase(p)[1] - 1.0) < 0.5 * np.pi / 32768)
+    True
+
 Root attributes (self-description): ``schema`` (:data:`SCHEMA`), ``schema_version``, ``kind``
 ("twin" or "capture"), ``orientations``, ``frequencies``, ``steps``, ``widths`` (JSON: projector
 pixels across the fringes per orientation), ``camera_size`` [W, H], ``bits``, ``min_modulation``
