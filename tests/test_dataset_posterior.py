@@ -60,3 +60,21 @@ def test_zero_covariance_returns_the_system_and_missing_covariance_is_refused(tm
         PosteriorSampler(base, p)
     with pytest.raises(SynthError, match="not positive semi-definite"):
         PosteriorSampler(base, _write(tmp_path, ["camera.fx", "camera.fy"], [[1.0, 2.0], [2.0, 1.0]]))
+
+
+def test_posterior_export_draws_one_system_per_sample_and_stays_deterministic(tmp_path):
+    from synth.dataset_export import export_dataset
+
+    from dataset_helpers import arrays_of, assert_same_arrays, tiny_config
+
+    cfg = tiny_config(tmp_path, samples=2)
+    d = json.loads((tmp_path / "system.json").read_text())
+    d["covariance"] = {"names": ["camera.fx", "prj_cam.t0"], "matrix": [[4.0, 0.0], [0.0, 0.25]]}
+    (tmp_path / "system.json").write_text(json.dumps(d))
+    cfg.write_text(cfg.read_text().replace('file = "system.json"', 'file = "system.json"\nperturb = "posterior"'))
+    export_dataset(cfg, tmp_path / "a.h5", progress=False)
+    export_dataset(cfg, tmp_path / "b.h5", progress=False)
+    a = arrays_of(tmp_path / "a.h5")
+    assert_same_arrays(a, arrays_of(tmp_path / "b.h5"))
+    fx = [json.loads(p)["system"]["camera"]["K"][0][0] for p in a["params"]]
+    assert fx[0] != fx[1] and all(abs(f - d["camera"]["K"][0][0]) < 20 for f in fx)
