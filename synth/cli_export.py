@@ -6,6 +6,8 @@
 """
 from __future__ import annotations
 
+HELP = "twin training data or a real capture as sharded, resumable HDF5"
+
 
 def add_arguments(parser):
     parser.add_argument("config", nargs="?", help="export config TOML (docs/dataset.md)")
