@@ -242,7 +242,19 @@ def config_from_dict(d: dict, base_dir=Path("."), text: str = "") -> ExportConfi
     cfg.max_redraws = _num(ex.get("max_redraws", 20), "export.max_redraws", 1, 10000, integer=True)
     cfg.min_modulation = _num(ex.get("min_modulation", 0.02), "export.min_modulation", 0.0, 0.5)
 
-    sy = _table(d.get("system", {}), "system", {"file", "ideal", "perturb"})
+    _system_section(cfg, d.get("system", {}))
+    _patterns_section(cfg, d.get("patterns", {}))
+    _scene_section(cfg, d.get("scene", {}), base_dir)
+    cfg.effects = _effects(d.get("effects", {}))
+    out = _table(d.get("output", {}), "output", {"codec"})
+    cfg.codec = out.get("codec", "gzip-1")
+    if cfg.codec not in CODECS:
+        _fail("output.codec", f"expected one of lzf, gzip, gzip-1..9, none; got {cfg.codec!r}")
+    return cfg
+
+
+def _system_section(cfg: ExportConfig, sy: dict):
+    sy = _table(sy, "system", {"file", "ideal", "perturb"})
     if "file" in sy:
         files = sy["file"] if isinstance(sy["file"], list) else [sy["file"]]
         cfg.system_file = [str(f) for f in files]
@@ -253,7 +265,9 @@ def config_from_dict(d: dict, base_dir=Path("."), text: str = "") -> ExportConfi
     if cfg.perturb == "posterior" and not cfg.system_file:
         _fail("system.perturb", "'posterior' needs system.file (a calibration.json written by calib run)")
 
-    pa = _table(d.get("patterns", {}), "patterns", {"orientations", "frequencies", "steps", "A", "B"})
+
+def _patterns_section(cfg: ExportConfig, pa: dict):
+    pa = _table(pa, "patterns", {"orientations", "frequencies", "steps", "A", "B"})
     o = pa.get("orientations", ["v", "h"])
     if not isinstance(o, list) or not o or any(x not in ("v", "h") for x in o) or len(set(o)) != len(o):
         _fail("patterns.orientations", f"expected a list of distinct 'v' / 'h', got {o!r}")
@@ -275,7 +289,9 @@ def config_from_dict(d: dict, base_dir=Path("."), text: str = "") -> ExportConfi
     if cfg.A - cfg.B < -1e-12 or cfg.A + cfg.B > 1 + 1e-12:
         _fail("patterns.A/B", f"A +- B = [{cfg.A - cfg.B}, {cfg.A + cfg.B}] must lie in [0, 1]")
 
-    sc = _table(d.get("scene", {}), "scene", {"objects", "mesh_dir", "meshes", "mesh_fraction", "procedural",
+
+def _scene_section(cfg: ExportConfig, sc: dict, base_dir):
+    sc = _table(sc, "scene", {"objects", "mesh_dir", "meshes", "mesh_fraction", "procedural",
                                                "size_mm", "depth_mm", "background", "background_gap_mm",
                                                "background_tilt_deg", "albedo", "texture", "texture_contrast"})
     n = _range(sc.get("objects", [1, 4]), "scene.objects", 1, 32)
@@ -304,13 +320,6 @@ def config_from_dict(d: dict, base_dir=Path("."), text: str = "") -> ExportConfi
     cfg.albedo = _range(sc.get("albedo", [0.3, 0.95]), "scene.albedo", 0.0, 1.0)
     cfg.texture = _prob(sc.get("texture", 0.5), "scene.texture")
     cfg.texture_contrast = _range(sc.get("texture_contrast", [0.1, 0.6]), "scene.texture_contrast", 0.0, 1.0)
-
-    cfg.effects = _effects(d.get("effects", {}))
-    out = _table(d.get("output", {}), "output", {"codec"})
-    cfg.codec = out.get("codec", "gzip-1")
-    if cfg.codec not in CODECS:
-        _fail("output.codec", f"expected one of lzf, gzip, gzip-1..9, none; got {cfg.codec!r}")
-    return cfg
 
 
 def load_config(path) -> ExportConfig:

@@ -19,7 +19,6 @@ scene whose objects cover too little of the image.
 from __future__ import annotations
 
 import json
-import math
 import time
 from dataclasses import dataclass, field, replace
 

@@ -327,8 +327,47 @@ def combine(shards, out, *, progress=None) -> Path:
     ``progress``: optional callable(name) called after each virtual dataset (for a progress line)."""
     import h5py
 
-    shards = [Path(s) for s in shards]
     out = Path(out)
+    infos, total = _checked_shards([Path(s) for s in shards])
+    names = infos[0][2]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp")
+    try:
+        with h5py.File(tmp, "w", libver="latest") as h5:
+            for name, (shape, dtype) in sorted(names.items()):
+                layout = h5py.VirtualLayout(shape=(total,) + tuple(shape[1:]), dtype=dtype)
+                p = 0
+                for s, a, _ in infos:
+                    m = int(a["n_samples"])
+                    rel = os.path.relpath(s.resolve(), out.resolve().parent)
+                    layout[p:p + m] = h5py.VirtualSource(rel, name, shape=(m,) + tuple(shape[1:]))
+                    p += m
+                kw = {"fillvalue": -1} if np.issubdtype(dtype, np.integer) else {}
+                h5.create_virtual_dataset(name, layout, **kw)
+                if progress is not None:
+                    progress(name)
+            with h5py.File(infos[0][0], "r") as first:
+                for g in first:
+                    if isinstance(first[g], h5py.Group):
+                        h5[g].attrs.update(dict(first[g].attrs))
+            for k, v in infos[0][1].items():
+                if k in ("widths", "config_json", "system_dict"):
+                    v = json.dumps(v)
+                h5.attrs[k] = v
+            h5.attrs.update({"shard": [0, 1], "first_sample": 0, "n_samples": total, "complete": True,
+                             "combined_from": [os.path.relpath(s.resolve(), out.resolve().parent) for s, _, _ in infos]})
+        os.replace(tmp, out)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return out
+
+
+def _checked_shards(shards: list) -> tuple[list, int]:
+    """[(path, attrs, {dataset: (shape, dtype)})] sorted by shard, and the sample total; refuses
+    a missing, duplicated, incomplete, foreign or mismatched shard (ExportError)."""
+    import h5py
+
     if not shards:
         raise ExportError("--combine: no shard files given")
     infos = []
@@ -372,35 +411,5 @@ def combine(shards, out, *, progress=None) -> Path:
     for s, _, shapes in infos[1:]:
         if set(shapes) != set(names) or any(shapes[k][0][1:] != names[k][0][1:] for k in names):
             raise ExportError(f"--combine: {s} has other datasets or shapes than {infos[0][0]}")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp")
-    try:
-        with h5py.File(tmp, "w", libver="latest") as h5:
-            for name, (shape, dtype) in sorted(names.items()):
-                layout = h5py.VirtualLayout(shape=(total,) + tuple(shape[1:]), dtype=dtype)
-                p = 0
-                for s, a, shapes in infos:
-                    m = int(a["n_samples"])
-                    rel = os.path.relpath(s.resolve(), out.resolve().parent)
-                    layout[p:p + m] = h5py.VirtualSource(rel, name, shape=(m,) + tuple(shape[1:]))
-                    p += m
-                kw = {"fillvalue": -1} if np.issubdtype(dtype, np.integer) else {}
-                h5.create_virtual_dataset(name, layout, **kw)
-                if progress is not None:
-                    progress(name)
-            with h5py.File(infos[0][0], "r") as first:
-                for g in first:
-                    if isinstance(first[g], h5py.Group):
-                        h5[g].attrs.update(dict(first[g].attrs))
-            for k, v in infos[0][1].items():
-                if k in ("widths", "config_json", "system_dict"):
-                    v = json.dumps(v)
-                h5.attrs[k] = v
-            h5.attrs.update({"shard": [0, 1], "first_sample": 0, "n_samples": total, "complete": True,
-                             "combined_from": [os.path.relpath(s.resolve(), out.resolve().parent) for s, _, _ in infos]})
-        os.replace(tmp, out)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return out
+    return infos, total
 
