@@ -34,6 +34,7 @@ from .dataset_config import ExportConfig
 from .dataset_scenes import draw_scene
 from .errors import SynthError
 from .geometry import compute_geometry
+from .plan_log import PlanLog
 from .render import render
 from .truth import phase_truth
 
@@ -48,16 +49,6 @@ class Sample:
     label_check: np.ndarray        # (O, F, 4) int32: mismatches (clean interior, clean edge, effects
                                    # interior, effects edge), -1 not checked
     timings: dict = field(default_factory=dict)
-
-
-class _Quiet:
-    """A render-plan sink that keeps the lines without logging them (one plan per sample)."""
-
-    def __init__(self):
-        self.lines = []
-
-    def info(self, fmt, *args):
-        self.lines.append(fmt % args if args else fmt)
 
 
 def edge_mask(geometry, depth_jump_mm: float = 3.0) -> np.ndarray:
@@ -86,7 +77,7 @@ def _draw_covered(cfg: ExportConfig, system, index: int, timings: dict, sampler=
         if sampler is not None:
             from calib.io.calibration_json import system_to_dict
             params["system"] = system_to_dict(sys_i)
-        plan = _Quiet()
+        plan = PlanLog()
         geom = compute_geometry(scene, log=plan)
         timings["geometry"] = timings.get("geometry", 0.0) + time.perf_counter() - t
         n_obj = len(params.get("objects", []))
@@ -107,7 +98,7 @@ def make_sample(cfg: ExportConfig, system, index: int, sampler=None) -> Sample:
     system = scene.system
     W, H = system.camera.size
     t = time.perf_counter()
-    plan = _Quiet()
+    plan = PlanLog()
     res = render(scene, geometry=geom, keep_linear=True, log=plan)
     params["plan"] = params["plan"] + plan.lines
     total_render = time.perf_counter() - t
@@ -148,7 +139,7 @@ def make_sample(cfg: ExportConfig, system, index: int, sampler=None) -> Sample:
     clean_scene = replace(scene, effects=replace(scene.effects, projector_defocus=None, camera_defocus=None,
                                                  global_illumination=None, projector_gamma=1.0, noise=None))
     clean_imgs = render(clean_scene, geometry=replace(geom, sigma_prj=None, sigma_cam=None), quantised=False,
-                        log=_Quiet()).images.numpy()
+                        log=PlanLog()).images.numpy()
     for i, o in enumerate(cfg.orientations):
         coord = (geom.u_p if o == "v" else geom.v_p).reshape(H, W).numpy()
         arrays[f"{o}/coordinate"] = np.where(lit, coord, np.nan).astype(np.float32)

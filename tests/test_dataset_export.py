@@ -23,7 +23,7 @@ ENV = {**os.environ, "PYTHONPATH": str(REPO)}
 
 
 def _cli(*args, preexec=None, timeout=300):
-    return subprocess.run([sys.executable, "-m", "calib.cli", "export", *map(str, args), "-q"], env=ENV,
+    return subprocess.run([sys.executable, "-m", "sltwin.cli", "export", *map(str, args), "-q"], env=ENV,
                           capture_output=True, text=True, timeout=timeout, preexec_fn=preexec)
 
 
@@ -52,7 +52,7 @@ def test_killed_export_resumes_and_equals_an_uninterrupted_one_bit_for_bit(tmp_p
     export_dataset(cfg, ref, progress=False)
     out = tmp_path / "killed.h5"
     parts = tmp_path / "killed.h5.parts"
-    proc = subprocess.Popen([sys.executable, "-m", "calib.cli", "export", str(cfg), "-o", str(out), "-q"], env=ENV,
+    proc = subprocess.Popen([sys.executable, "-m", "sltwin.cli", "export", str(cfg), "-o", str(out), "-q"], env=ENV,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     t0 = time.time()
     while time.time() - t0 < 240:
