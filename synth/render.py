@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from .geometry import Geometry, compute_geometry
+from .global_illumination import apply_global_illumination
 from .plan_log import PlanLog
 from .projection import linear_model, nonlinear_values
 
@@ -128,6 +129,12 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
         cam_blur = False
     else:
         cam_blur = True
+    gi = eff.global_illumination
+    gi_on = gi is not None and gi.active and lit.numel() > 0
+    if gi is None:
+        plan.info("global illumination: skipped (not asked for)")
+    elif not gi_on:
+        plan.info("global illumination: skipped (%s)", "zero fractions" if not gi.active else "nothing lit")
     if eff.noise is None:
         plan.info("sensor noise: skipped (not asked for)")
     # images = ambient + scale * p. Linear patterns: one matrix product (K, R) @ (R, N) over basis
@@ -140,7 +147,7 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
     p_other = nonlinear_values(scene.patterns, other, u, v, psize, eff, sig, log=plan) if other else None
     if lit.numel() == 0:
         plan.info("patterns: no camera pixel is lit by the projector (empty image apart from ambient light)")
-    fused = quantised and not cam_blur and eff.noise is None and not keep_linear
+    fused = quantised and not cam_blur and not gi_on and eff.noise is None and not keep_linear
     if fused:
         # nothing between the patterns and the quantiser acts across pixels: compute the lit
         # pixels in cache-sized chunks and quantise them at once; unlit pixels hold ambient only
@@ -159,6 +166,14 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
             nl = geometry.ambient_term.to(torch.float32).repeat(len(other), 1)
             nl[:, lit] += (geometry.radiance_scale[lit] * p_other).to(torch.float32)
         timings["patterns"] = time.perf_counter() - t
+        if gi_on:
+            # linear too: applied to the basis rows (and the other patterns' images)
+            t = time.perf_counter()
+            f_px = max(scene.system.camera.fx, scene.system.camera.fy)
+            full = apply_global_illumination(full, geometry, gi, f_px, log=plan)
+            if nl is not None:
+                nl = apply_global_illumination(nl, geometry, gi, f_px)
+            timings["global illumination"] = time.perf_counter() - t
         if cam_blur:
             # blur is linear and its per-pixel level weights too: blurring the R basis rows and
             # combining them equals blurring the K images (R ~ K / 5 for fringe stacks)

@@ -4,9 +4,9 @@ import importlib
 
 import pytest
 
-MODULES = ["calib.device", "calib.distortion", "calib.rotation", "calib.marker_phase", "unwrap.patterns", "twin_mapping.euler",
-           "unwrap.learned.config", "unwrap.learned.network", "unwrap.learned.metrics", "unwrap.learned.baselines",
-           "unwrap.learned.synthetic"]
+MODULES = ["calib.device", "calib.distortion", "calib.rotation", "calib.marker_phase", "unwrap.patterns", "unwrap.dataset_schema",
+           "twin_mapping.euler", "unwrap.learned.config", "unwrap.learned.network", "unwrap.learned.metrics",
+           "unwrap.learned.baselines", "unwrap.learned.synthetic", "unwrap.learned.smoothing"]
 
 
 @pytest.mark.parametrize("name", MODULES)
