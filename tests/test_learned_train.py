@@ -53,13 +53,13 @@ def test_tiny_training_run_writes_everything_a_user_expects(tmp_path):
 
 
 def test_training_reduces_the_loss_on_a_fixed_batch(tmp_path):
-    """Not a quality claim - a check that gradients flow: 40 steps on 2 scenes lower the loss."""
-    r = train(None, TINY + ["data.synthetic_samples=2", "data.val_fraction=0", "optim.steps=40", "optim.lr=5e-3",
-                            "run.checkpoint_every=40"], tmp_path / "fit", progress=False)
+    """Not a quality claim - a check that gradients flow: 2 scenes, one batch, 60 steps lower the loss."""
+    over = TINY + ["data.synthetic_samples=2", "data.val_fraction=0", "data.methods=['mf']", "data.flip=false",
+                   "optim.lr=5e-3", "run.checkpoint_every=100", "optim.warmup_steps=1"]
+    r = train(None, over + ["optim.steps=60"], tmp_path / "fit", progress=False)
     rows = list(csv.DictReader(open(tmp_path / "fit" / "train.csv")))
-    first = sum(float(r["loss"]) for r in rows[:5]) / 5
-    last = sum(float(r["loss"]) for r in rows[-5:]) / 5
-    assert r.step == 40 and last < 0.8 * first
+    first, last = float(rows[0]["loss"]), sum(float(r["loss"]) for r in rows[-5:]) / 5
+    assert r.step == 60 and last < 0.7 * first, (first, last)
 
 
 KILL_SCRIPT = """

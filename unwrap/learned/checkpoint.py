@@ -53,7 +53,14 @@ def build_model(arch: dict) -> FringeUNet:
         raise CheckpointError(
             f"model architecture: a {kind!r} model has {want_in} inputs and {want_out} outputs in this "
             f"version, the checkpoint says {arch['in_channels']} and {arch['out_channels']}")
-    return FringeUNet(want_in, want_out, width=arch["width"], depth=arch["depth"], max_width=arch["max_width"])
+    net = FringeUNet(want_in, want_out, width=arch["width"], depth=arch["depth"], max_width=arch["max_width"])
+    if kind == "physics":
+        # start from "keep the traditional order" (correction 0 at ~95 %): most pixels are right, and
+        # the network then spends its training on the ones that are not
+        with torch.no_grad():
+            net.refine[-1].bias.zero_()
+            net.refine[-1].bias[arch["max_correction"]] = 3.0
+    return net
 
 
 def save_atomic(obj: dict, path) -> Path:

@@ -37,53 +37,54 @@ def _paper(x) -> str:
 
 
 class _Cache:
-    """score() results per (method, f, model set), so S5 and S6 share the physics model's runs."""
+    """One score() per (method, f) with every model, shared by the S5 and S6 tables."""
 
-    def __init__(self, source, filtered_window):
-        self.source, self.window, self.done = source, filtered_window, {}
+    def __init__(self, source, models: dict, filtered_window):
+        self.source, self.models, self.window, self.done = source, models, filtered_window, {}
 
-    def get(self, method, f, models: dict, example=False):
-        key = (method, float(f), tuple(sorted(models)))
+    def get(self, method, f):
+        key = (method, float(f))
         if key not in self.done:
             t0 = time.perf_counter()
-            self.done[key] = score(self.source, method, f, models, filtered_window=self.window, example=example)
-            log.info("scored %s f=%g with %s in %.0f s", method, f, sorted(models), time.perf_counter() - t0)
+            self.done[key] = score(self.source, method, f, self.models, filtered_window=self.window,
+                                   example=(method == "mf"))
+            log.info("scored %s f=%g in %.0f s", method, f, time.perf_counter() - t0)
         return self.done[key]
 
 
-def table_s5(cache: _Cache, models: dict, frequencies=(48, 96), methods=METHODS) -> dict:
-    """{f: {row: {method: {"ours": rate, "paper": percent}}}} plus the per-(method, f) Scored."""
+def table_s5(cache: _Cache, frequencies=(48, 96), methods=METHODS) -> dict:
+    """{"table": {f: {row: {method: {"ours", "paper", "pixels"}}}}, "scored": {(method, f): Scored}}."""
     out, scored = {}, {}
+    names = {"Traditional": "Traditional", ROW_PF: "DT-TPU", ROW_PA: "DP-TPU"}
     for f in frequencies:
         rows: dict = {}
         for m in methods:
-            s = cache.get(m, f, models, example=(m == "mf"))
+            s = cache.get(m, f)
             scored[(m, f)] = s
             if s is None:
                 continue
             paper = TABLE_S5.get(int(f), {})
-            names = {"Traditional": "Traditional", ROW_PF: "DT-TPU", ROW_PA: "DP-TPU"}
-            for row, count in s.counts.items():
-                p = paper.get(names.get(row, ""), None)
-                rows.setdefault(row, {})[m] = {"ours": count.rate, "paper": None if p is None else
-                                               p[METHODS.index(m)], "pixels": count.counted}
+            for row in [r for r in s.counts if r != ROW_MSE]:
+                p = paper.get(names.get(row, ""))
+                rows.setdefault(row, {})[m] = {"ours": s.counts[row].rate, "pixels": s.counts[row].counted,
+                                               "paper": None if p is None else p[METHODS.index(m)]}
         out[int(f)] = rows
     return {"table": out, "scored": scored}
 
 
-def table_s6(cache: _Cache, mse_only, msefl, frequencies=(16, 32, 48, 64, 80, 96), methods=METHODS) -> dict:
-    """{f: {method: {"MSE": rate, "MSE + FL": rate, "traditional": rate, "paper": (mse, msefl)}}}."""
+def table_s6(cache: _Cache, frequencies=(16, 32, 48, 64, 80, 96), methods=METHODS) -> dict:
+    """{f: {method: {"MSE": rate or None, "MSE + FL": rate, "traditional": rate, "paper": (mse, msefl)}}}."""
     out = {}
     for f in frequencies:
         row = {}
         for m in methods:
-            s = cache.get(m, f, {ROW_MSE: mse_only, ROW_PA: msefl}) if mse_only is not None else \
-                cache.get(m, f, {ROW_PA: msefl})
+            s = cache.get(m, f)
             if s is None:
                 continue
             p = TABLE_S6.get(int(f), {}).get(m.upper())
             row[m] = {"MSE": s.counts[ROW_MSE].rate if ROW_MSE in s.counts else None,
                       "MSE + FL": s.counts[ROW_PA].rate, "traditional": s.counts["Traditional"].rate,
+                      "prior_free": s.counts[ROW_PF].rate if ROW_PF in s.counts else None,
                       "paper": p, "pixels": s.counts[ROW_PA].counted}
         out[int(f)] = row
     return out
@@ -232,14 +233,15 @@ def markdown(res: dict) -> str:
     if s6:
         L += ["## S6 layout: MSE vs MSE + Fourier loss [%]", "",
               "| f | " + " | ".join(f"{m.upper()} MSE | {m.upper()} MSE+FL | {m.upper()} paper" for m in METHODS)
-              + " | MF traditional |", "|---|" + "---:|---:|---:|" * len(METHODS) + "---:|"]
+              + " | MF traditional | MF prior-free |", "|---|" + "---:|---:|---:|" * len(METHODS) + "---:|---:|"]
         for f, per in s6.items():
             cells = []
             for m in METHODS:
                 c = per.get(m, {})
                 p = c.get("paper")
                 cells += [_pct(c.get("MSE")), _pct(c.get("MSE + FL")), "-" if p is None else f"{p[0]:.2f} / {p[1]:.2f}"]
-            L.append(f"| {f} | " + " | ".join(cells) + f" | {_pct(per.get('mf', {}).get('traditional'))} |")
+            mf = per.get("mf", {})
+            L.append(f"| {f} | " + " | ".join(cells) + f" | {_pct(mf.get('traditional'))} | {_pct(mf.get('prior_free'))} |")
         L.append("")
     conf = res.get("confidence") or {}
     if conf:
@@ -287,17 +289,19 @@ def run_evaluation(source: TestSource, out_dir, *, physics, prior_free=None, mse
     ``markdown`` and the written file names."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    models = {ROW_PA: load_model(physics)}
+    models = {}
     if prior_free is not None:
         models[ROW_PF] = load_model(prior_free)
-    mse = load_model(mse_only) if mse_only is not None else None
-    cache = _Cache(source, filtered_window)
+    models[ROW_PA] = load_model(physics)
+    if mse_only is not None:
+        models[ROW_MSE] = load_model(mse_only)
+    cache = _Cache(source, models, filtered_window)
     res: dict = {"source": source.label or (", ".join(map(str, source.files)) or "synthetic")}
-    s5 = table_s5(cache, models, s5_frequencies, methods)
+    s5 = table_s5(cache, s5_frequencies, methods)
     res["s5"] = s5["table"]
     res["confidence"] = {f"{m.upper()}, {f:g}": confidence_curve(s, ROW_PA) for (m, f), s in s5["scored"].items()
                          if s is not None}
-    res["s6"] = table_s6(cache, mse, models[ROW_PA], s6_frequencies, methods) if s6_frequencies else {}
+    res["s6"] = table_s6(cache, s6_frequencies, methods) if s6_frequencies else {}
     res["checks"] = {f"{m} {f:g}": s.checks.get(ROW_PA) for (m, f), s in s5["scored"].items() if s is not None}
     if real:
         rows = real_table(real, models[ROW_PA], window=filtered_window)

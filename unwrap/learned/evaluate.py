@@ -202,7 +202,7 @@ def speed_table(model, *, size=(480, 640), repeats: int = 5, device: str = "cpu"
     rng = np.random.default_rng(0)
     u = np.tile(np.linspace(100, 800, W), (H, 1)) + rng.normal(0, 0.2, (H, W))
     Phi = {f: 2 * np.pi * f * u / 912 for f in (1, 48)}
-    stacks = [np.clip(np.rint(255 * fringe_intensity(Phi[f][None], np.arange(12)[:, None, None], 12, 0.5, 0.35)
+    stacks = [np.clip(np.rint(255 * np.stack([fringe_intensity(Phi[f], n, 12, 0.5, 0.35) for n in range(12)])
                               + rng.normal(0, 2, (12, H, W))), 0, 255).astype(np.uint8) for f in (1, 48)]
     from ..phase_shift import wrapped_phase
     ws = [wrapped_phase(s) for s in stacks]

@@ -30,10 +30,10 @@ import numpy as np
 import torch
 
 from .. import _xp
+from ..dataset import traditional
 from . import features as Fe
 from .checkpoint import load_model
 from .errors import FrequencyRangeWarning, ModelError
-from .synthetic import traditional
 
 #: Refuse fringe periods on the camera shorter than this (px).
 MIN_PERIOD_PX = 3.0
@@ -156,6 +156,7 @@ def unwrap_learned(method: str, phase_low, phase_high, modulation_low, modulatio
     batch = {"prior": z(prior), "phase_low": z(phi_lo), "phase_high": z(phi_hi),
              "modulation_low": z(modulation_low), "modulation_high": z(modulation_high),
              "order_traditional": torch.from_numpy(order_trad)[None], "valid": torch.from_numpy(valid)[None],
+             "frequency_low": torch.tensor([f_lo], dtype=torch.float64),
              "frequency_high": torch.tensor([f_hi], dtype=torch.float64),
              "method": torch.tensor([Fe.METHOD_INDEX[method]])}
     order, conf = predict(net, ck, batch)

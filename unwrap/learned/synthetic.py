@@ -17,7 +17,7 @@ HDF5 file, in seconds. Each sample is drawn from ``(seed, index)`` alone:
   narrow blur inside the object) and camera defocus lower the contrast of fine fringes;
 - Gaussian sensor noise (``noise`` = sigma range in full-scale units) and 8-bit quantisation,
   then the N-step wrapped phase (:func:`unwrap.wrapped_phase`) and the method's prior and order
-  (:func:`traditional`, i.e. ``mf_unwrap`` / ``mw_unwrap`` / ``nt_unwrap``).
+  (:func:`unwrap.dataset.traditional`, the reader's own: ``mf_unwrap`` / ``mw_unwrap`` / ``nt_unwrap``).
 
 Each effect has a range argument (``noise``, ``indirect``, ``subsurface``, ``defocus``); zero ranges
 give the ideal stack, on which the traditional order is exact (tested).
@@ -40,6 +40,7 @@ from scipy import ndimage
 from torch.utils.data import Dataset
 
 from .._xp import TWO_PI, round_order
+from ..dataset import traditional
 from ..phase_shift import wrapped_phase
 from .errors import ModelError
 
@@ -62,31 +63,6 @@ def check_pair(method: str, f_lo: float, f_hi: float) -> None:
         raise ModelError(f"mw pair ({f_lo:g}, {f_hi:g}): the beat {f_hi - f_lo:g} periods exceeds 1")
     if method == "nt" and (f_lo != int(f_lo) or f_hi != int(f_hi) or math.gcd(int(f_lo), int(f_hi)) != 1):
         raise ModelError(f"nt pair ({f_lo:g}, {f_hi:g}): expected coprime whole numbers")
-
-
-def traditional(method: str, phi_lo, phi_hi, f_lo: float, f_hi: float, width: float, valid):
-    """(prior float64, order int64 -1 invalid, valid bool) of one method on wrapped phases (rad).
-
-    The prior is the real-valued quantity inside Round[] (MF/MW: fringe order of ``f_hi``; NT: the
-    residue ``(f1 phi2 - f2 phi1) / 2 pi``); the order is the method's order of ``f_hi`` clipped to
-    [0, round(f_hi)]. Same semantics as the dataset reader's.
-    """
-    from ..temporal import mf_unwrap, mw_unwrap, nt_unwrap
-
-    if method == "mf":
-        r = mf_unwrap([phi_lo, phi_hi], (f_lo, f_hi), width=width, valid=valid)
-        k = r.levels[-1][2]
-    elif method == "mw":
-        r = mw_unwrap([phi_lo, phi_hi], (f_lo, f_hi), width=width, valid=valid)
-        k = r.levels[-1][2]
-    else:
-        r = nt_unwrap([phi_lo, phi_hi], (f_lo, f_hi), width=width, valid=valid)
-        k = r.levels[1][2]
-    prior = np.asarray(r.prior, dtype=np.float64)
-    ok = valid & np.isfinite(prior)
-    kmax = math.floor(f_hi + 0.5)
-    order = np.where(ok, np.clip(np.nan_to_num(np.asarray(k, dtype=np.float64)), 0, kmax), -1)
-    return np.where(ok, prior, 0.0), order.astype(np.int64), ok
 
 
 def _smooth_field(rng, shape, corr_px: float) -> np.ndarray:

@@ -6,7 +6,9 @@ A run folder holds::
     last.pt          full training state, written atomically every ``run.checkpoint_every`` steps
     best.pt          the same at the best validation error rate so far
     model.pt         the inference-only best model (what ships; see checkpoint.export_model)
-    train.csv        step, epoch, loss and its parts, learning rate, samples/s (every log_every)
+    train.csv        step, epoch, loss and its parts, learning rate, samples/s, wall seconds
+                     of this session, CPU seconds of the whole run (every log_every; CPU time is
+                     what the run costs on dedicated cores, whatever else the machine runs)
     val.csv          step, validation loss, traditional and model error rates
     metrics.json     summary: final and best numbers, samples/s, wall time, data split
     metrics.png      training loss and validation error rate vs step
@@ -48,7 +50,7 @@ log = logging.getLogger("unwrap.learned")
 #: What may change when a run is resumed (everything else must match the saved config).
 RESUMABLE_OVERRIDES = ("optim.steps", "run.log_every", "run.val_every", "run.checkpoint_every", "run.threads",
                        "data.workers")
-TRAIN_FIELDS = ("step", "epoch", "loss", "mse", "fourier", "ce", "lr", "samples_per_s", "time_s")
+TRAIN_FIELDS = ("step", "epoch", "loss", "mse", "fourier", "ce", "lr", "samples_per_s", "time_s", "cpu_s")
 VAL_FIELDS = ("step", "loss", "error_traditional", "error_model", "pixels")
 
 
@@ -306,7 +308,7 @@ def train(config=None, overrides=(), out_dir=None, *, resume=None, deterministic
         amp_dtype = torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16
         if amp_dtype == torch.float16:
             scaler = torch.amp.GradScaler("cuda")
-    step, epoch, batch_in_epoch, best = 0, 0, 0, float("inf")
+    step, epoch, batch_in_epoch, best, cpu_before = 0, 0, 0, float("inf"), 0.0
     if resume is not None:
         ck = read_checkpoint(run_dir / "last.pt")
         model.load_state_dict(ck["model"])
@@ -315,6 +317,7 @@ def train(config=None, overrides=(), out_dir=None, *, resume=None, deterministic
         if scaler is not None and ck.get("scaler"):
             scaler.load_state_dict(ck["scaler"])
         step, epoch, batch_in_epoch, best = ck["step"], ck["epoch"], ck["batch_in_epoch"], ck["best"]
+        cpu_before = float(ck.get("cpu_s", 0.0))
         set_rng_state(ck["rng"])
     net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[local_rank] if device.type == "cuda" else None) \
         if distributed else model
@@ -340,13 +343,14 @@ def train(config=None, overrides=(), out_dir=None, *, resume=None, deterministic
                 "meta": {**meta, "step": step}, "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
                 "scaler": scaler.state_dict() if scaler is not None else {}, "step": step, "epoch": epoch,
                 "batch_in_epoch": batch_in_epoch, "best": best_value, "rng": rng_state(),
+                "cpu_s": cpu_before + time.process_time() - cpu_start,
                 "config": to_toml(cfg)}
 
     total = int(cfg["optim"]["steps"])
+    t_start, cpu_start = time.perf_counter(), time.process_time()
     bar = StepBar(total, start=step, enabled=progress and writer)
     model.train()
     t_train, n_seen, last_loss, val_row = 0.0, 0, float("nan"), None
-    t_start = time.perf_counter()
     while step < total:
         sampler.set_epoch(epoch, batch_in_epoch * bs)
         train_ds.set_epoch(epoch)
@@ -385,7 +389,8 @@ def train(config=None, overrides=(), out_dir=None, *, resume=None, deterministic
                     files.append("train.csv", TRAIN_FIELDS, {
                         "step": step, "epoch": epoch, "loss": f"{last_loss:.6g}", **{k: f"{v:.6g}" for k, v in parts.items()},
                         "lr": f"{sched.get_last_lr()[0]:.6g}", "samples_per_s": f"{sps:.4g}",
-                        "time_s": f"{time.perf_counter() - t_start:.1f}"})
+                        "time_s": f"{time.perf_counter() - t_start:.1f}",
+                        "cpu_s": f"{cpu_before + time.process_time() - cpu_start:.1f}"})
                 bar.update(step, loss=last_loss, samples_per_s=sps)
                 if val_ds is not None and (step % cfg["run"]["val_every"] == 0 or step == total):
                     val_row = validate(model, val_ds, cfg, weights, device)
@@ -420,6 +425,7 @@ def train(config=None, overrides=(), out_dir=None, *, resume=None, deterministic
                    "best_val_error": None if best == float("inf") else best, "last_val": val_row,
                    "train_samples_per_s": result.samples_per_s, "world_size": world, "device": str(device),
                    "threads": torch.get_num_threads(), "wall_s_this_session": time.perf_counter() - t_start,
+                   "cpu_s_total": cpu_before + time.process_time() - cpu_start,
                    "train_items": info["train_items"], "val_items": info["val_items"],
                    "train_scenes": len(info["train_scenes"]), "val_scenes": info["val_scenes"]}
         (run_dir / "metrics.json").write_text(json.dumps(summary, indent=1))
