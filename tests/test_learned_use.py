@@ -13,7 +13,7 @@ from unwrap.learned.config import resolve_config
 from unwrap.learned.errors import FrequencyRangeWarning, ModelError
 from unwrap.learned.infer import check_frequency_range, unwrap_learned
 from unwrap.learned.synthetic import synthetic_sample
-from unwrap.patterns import absolute_phase, fringe_intensity
+from unwrap.patterns import absolute_phase
 
 META = {"frequencies": {"mf": [1.0, 48.0], "mw": [47.0, 48.0], "nt": [47.0, 48.0]}}
 
@@ -72,39 +72,10 @@ def test_learned_orders_are_the_traditional_ones_plus_the_chosen_correction(tmp_
     assert r2.order[3, 4] == -1 and np.isfinite(r2.confidence).all()
 
 
-CAPTURE_TOML = """
-[pattern]
-steps = [12, 12]
-frequencies = [1, 48]
-
-[camera]
-size = [64, 48]
-
-[projector]
-size = [912, 1140]
-"""
-
-
-@pytest.fixture
-def capture(tmp_path):
-    import cv2
-    root = tmp_path / "captures"
-    pose = root / "pose_00"
-    pose.mkdir(parents=True)
-    (root / "capture.toml").write_text(CAPTURE_TOML)
-    y, x = np.mgrid[0:48, 0:64].astype(np.float64)
-    coords = {"v": (5.0 + 14.1 * x + 0.3 * y, 912), "h": (8.0 + 23.2 * y + 0.2 * x, 1140)}
-    for o, (c, extent) in coords.items():
-        for f in (1, 48):
-            for n in range(12):
-                I = fringe_intensity(absolute_phase(c, f, extent), n, 12, A=30000, B=25000)
-                cv2.imwrite(str(pose / f"{o}_f{f:03d}_n{n:02d}.png"), np.round(I).astype(np.uint16))
-    return root, coords
-
-
-def test_calib_unwrap_with_a_model_writes_the_same_hdf5_plus_confidence(capture, tmp_path, capsys):
+def test_calib_unwrap_with_a_model_writes_the_same_hdf5_plus_confidence(design_capture, tmp_path, capsys):
+    """The capture has 1, 8, 48 periods; the model takes the pair (1, 48)."""
     import h5py
-    root, coords = capture
+    root, coords = design_capture
     model = constant_model(tmp_path / "zero.pt", 0)
     assert main(["unwrap", str(root), "--method", "mf", "-o", str(tmp_path / "trad"), "--no-previews"]) == 0
     assert main(["unwrap", str(root), "--method", "mf", "--model", str(model), "-o", str(tmp_path / "net")]) == 0

@@ -228,7 +228,7 @@ def markdown(res: dict) -> str:
                     cells += [_pct(c.get("ours")), _paper(c.get("paper"))]
                 L.append(f"| {f} ({tag}) | {row} | " + " | ".join(cells) + " |")
         L += ["", "UNet-TPU (prior-free, trained on real captures) is absent: no real training set of "
-              "reasonable size with reference orders exists (the real exports hold 8 frames).", ""]
+              "reasonable size with reference orders exists (the real exports with reference orders hold 7 MF scenes, 6 board poses and a skull, too few to train on and needed as the real test).", ""]
     s6 = res.get("s6") or {}
     if s6:
         L += ["## S6 layout: MSE vs MSE + Fourier loss [%]", "",
