@@ -12,7 +12,9 @@
    predicted standard deviations;
 4. ``calib report``: real vs twin-calibrated, with the ball cross-reconstruction (the twin ball
    rendered by synth at the real ball's fitted pose) when the paper's data are beside the
-   repository (../shared/data/dp-tpu).
+   repository (../shared/data/dp-tpu), and the learned unwrapping's twin-vs-real parity with the
+   shipped model (SLStudio's skull capture against twin renders of its system with matched noise,
+   when ../shared/data/slstudio-ps2x3-calib is there; reports.learned_parity).
 
 The twin is what Blender can represent: the real calibration without skew and distortion. Tables
 go to stdout, progress to the packages' loggers.
@@ -133,8 +135,22 @@ def report(out: Path, cal_dir: Path, true_twin, estimate, data: Path) -> dict:
         print(f"   (no paper data at {data}: the real side is the built-in calibration, without observations)")
         real_inputs = [write_calibration_json(real, out / "real_calibration.json")]
         phases = {}
+    extra, parity = [], None
+    if (data.parent / "slstudio-ps2x3-calib").is_dir():
+        from reports.learned_parity import slstudio_parity
+
+        print("   learned unwrapping: SLStudio skull capture vs its twin with matched noise (shipped model)", flush=True)
+        parity = slstudio_parity(data.parent, out / "learned_parity")
+        if parity is not None:
+            extra.append(parity[0])
     summary = write_twin_report(real_inputs, [cal_dir / "calibration.json"], out / "report", phases=phases,
-                                twin_render_system=true_twin)
+                                twin_render_system=true_twin, extra_sections=extra)
+    if parity is not None:
+        summary["learned_parity"] = parity[1]
+        for r in parity[1]["rows"]:
+            print(f"   {r['data']:4s} f = {r['f']:g}: traditional {100 * r['traditional']:.3f} %, filtered "
+                  f"{100 * r['filtered']:.3f} %, learned {100 * r['learned']:.3f} % ({r['pixels']} pixels)")
+        print("   " + parity[1]["verdict"])
     print_intrinsics(real, estimate)
     print_sphere_matrix(summary.get("sphere_matrix", []))
     print(f"   report: {summary['paths']['html']}")

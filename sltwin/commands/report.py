@@ -26,6 +26,13 @@ def add_arguments(p) -> None:
                         "(ideal, what the Blender twin represents; default) or with them (real)")
     p.add_argument("--ball-noise", default="match", metavar="match|none|SIGMA",
                    help="twin ball sensor noise: match the real phase noise (default), none, or a phase noise in rad")
+    p.add_argument("--learned-real", nargs="+", default=[], metavar="FILE",
+                   help="real capture dataset(s) with reference orders (calib export --capture): adds the learned "
+                        "unwrapping's twin-vs-real section")
+    p.add_argument("--learned-twin", nargs="+", default=[], metavar="FILE",
+                   help="twin renders of the same system with matched noise (reports.learned_parity)")
+    p.add_argument("--learned-model", default="learned", metavar="learned|PATH",
+                   help="model of that section (default: the shipped one)")
     p.add_argument("-o", "--output", default="report", help="output folder (default: %(default)s)")
 
 
@@ -64,9 +71,19 @@ def run(args) -> int:
     from reports.twin_report import write_twin_report
 
     opts = ball_options(args)
-    summary = write_twin_report(args.real, args.twin, args.output, phases={
+    extra, parity = [], None
+    if args.learned_real or args.learned_twin:
+        if not (args.learned_real and args.learned_twin):
+            raise CommandError("--learned-real and --learned-twin go together")
+        from reports.learned_parity import section
+
+        sec, parity = section(args.learned_real, args.learned_twin, args.learned_model)
+        extra.append(sec)
+    summary = write_twin_report(args.real, args.twin, args.output, extra_sections=extra, phases={
         k: v for k, v in (("real", args.phase_real), ("twin", args.phase_twin)) if v}, frequency=args.frequency,
         render_twin_ball=args.twin_ball_render, twin_ball_options=opts,
         twin_render_system="real" if args.twin_ball_system == "real" else None)
     print_summary(summary)
+    if parity is not None:
+        print(parity["verdict"])
     return 0

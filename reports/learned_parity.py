@@ -1,0 +1,296 @@
+"""The report's section on learned unwrapping: does the model trained on the twin behave on real
+captures as on twin renders of the same system?
+
+Data (both through ``unwrap.dataset``):
+
+- real: capture datasets with reference orders (``synth.capture_export``; in ``../shared/data`` the
+  one with a reference is SLStudio's skull: MF with 1 and 16 periods, 3 steps, 1688x1352, the
+  reference from SLStudio's own Gray-code scan);
+- twin: renders of the same system (its calibration, ``calib.load_system``) at the capture's steps
+  and size, at the capture's frequency and at others (the model's training ratio 48 and the
+  unseen 96), with the sensor noise matched to the capture's (:func:`capture_noise`).
+
+Noise match: on the capture's valid pixels the traditional absolute phase ``phi + 2 pi k`` of the
+high frequency is smooth (its rare 2 pi errors are outliers that the median ignores), so its residual from a 5x5 local plane (robust: 1.4826 x median absolute
+value, corrected for the fit's own degrees of freedom) is its noise ``sigma_Phi``; with the N-step
+noise gain, ``sigma_I = sigma_Phi * B * sqrt(N / 2)`` (full-scale units) per pixel, summarised by
+its median. For the twin's Poisson sensor ``sigma_I^2 ~ I / full_well`` with ``I ~ B`` (full-contrast
+fringes), so ``full_well = median(B) / sigma_I^2``. The twin renders are measured the same way and
+both numbers are reported.
+
+Verdict: the model "behaves on real data as on the twin" when, at the capture's frequency, the
+learned/traditional error ratio on the capture is within a factor 2 of the twin's (or both error
+rates are below 0.1 %), and the learned error rate on the capture is not above the traditional.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+from pathlib import Path
+
+import numpy as np
+import torch
+
+LOG = logging.getLogger("reports")
+SECTION_TITLE = "Learned unwrapping: twin vs real"
+
+
+def capture_noise(path, orientation: str = "v", pair=None) -> dict:
+    """Sensor noise of a dataset file's high frequency (module docstring), on interior valid pixels.
+
+    RETURNED VALUE: {"sigma_I": median full-scale intensity noise, "sigma_phase_rad": median
+    phase noise, "modulation": median B (full scale), "pixels": pixels used, "steps": N}.
+    """
+    from unwrap.dataset import FringeOrderDataset
+    from unwrap.dataset_schema import read_attrs
+    from unwrap.learned.smoothing import smooth_phase
+    import h5py
+
+    with h5py.File(path, "r") as h5:
+        a = read_attrs(h5)
+    freqs = sorted(float(f) for f in a["frequencies"])
+    pair = pair or (freqs[0], freqs[-1])
+    steps = a["steps"]
+    N = int(steps[freqs.index(pair[1])] if isinstance(steps, list) else steps)
+    ds = FringeOrderDataset(path, method="mf", frequencies=pair, orientation=orientation, crop=None, seed=0)
+    res, mods = [], []
+    for i in range(len(ds)):
+        it = ds[i]
+        ok = it["valid"] & (it["order_traditional"] >= 0)
+        if int(ok.sum()) < 100:
+            continue
+        # the traditional absolute phase: its rare 2 pi errors are outliers the median ignores
+        Phi = (it["phase_high"][0].double() + 2 * math.pi * it["order_traditional"].double())[None, None]
+        # residual of the pixel from the plane through its 5x5 neighbours (itself included)
+        smooth = smooth_phase(Phi, ok[None, None], 5, "plane")[0, 0]
+        interior = ok & (torch.nn.functional.avg_pool2d(ok[None, None].double(), 5, 1, 2)[0, 0] > 0.999)
+        e = (Phi[0, 0] - smooth)[interior].numpy()
+        res.append(e)
+        mods.append(it["modulation_high"][0][interior].double().numpy())
+    if not res:
+        raise ValueError(f"{path}: no sample with reference orders to measure the noise on")
+    e, B = np.concatenate(res), np.concatenate(mods)
+    dof = math.sqrt(25.0 / 22.0)             # a 3-parameter plane through 25 pixels, the pixel among them
+    sig = 1.4826 * np.median(np.abs(e)) * dof
+    sigma_I = float(np.median(1.4826 * np.abs(e) * dof * B) * math.sqrt(N / 2.0))
+    return {"sigma_I": sigma_I, "sigma_phase_rad": float(sig), "modulation": float(np.median(B)),
+            "pixels": int(e.size), "steps": N, "pair": list(pair)}
+
+
+def matched_full_well(noise: dict) -> float:
+    """Full well (electrons at full scale) whose shot noise gives the capture's ``sigma_I``."""
+    return float(noise["modulation"] / max(noise["sigma_I"], 1e-6) ** 2)
+
+
+def twin_config_text(system_file, full_well: float, *, samples: int = 6, steps: int = 3, frequencies=(1, 16, 48, 96),
+                     depth_mm=(360, 430), size_mm=(80, 180), mesh_dir=None, seed: int = 5) -> str:
+    """Export TOML of twin renders of ``system_file`` with the matched noise (scene ranges as the
+    training set's, objects at the capture's working distance)."""
+    mesh_dir = Path(mesh_dir) if mesh_dir else Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
+    return f"""[export]
+samples = {int(samples)}
+seed = {int(seed)}
+min_object_fraction = 0.15
+
+[system]
+file = {json.dumps(str(Path(system_file).resolve()))}
+
+[patterns]
+orientations = ["v"]
+frequencies = {json.dumps([float(f) for f in frequencies])}
+steps = {int(steps)}
+
+[scene]
+objects = [1, 2]
+mesh_dir = {json.dumps(str(mesh_dir.resolve()))}
+meshes = ["nefertiti.obj", "cheburashka.obj", "suzanne.obj", "stanford-bunny.obj"]
+mesh_fraction = 0.7
+procedural = ["sphere", "blobs", "heightfield"]
+size_mm = {json.dumps(list(size_mm))}
+depth_mm = {json.dumps(list(depth_mm))}
+background = 0.7
+background_gap_mm = [20, 120]
+background_tilt_deg = [0, 25]
+albedo = [0.3, 0.95]
+texture = 0.5
+texture_contrast = [0.1, 0.6]
+
+[effects]
+exposure = [0.45, 0.95]
+ambient = [0.0, 0.08]
+noise = {{full_well_e = {full_well:.1f}, read_noise_e = 2}}
+projector_defocus = {{aperture_mm = [0, 3], focus_offset_mm = [-100, 100]}}
+camera_defocus = {{aperture_mm = [0, 3], focus_offset_mm = [-100, 100]}}
+global_illumination = {{subsurface = [0, 0.6], scatter_mm = [0.5, 4], interreflection = [0, 0.1], interreflection_mm = [20, 60]}}
+bits = 8
+
+[output]
+codec = "gzip-1"
+"""
+
+
+def render_matched_twin(real_file, system_file, out_dir, *, samples: int = 6, frequencies=(1, 16, 48, 96),
+                        progress: bool = True) -> dict:
+    """Measure the capture's noise, render the twin of ``system_file`` (synth) with the full well
+    that matches it, and measure the renders the same way.
+
+    The shot-noise formula (:func:`matched_full_well`) is only a first guess (the twin's intensity
+    is not exactly its modulation): a 2-sample pilot render is measured and the full well scaled by
+    ``(sigma_twin / sigma_real)^2`` before the final render.
+    RETURNED VALUE: {"file", "config", "noise_real", "noise_twin", "full_well", "pilot"}."""
+    from synth.dataset_config import load_config
+    from synth.dataset_export import export_dataset
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    noise = capture_noise(real_file)
+    pilot_pair = (1.0, float(noise["pair"][1]))
+
+    def render(name, fw, n):
+        cfg_path = out / f"{name}.toml"
+        cfg_path.write_text(twin_config_text(system_file, fw, samples=n, steps=noise["steps"], frequencies=frequencies))
+        path = out / f"{name}.h5"
+        export_dataset(load_config(cfg_path), path, progress=progress)
+        return cfg_path, path, capture_noise(path, pair=pilot_pair)
+
+    fw0 = matched_full_well(noise)
+    _, _, pilot = render("twin_pilot", fw0, 2)
+    fw = fw0 * (pilot["sigma_I"] / noise["sigma_I"]) ** 2
+    LOG.info("learned parity: capture sigma_I %.4f; pilot twin at %.0f e- gave %.4f -> full well %.0f e-",
+             noise["sigma_I"], fw0, pilot["sigma_I"], fw)
+    cfg_path, path, twin = render("twin_parity", fw, samples)
+    return {"file": str(path), "config": str(cfg_path), "noise_real": noise, "noise_twin": twin, "full_well": fw,
+            "pilot": {"full_well": fw0, "noise": pilot}}
+
+
+def _score(files, pair, model) -> dict:
+    from unwrap.learned.evaluate import TestSource, score
+
+    src = TestSource(files=[str(f) for f in files], orientations=("v", "h"))
+    s = score(src, "mf", pair[1], {"learned": model}, filtered_window=15, example=True) if pair[0] == 1 else None
+    if s is None:
+        return {}
+    return {"traditional": s.counts["Traditional"], "filtered": s.counts["Filtered 15x15"],
+            "learned": s.counts["learned"], "example": s.checks.get("example"), "check": s.checks.get("learned"),
+            "items": s.items}
+
+
+def parity(real_files, twin_files, model="learned", *, frequencies=(16, 48, 96)) -> dict:
+    """Error rates (traditional, filtered, learned) on the captures and the twin renders per frequency."""
+    from unwrap.learned.infer import resolve_model
+
+    net = resolve_model(model)
+    rows = []
+    for f in frequencies:
+        for kind, files in (("real", real_files), ("twin", twin_files)):
+            try:
+                r = _score(files, (1.0, float(f)), net)
+            except ValueError as exc:   # a frequency the file does not hold, a bad file
+                LOG.info("learned parity: %s f=%g skipped: %s", kind, f, exc)
+                r = {}
+            if r and r["traditional"].counted:
+                rows.append({"data": kind, "f": float(f), **{k: r[k] for k in ("traditional", "filtered", "learned")},
+                             "items": r["items"], "example": r["example"], "check": r["check"]})
+    return {"rows": rows, "model_meta": net[1]["meta"]}
+
+
+def verdict(rows) -> str:
+    """The one-line verdict (module docstring) from the rows at the capture's frequency."""
+    real = [r for r in rows if r["data"] == "real"]
+    if not real:
+        return "No real capture with reference orders: parity not measured."
+    f = real[0]["f"]
+    twin = next((r for r in rows if r["data"] == "twin" and r["f"] == f), None)
+    rr = real[0]["learned"].rate / max(real[0]["traditional"].rate, 1e-12)
+    if twin is None:
+        return f"No twin render at f = {f:g}: parity not measured (real learned/traditional = {rr:.2f})."
+    tr = twin["learned"].rate / max(twin["traditional"].rate, 1e-12)
+    small = max(real[0]["learned"].rate, twin["learned"].rate, real[0]["traditional"].rate) < 1e-3
+    same = small or (0.5 <= (rr + 1e-9) / (tr + 1e-9) <= 2.0)
+    not_worse = real[0]["learned"].rate <= real[0]["traditional"].rate
+    word = "behaves on the real capture as on its twin" if same and not_worse else \
+        "does NOT behave on the real capture as on its twin"
+    return (f"Verdict: the twin-trained model {word} at f = {f:g} (learned/traditional error: real {rr:.2f}, "
+            f"twin {tr:.2f}; real {100 * real[0]['learned'].rate:.3f} % vs traditional "
+            f"{100 * real[0]['traditional'].rate:.3f} %).")
+
+
+def section(real_files, twin_files, model="learned", *, twin_info: dict | None = None, frequencies=(16, 48, 96)):
+    """(title, blocks) for reports.html plus a summary dict."""
+    from .figures import _fig_png, _plt
+
+    res = parity(real_files, twin_files, model, frequencies=frequencies)
+    rows = res["rows"]
+    trained = res["model_meta"].get("frequencies", {}).get("mf", [1, 48])
+    blocks = [("p", "Fringe-order error rates on real captures with reference orders and on twin renders of the "
+                    "same system with the capture's noise (MF from the unit frequency; every row on the pixels "
+                    f"with valid inputs and a reference/true order). The model was trained on twin renders of the "
+                    f"built-in system at MF {trained[0]:g} -> {trained[1]:g} only: f = {trained[1]:g} is its seen "
+                    "ratio, the others unseen.")]
+    if twin_info:
+        n = twin_info.get("noise_real", {})
+        t = twin_info.get("noise_twin", {})
+        blocks.append(("p", f"Noise match: capture sigma_I = {n.get('sigma_I', float('nan')):.4f} of full scale "
+                            f"(phase {n.get('sigma_phase_rad', float('nan')):.4f} rad at median modulation "
+                            f"{n.get('modulation', float('nan')):.3f}, {n.get('steps')} steps) -> twin full well "
+                            f"{twin_info.get('full_well', float('nan')):.0f} e-; measured on the twin renders the "
+                            f"same way: sigma_I = {t.get('sigma_I', float('nan')):.4f} (phase "
+                            f"{t.get('sigma_phase_rad', float('nan')):.4f} rad at modulation "
+                            f"{t.get('modulation', float('nan')):.3f})."))
+    table = []
+    for r in rows:
+        chk = r["check"] or {}
+        table.append([r["data"], f"{r['f']:g}", r["items"], r["traditional"].counted,
+                      100 * r["traditional"].rate, 100 * r["filtered"].rate, 100 * r["learned"].rate,
+                      f"x{chk.get('ratio_factor', float('nan')):.2f}, {chk.get('status', '')}"])
+    blocks.append(("table", ["data", "f", "samples", "pixels", "traditional %", "filtered 15x15 %", "learned %",
+                             "ratio vs training, check"], table))
+    line = verdict(rows)
+    blocks.append(("p", line))
+    plt = _plt()
+    for r in rows:
+        ex = r["example"]
+        if ex is None or r["f"] not in (rows[0]["f"],):
+            continue
+        valid = ex["valid"] & (ex["true"] >= 0)
+        ys, xs = np.nonzero(valid)
+        sl = (slice(ys.min(), ys.max() + 1), slice(xs.min(), xs.max() + 1))
+        fig, axes = plt.subplots(1, 3, figsize=(12, 3.6))
+        for ax, (name, k) in zip(axes, (("traditional", ex["traditional"]), ("learned", ex["learned"]))):
+            img = np.where(valid, (k != ex["true"]).astype(float), np.nan)[sl]
+            ax.imshow(img, cmap="Reds", vmin=0, vmax=1, interpolation="nearest")
+            ax.set_title(f"{r['data']} f={r['f']:g}, {name}: {100 * np.nanmean(img):.2f} % wrong", fontsize=9)
+            ax.axis("off")
+        im = axes[2].imshow(np.where(valid, ex["learned confidence"], np.nan)[sl], cmap="viridis", vmin=0, vmax=1)
+        axes[2].set_title("confidence", fontsize=9)
+        axes[2].axis("off")
+        fig.colorbar(im, ax=axes[2], fraction=0.04)
+        blocks.append(("figure", _fig_png(fig), f"wrong fringe orders, {r['data']} (first sample), f = {r['f']:g}"))
+    summary = {"verdict": line, "rows": [{"data": r["data"], "f": r["f"], "items": r["items"],
+                                          "pixels": r["traditional"].counted, "traditional": r["traditional"].rate,
+                                          "filtered": r["filtered"].rate, "learned": r["learned"].rate,
+                                          "check": r["check"]} for r in rows],
+               "twin": twin_info or {}}
+    return (SECTION_TITLE, blocks), summary
+
+
+def slstudio_parity(shared_data, out_dir, model="learned", *, samples: int = 4, progress: bool = True):
+    """The whole parity check on SLStudio's skull (``shared_data`` = ``../shared/data``): export the
+    capture with its Gray-code reference, render the matched twin, build the section.
+
+    RETURNED VALUE: ((title, blocks), summary), or None when the capture is not there."""
+    from synth.capture_export import export_capture
+
+    root = Path(shared_data) / "slstudio-ps2x3-calib"
+    skull, cloud = root / "skull_2x3", root / "skull_reference" / "pointCloud_from_skull_gray.mat"
+    system = root / "calibration" / "calibration.xml"
+    if not (skull.is_dir() and cloud.is_file() and system.is_file()):
+        return None
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    real = out / "skull.h5"
+    if not real.exists():
+        export_capture(skull, real, reference_cloud=cloud, reference_system=system)
+    twin = render_matched_twin(real, system, out, samples=samples, progress=progress)
+    return section([real], [twin["file"]], model, twin_info=twin)
