@@ -24,7 +24,7 @@ from .baselines import filtered_order
 from .checkpoint import load_model
 from .data import MethodTagged
 from .errors import ModelError
-from .features import METHOD_INDEX
+from .features import METHOD_INDEX, make_inputs
 from .infer import check_frequency_range, predict
 from .metrics import ErrorCount, keep_drop_curve
 
@@ -141,11 +141,15 @@ def score(source: TestSource, method: str, f: float, models: dict, *, filtered_w
                 counts[f"Filtered {filtered_window}x{filtered_window}"] += ErrorCount.of(k, true, valid)
             ex = {"traditional": item["order_traditional"].numpy(), "true": true, "valid": valid} \
                 if example and "example" not in checks else None
+            inputs = {}
             for name, (net, ck) in models.items():
                 if name not in checks:
                     checks[name] = check_frequency_range(ck["meta"], method, pair, item["phase_high"][0].numpy(),
                                                          valid, on_outside="ignore")
-                order, c = predict(net, ck, batch)
+                kind = ck["arch"]["kind"]
+                if kind not in inputs:
+                    inputs[kind] = make_inputs(batch, kind)
+                order, c = predict(net, ck, batch, inputs[kind])
                 order, c = order[0].numpy(), c[0].numpy()
                 counts[name] += ErrorCount.of(order, true, valid)
                 m = valid & (true >= 0)

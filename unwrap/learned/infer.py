@@ -113,12 +113,15 @@ def check_frequency_range(meta: dict, method: str, frequencies, phase_high=None,
 
 
 @torch.no_grad()
-def predict(model, ck: dict, batch: dict):
-    """(order int64 (B,H,W) -1 invalid, confidence float32 (B,H,W)) of a collated batch."""
+def predict(model, ck: dict, batch: dict, inputs=None):
+    """(order int64 (B,H,W) -1 invalid, confidence float32 (B,H,W)) of a collated batch.
+
+    ``inputs``: the batch's ``features.make_inputs(batch, kind)`` when already computed (several
+    models of one kind on the same data)."""
     kind, K = ck["arch"]["kind"], ck["arch"]["max_correction"]
     dev = next(model.parameters()).device
     batch = {k: (v.to(dev) if torch.is_tensor(v) else v) for k, v in batch.items()}
-    x, _ = Fe.make_inputs(batch, kind)
+    x = (inputs if inputs is not None else Fe.make_inputs(batch, kind))[0].to(dev)
     return Fe.decode(model(x).float(), batch, kind, K)
 
 
