@@ -116,3 +116,14 @@ def test_bad_pairs_are_refused():
         SyntheticFringeDataset(1, method="nt", frequencies=(46, 48))
     with pytest.raises(ModelError, match="beat"):
         SyntheticFringeDataset(1, method="mw", frequencies=(40, 48))
+
+
+def test_nt_pair_without_an_absolute_beat_gets_no_smoothed_order_channels():
+    """(7, 96) is coprime but 89 periods apart: no coarse phase to filter, so the disagreement
+    channels are 0 and the smoothed residual is the residue's own."""
+    from unwrap.learned.data import MethodTagged
+    ds = MethodTagged(SyntheticFringeDataset(1, size=(32, 48), method="nt", frequencies=(7, 96)), "nt")
+    b = torch.utils.data.default_collate([ds[0]])
+    x, ok = Fe.make_inputs(b, "physics")
+    assert (x[:, 3:5] == 0).all()
+    assert torch.equal(x[:, 1], x[:, 0]) and torch.equal(x[:, 2], x[:, 0])

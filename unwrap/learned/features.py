@@ -22,7 +22,8 @@ ch    meaning
       (that is the frequency).
 3-4   ``(round(prior_s) - order_traditional) / 2`` clipped to [-1, 1] for both windows: where the
       smoothed and the pixel's own prior disagree (noise that the filter removes, or a depth
-      step the box smears).
+      step the box smears); 0 for an NT pair without an absolute beat (there ``prior_s`` is the
+      residue itself, not an order).
 5-7   ``sin phi_h, cos phi_h, phi_h / pi``: the high wrapped phase, i.e. where the fringe edges are
       (the only places where the true order may change) and the spatial continuity to use.
 8-9   modulation of the low / high pattern (x 4, clipped to 2): how noisy each phase is.
@@ -90,11 +91,11 @@ def valid_mask(batch: dict) -> torch.Tensor:
     return ok
 
 
-def smoothed_prior(batch: dict, ok: torch.Tensor, window: int) -> torch.Tensor:
-    """(B, 1, H, W) float32: the prior with the coarse phase plane-filtered over a ``window`` box
-    (:func:`unwrap.learned.smoothing.smoothed_prior`; float64 inside: ratio x phase reaches 600 rad
-    at 96 periods). An NT pair without an absolute beat keeps its own prior. Uses the batch's
-    ``method`` (B,) (MF assumed without it)."""
+def smoothed_prior(batch: dict, ok: torch.Tensor, window: int):
+    """((B, 1, H, W) float32, usable (B, 1, 1, 1) bool): the prior with the coarse phase
+    plane-filtered over a ``window`` box (:func:`unwrap.learned.smoothing.smoothed_prior`; float64
+    inside: ratio x phase reaches 600 rad at 96 periods). An NT pair without an absolute beat
+    (not ``usable``) keeps its own prior. Uses the batch's ``method`` (B,) (MF without it)."""
     from .smoothing import smoothed_prior as _sp
 
     B = ok.shape[0]
@@ -105,7 +106,7 @@ def smoothed_prior(batch: dict, ok: torch.Tensor, window: int) -> torch.Tensor:
                           torch.where(okc, batch["phase_high"].double(), zero),
                           batch["frequency_low"].reshape(B, 1, 1, 1), batch["frequency_high"].reshape(B, 1, 1, 1),
                           method == METHOD_INDEX["mf"], okc, window=window)
-    return torch.where(usable, prior_s, batch["prior"].double()).to(torch.float32)
+    return torch.where(usable, prior_s, batch["prior"].double()).to(torch.float32), usable
 
 
 def make_inputs(batch: dict, kind: str) -> tuple[torch.Tensor, torch.Tensor]:
@@ -131,9 +132,10 @@ def make_inputs(batch: dict, kind: str) -> tuple[torch.Tensor, torch.Tensor]:
         trad = batch["order_traditional"][:, None].to(torch.float32)
         r_s, d = [], []
         for w in SMOOTH_WINDOWS:
-            prior_s = torch.where(okc, smoothed_prior(batch, ok, w), zero)
+            prior_s, usable = smoothed_prior(batch, ok, w)
+            prior_s = torch.where(okc, prior_s, zero)
             r_s.append(2.0 * (prior_s - _round_order(prior_s)))
-            d.append(torch.where(okc, torch.clamp((_round_order(prior_s) - trad) / 2.0, -1.0, 1.0), zero))
+            d.append(torch.where(okc & usable, torch.clamp((_round_order(prior_s) - trad) / 2.0, -1.0, 1.0), zero))
         chans = [2.0 * r, *r_s, *d, torch.sin(phi_h) * v, torch.cos(phi_h) * v, phi_h / math.pi, m_lo, m_hi, v]
     elif kind == "prior_free":
         phi_l = clean("phase_low")
