@@ -1,4 +1,5 @@
-"""Exception type of the synth package (a ValueError, so the CLI reports it cleanly)."""
+"""Exception type of the synth package: ``SynthError``, its one error root (a ``ValueError``, so
+the command line reports it cleanly)."""
 
 
 class SynthError(ValueError):

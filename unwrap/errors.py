@@ -1,4 +1,5 @@
-"""Exception and warning types of the unwrap package.
+"""Exception and warning types of the unwrap package: ``UnwrapError``, its one error root (a
+``ValueError``), and ``UnreliableFringesWarning``.
 
 Every error names the input, the offending value and what was expected.
 """
