@@ -77,8 +77,8 @@ def triangulate(system, q_cam, coord, orientation: str = "v", *, iterations: int
     q, c = _check(q_cam, coord)
     cam, prj = system.camera, system.projector
     rays, ok = cam.unproject(q)  # camera frame (x, y, 1)
-    R_pc = prj.R @ cam.R.T
-    t_pc = prj.t - R_pc @ cam.t
+    R_prj_cam = prj.R @ cam.R.T
+    t_prj_cam = prj.t - R_prj_cam @ cam.t
     # start: projector's other coordinate at its principal point
     other = np.full(len(q), prj.cy if orientation == "v" else prj.cx)
     lam = np.full(len(q), np.nan)
@@ -90,12 +90,12 @@ def triangulate(system, q_cam, coord, orientation: str = "v", *, iterations: int
         ra, oka = prj.unproject(a)
         rb, okb = prj.unproject(b)
         n = np.cross(ra, rb)                      # plane normal, projector frame
-        n_cam = n @ R_pc                          # R_pc^T n, camera frame
+        n_cam = n @ R_prj_cam                          # R_prj_cam^T n, camera frame
         denom = np.sum(n_cam * rays, axis=1)
         with np.errstate(divide="ignore", invalid="ignore"):
-            lam = -(n @ t_pc) / denom
+            lam = -(n @ t_prj_cam) / denom
         X_cam = rays * lam[:, None]
-        p = prj.project_device(X_cam @ R_pc.T + t_pc)
+        p = prj.project_device(X_cam @ R_prj_cam.T + t_prj_cam)
         new_other = p[:, 1] if orientation == "v" else p[:, 0]
         step = np.abs(new_other - other)
         other = np.where(np.isfinite(new_other), new_other, other)

@@ -115,20 +115,21 @@ def render_board_session(out_dir, system=None, *, steps: int = 12, frequencies=(
     perturb = pose_jitter(n_poses, *jitter, seed) if jitter is not None else None
     for i, (rx, ry) in enumerate(session_tilts(n_poses, seed)):
         t0 = time.perf_counter()
-        R_wb = rotation_xyz_deg([rx, ry, 0.0])
-        t_wb = np.zeros(3)
+        R_world_board = rotation_xyz_deg([rx, ry, 0.0])
+        t_world_board = np.zeros(3)
         if perturb is not None:
-            R_wb, t_wb = perturb[i][0] @ R_wb, perturb[i][1].copy()
+            R_world_board, t_world_board = perturb[i][0] @ R_world_board, perturb[i][1].copy()
         eff = replace(base, noise=replace(noise, seed=int(noise.seed) + 1000 * int(seed) + i) if noise else None)
-        scene = Scene(system, [Board("board", R_wb, t_wb, texture)], patterns, eff, name=f"pose_{i:02d}")
+        scene = Scene(system, [Board("board", R_world_board, t_world_board, texture)], patterns, eff,
+                      name=f"pose_{i:02d}")
         result = render(scene)
         pose_dir = out_dir / f"pose_{i:02d}"
         write_pngs(result, pose_dir)
         if truth_h5:
             write_truth_h5(result, scene, pose_dir / "truth.h5")
-        R_cb = Rc @ R_wb
-        poses.append({"R": R_cb.tolist(), "t": (Rc @ t_wb + tc).tolist(), "tilt_deg": [rx, ry, 0.0]})
-        q = system.camera.project(pts @ R_wb.T + t_wb)
+        R_cam_board = Rc @ R_world_board
+        poses.append({"R": R_cam_board.tolist(), "t": (Rc @ t_world_board + tc).tolist(), "tilt_deg": [rx, ry, 0.0]})
+        q = system.camera.project(pts @ R_world_board.T + t_world_board)
         W, H = system.camera.size
         visible.append(int(np.sum((q[:, 0] >= 0) & (q[:, 0] <= W - 1) & (q[:, 1] >= 0) & (q[:, 1] <= H - 1))))
         timings.append(time.perf_counter() - t0)
