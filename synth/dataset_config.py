@@ -335,13 +335,3 @@ def load_config(path) -> ExportConfig:
         raise ExportConfigError(f"export config {path}: invalid TOML ({exc})") from None
     return config_from_dict(d, path.parent, text)
 
-
-def check_meshes(cfg: ExportConfig) -> None:
-    """Read every configured mesh once (cached), naming a missing or unreadable one."""
-    from .dataset_scenes import cached_mesh
-
-    for m in cfg.meshes:
-        try:
-            cached_mesh(m)
-        except SynthError as exc:
-            raise ExportConfigError(f"scene.meshes: {exc}") from None
