@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from .geometry import Geometry, compute_geometry
+from .global_illumination import apply_global_illumination
 from .plan_log import PlanLog
 from .projection import linear_model, nonlinear_values
 
@@ -91,7 +92,8 @@ def _quantised_stack(geometry, lit, idx, C, rows, other, p_other, K, eff) -> tor
 
 def _optics_plan(eff, geometry, lit, plan):
     """Which optical stages this render runs (their skips go to the plan): returns the projector
-    blur sigmas at the lit pixels (None: no blur) and whether the camera blurs."""
+    blur sigmas at the lit pixels (None: no blur), whether the camera blurs and whether global
+    illumination is applied."""
     if not eff.projector_defocus:
         plan.info("projector defocus: skipped (not asked for)")
     elif lit.numel() == 0 or float(geometry.sigma_prj[lit].max()) < 1e-3:
@@ -109,15 +111,23 @@ def _optics_plan(eff, geometry, lit, plan):
         cam_blur = False
     else:
         cam_blur = True
+    gi = eff.global_illumination
+    gi_on = gi is not None and gi.active and lit.numel() > 0
+    if gi is None:
+        plan.info("global illumination: skipped (not asked for)")
+    elif not gi_on:
+        plan.info("global illumination: skipped (%s)", "zero fractions" if not gi.active else "nothing lit")
     if eff.noise is None:
         plan.info("sensor noise: skipped (not asked for)")
-    return sig, cam_blur
+    return sig, cam_blur, gi_on
 
 
-def _linear_images(geometry, lit, idx, C, rows, other, p_other, K, eff, cam_blur, timings, t):
+def _linear_images(geometry, lit, idx, C, rows, other, p_other, K, eff, cam_blur, timings, t, *,
+                   gi=None, f_px=None, plan=None):
     """The (K, H, W) float32 images before the sensor: basis rows over the whole image (ambient
-    where unlit), camera defocus on the rows, then the pattern combinations. ``t``: when the
-    pattern stage started (its time goes to ``timings``)."""
+    where unlit), global illumination (``gi``; ``f_px`` the camera focal length, px) and camera
+    defocus on the rows, then the pattern combinations. ``t``: when the pattern stage started
+    (its time goes to ``timings``)."""
     W, H = geometry.size
     N = W * H
     full = torch.zeros((rows.shape[0] + 1, N), dtype=torch.float32)
@@ -129,6 +139,13 @@ def _linear_images(geometry, lit, idx, C, rows, other, p_other, K, eff, cam_blur
         nl = geometry.ambient_term.to(torch.float32).repeat(len(other), 1)
         nl[:, lit] += (geometry.radiance_scale[lit] * p_other).to(torch.float32)
     timings["patterns"] = time.perf_counter() - t
+    if gi is not None:
+        # linear too: applied to the basis rows (and the other patterns' images)
+        t = time.perf_counter()
+        full = apply_global_illumination(full, geometry, gi, f_px, log=plan)
+        if nl is not None:
+            nl = apply_global_illumination(nl, geometry, gi, f_px)
+        timings["global illumination"] = time.perf_counter() - t
     if cam_blur:
         # blur is linear and its per-pixel level weights too: blurring the R basis rows and
         # combining them equals blurring the K images (R ~ K / 5 for fringe stacks)
@@ -185,7 +202,7 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
     lit = torch.nonzero(geometry.lit).squeeze(1)
 
     t = time.perf_counter()
-    sig, cam_blur = _optics_plan(eff, geometry, lit, plan)
+    sig, cam_blur, gi_on = _optics_plan(eff, geometry, lit, plan)
     u, v = geometry.u_p[lit], geometry.v_p[lit]
     psize = scene.system.projector.size
     # images = ambient + scale * p. Linear patterns: one matrix product (K, R) @ (R, N) over basis
@@ -198,7 +215,7 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
     p_other = nonlinear_values(scene.patterns, other, u, v, psize, eff, sig, log=plan) if other else None
     if lit.numel() == 0:
         plan.info("patterns: no camera pixel is lit by the projector (empty image apart from ambient light)")
-    fused = quantised and not cam_blur and eff.noise is None and not keep_linear
+    fused = quantised and not cam_blur and not gi_on and eff.noise is None and not keep_linear
     if fused:
         # nothing between the patterns and the quantiser acts across pixels: compute the lit
         # pixels in cache-sized chunks and quantise them at once; unlit pixels hold ambient only
@@ -208,7 +225,9 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
         images = images.reshape(K, H, W)
         linear = None
     else:
-        images = _linear_images(geometry, lit, idx, C, rows, other, p_other, K, eff, cam_blur, timings, t)
+        images = _linear_images(geometry, lit, idx, C, rows, other, p_other, K, eff, cam_blur, timings, t,
+                                gi=eff.global_illumination if gi_on else None,
+                                f_px=max(scene.system.camera.fx, scene.system.camera.fy), plan=plan)
         linear = images.clone() if keep_linear else None
         images = _sensor(images, eff, quantised, timings)
     timings["total"] = time.perf_counter() - t0

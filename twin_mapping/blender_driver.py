@@ -13,7 +13,9 @@ CONFIG.json ``job``:
   ``q_world_to_camera_view``; and the projector light's settings.
 - ``render``: ``power_w``, ``threads``, ``samples``, ``projector_size`` [W, H], ``patterns`` (a
   .npy (K, H_p, W_p) float32 in [0, 1], rows top-down), ``out`` (folder), ``objects`` (list of
-  ``{"vertices": mm (V,3) world, "faces": (F,3), "albedo", "smooth"}``), ``camera_dof`` (null or
+  ``{"vertices": mm (V,3) world, "faces": (F,3), "albedo", "smooth"}``, optional ``subsurface``
+  ``{"weight", "radius_mm", "method"}``: the Principled BSDF's subsurface scattering, white radius),
+  ``bounces`` (optional: light bounces beyond the direct light), ``camera_dof`` (null or
   ``{"focus_mm", "aperture_mm"}``: thin-lens depth of field with a circular aperture of that
   diameter, focused at that camera depth). Writes ``OUT/NNN.png`` (16-bit grey, linear) and
   ``OUT/times.json`` (Cycles seconds per frame).
@@ -79,6 +81,13 @@ def render(cfg):
     scene.render.image_settings.file_format = "PNG"
     scene.render.image_settings.color_mode = "BW"
     scene.render.image_settings.color_depth = "16"
+    if cfg.get("bounces"):  # light paths beyond direct light (subsurface scattering needs them)
+        scene.cycles.max_bounces = cfg["bounces"]
+        scene.cycles.diffuse_bounces = cfg["bounces"]
+        scene.cycles.glossy_bounces = 0
+        scene.cycles.transmission_bounces = 0
+        scene.cycles.volume_bounces = 0
+        scene.cycles.transparent_max_bounces = 0
     dof = cfg.get("camera_dof")
     if dof:
         cam = made["camera"].data
@@ -101,6 +110,12 @@ def render(cfg):
         bsdf.inputs["Base Color"].default_value = (o["albedo"],) * 3 + (1.0,)
         bsdf.inputs["Roughness"].default_value = 1.0
         bsdf.inputs["Specular IOR Level"].default_value = 0.0
+        sss = o.get("subsurface")
+        if sss:  # Cycles' subsurface scattering (the global-illumination check)
+            bsdf.subsurface_method = sss.get("method", "RANDOM_WALK")
+            bsdf.inputs["Subsurface Weight"].default_value = sss["weight"]
+            bsdf.inputs["Subsurface Radius"].default_value = (1.0, 1.0, 1.0)
+            bsdf.inputs["Subsurface Scale"].default_value = sss["radius_mm"] / 1000.0
         mesh.materials.append(mat)
         scene.collection.objects.link(bpy.data.objects.new(f"surface{i}", mesh))
     patterns = np.load(cfg["patterns"])
