@@ -16,7 +16,7 @@ Public surface:
 - errors (calib.errors, all ValueError): ``CalibError`` and ``ModelError``,
   ``FormatError``, ``BoardError``, ``DetectionError``, ``MarkerPhaseError``, ``CaptureError``,
   ``ObservationError``, ``InitError``, ``BundleAdjustmentError``, ``TriangulationError``,
-  ``OutputError``.
+  ``OutputError``, ``UncertaintyError``.
 
 Progress goes to the `calib` logger.
 """
@@ -27,7 +27,8 @@ from .captures import observations_from_captures
 from .detect import detect_board
 from .device import DeviceModel
 from .errors import (BoardError, BundleAdjustmentError, CalibError, CaptureError, DetectionError, FormatError,
-                     InitError, MarkerPhaseError, ModelError, ObservationError, OutputError, TriangulationError)
+                     InitError, MarkerPhaseError, ModelError, ObservationError, OutputError, TriangulationError,
+                     UncertaintyError)
 from .io import load_system
 from .observations import Observations, ViewObservations
 from .pipeline import calibrate_captures, calibrate_observations
@@ -42,4 +43,5 @@ __all__ = [
     "triangulate", "triangulate_linear", "points_from_phase", "sphere_from_phase", "fit_sphere",
     "CalibError", "ModelError", "FormatError", "BoardError", "DetectionError", "MarkerPhaseError", "CaptureError",
     "ObservationError", "InitError", "BundleAdjustmentError", "TriangulationError", "OutputError",
+    "UncertaintyError",
 ]

@@ -49,6 +49,9 @@ class Calibration:
     - seeds: {device: DeviceSeed}; timings: {"init_s", "build_s", "solve_s", "total_s"}.
     - baseline_scatter_mm: spread (std, mm) of the projector centre in the camera frame over the
       per-view seed compositions (what a rig built from independent per-device poses suffers).
+    - config: the :class:`calib.bundle_adjustment.BAConfig` it was solved with.
+    - uncertainty: None, or what :mod:`calib.uncertainty` added (the error model's standard
+      deviations, resampled spreads, warnings), set by :func:`calib.pipeline.calibrate_observations`.
     """
 
     system: SystemModel
@@ -56,6 +59,8 @@ class Calibration:
     seeds: dict
     timings: dict
     baseline_scatter_mm: float | None
+    config: BAConfig | None = None
+    uncertainty: object = None
 
 
 def _average_rotation(Rs):
@@ -174,7 +179,7 @@ def run_calibration(obs: Observations, config: BAConfig | None = None) -> Calibr
     system = system_from_result(obs, res)
     timings = {"init_s": t_init, "build_s": problem.build_seconds, "solve_s": res.timings["solve_s"],
                "total_s": time.perf_counter() - t0}
-    return Calibration(system, res, seeds, timings, scatter)
+    return Calibration(system, res, seeds, timings, scatter, config)
 
 
 __all__ = ["Calibration", "run_calibration", "start_state", "system_from_result", "rotvec_from_matrix"]
