@@ -56,6 +56,9 @@ def add_arguments(p):
                         "model how a camera error moves the projector pixel read there, where the "
                         "observations carry dprj_dcam)")
     p.add_argument("--skew-tol", type=float, default=0.01, help="px; see calib.io.mrcal_model")
+    p.add_argument("--no-skew-check", action="store_true",
+                   help="skip the refit with skew free that tells whether a zero-skew model fits the data "
+                        "(calib.skew_check; run when skew is not estimated)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
 
 
@@ -70,6 +73,26 @@ def _load(paths):
                                f"'-' for none); got {len(paths)} path(s)")
     cam, prj = (None if p == "-" else p for p in paths)
     return from_bouguet(cam, prj)
+
+
+def _skew_check(obs, cal, config, progress) -> dict:
+    """Refit with skew free (calib.skew_check); a significant skew is printed even with -q.
+    Returns {"skew_check": ...} for calibration.json, or {} when nothing was checked."""
+    from .skew_check import check_skew
+
+    progress("skew check: refitting with skew free")
+    try:
+        check = check_skew(obs, cal, config)
+    except ValueError as exc:       # the refit's adjustment errors
+        progress(f"skew check: the refit failed ({exc}); not checked")
+        return {}
+    if check is None:
+        return {}
+    if check.significant():
+        print(f"calib run: warning: {check.message()}", file=sys.stderr, flush=True)
+    else:
+        progress(check.message())
+    return {"skew_check": check.to_dict()}
 
 
 def run(args) -> int:
@@ -156,9 +179,11 @@ def run(args) -> int:
     except BundleAdjustmentError as exc:
         print(f"calib run: error: bundle adjustment: {exc}", file=sys.stderr)
         return EXIT_ADJUST
+    extra = {} if captured is None else {"captures": captured.summary()}
+    if not args.skew and not args.no_skew_check:
+        extra.update(_skew_check(obs, cal, config, progress))
     try:
-        written = write_outputs(cal, obs, args.output, skew_tol_px=args.skew_tol,
-                                extra=None if captured is None else {"captures": captured.summary()})
+        written = write_outputs(cal, obs, args.output, skew_tol_px=args.skew_tol, extra=extra or None)
         if captured is not None:
             from .capture_outputs import write_capture_outputs
             written.update(write_capture_outputs(captured, args.output))
