@@ -10,7 +10,7 @@ from calib import default_system
 from calib.board import Board
 from calib.bundle_adjustment import BAConfig, DeviceConfig
 from calib.calibrate import run_calibration
-from calib.cli import main as cli_main
+from sltwin.cli import main as cli_main
 from calib.observations import write_observations_json
 from calib.simulate import simulate_observations
 from calib.skew_check import check_skew
@@ -32,7 +32,7 @@ def test_calib_run_warns_when_the_data_need_a_skew_and_records_the_check(tmp_pat
     assert cli_main(["run", "--observations", str(tmp_path / "obs.json"), "-o", str(tmp_path / "out"), "-q",
                     "--distortion", "4"]) == 0
     err = capsys.readouterr().err
-    assert "warning: skew check" in err and "calibrate with --skew" in err
+    assert "warning: skew check (refit with skew free)" in err and "calibrate with --skew" in err
     check = json.loads((tmp_path / "out" / "calibration.json").read_text())["skew_check"]
     assert check["significant"] == ["camera", "projector"]
     assert abs(check["skew_px"]["projector"] - (-0.951)) < 5 * check["sigma_px"]["projector"]

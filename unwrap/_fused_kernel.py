@@ -264,7 +264,7 @@ def _refine(p_i, ratio, Phi_s, pr_s, k_s):
 
 @nb.njit(**_JIT)
 def _final(ok, k_s, Phi_s, pr_s, kmax, phase, order, valid, prior):
-    """unwrap.temporal._finish for one block (output slices)."""
+    """unwrap.temporal.finish_unwrapped for one block (output slices)."""
     for j in range(ok.size):
         k = k_s[j]
         g = ok[j] & (k >= 0.0) & (k <= kmax)

@@ -138,7 +138,9 @@ def refine(Phi_coarse, ratio: float, phi):
     return prior, k, phi + TWO_PI * k
 
 
-def _finish(xp, Phi, k, prior, ok, frequency, method, levels):
+def finish_unwrapped(xp, Phi, k, prior, ok, frequency, method, levels) -> Unwrapped:
+    """The :class:`Unwrapped` every method returns: orders outside [0, round(f)] and pixels not
+    ``ok`` are invalid (phase NaN, order -1); the prior is NaN where the inputs were invalid."""
     kmax = math.floor(frequency + 0.5)
     in_range = (k >= 0) & (k <= kmax)
     valid = ok & in_range
@@ -197,7 +199,7 @@ def mf_unwrap(phases, frequencies, *, width=None, valid=None, phase_sigma=None, 
     for i in range(1, len(f)):
         prior, k, Phi = refine(Phi, f[i] / f[i - 1], phis[i])
         levels.append((float(f[i]), prior, k))
-    return _finish(xp, Phi, k, prior, ok, f[-1], "mf", levels)
+    return finish_unwrapped(xp, Phi, k, prior, ok, f[-1], "mf", levels)
 
 
 def _frequencies_from(frequencies, pitches, width, n):
@@ -278,7 +280,7 @@ def mw_unwrap(phases, frequencies=None, *, pitches=None, width=None, valid=None,
         f_eq = f12
     prior, k, Phi = refine(Phi_eq, f[0] / f_eq, phis[0])
     levels.append((float(f[0]), prior, k))
-    return _finish(xp, Phi, k, prior, ok, f[0], "mw", levels)
+    return finish_unwrapped(xp, Phi, k, prior, ok, f[0], "mw", levels)
 
 
 @lru_cache(maxsize=128)
@@ -343,5 +345,5 @@ def nt_unwrap(phases, frequencies, *, width=None, valid=None, phase_sigma=None, 
     else:
         Phi, k, fout = phi1 + TWO_PI * k1, k1, f1
     levels = [(float(f1), None, k1), (float(f2), None, k2)]
-    return _finish(namespace(Phi), Phi, k.astype(np.float64), prior, ok & (k1 <= f1) & (k2 >= 0) & (k2 <= f2),
+    return finish_unwrapped(namespace(Phi), Phi, k.astype(np.float64), prior, ok & (k1 <= f1) & (k2 >= 0) & (k2 <= f2),
                    fout, "nt", levels)
