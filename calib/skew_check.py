@@ -66,10 +66,10 @@ class SkewCheck:
         moved = sorted(self.shift_sigma.items(), key=lambda kv: -abs(kv[1]))[:3]
         text = "skew check (refit with skew free): " + ", ".join(parts)
         if self.significant():
-            text += (f". The zero-skew model does not fit these data (residual RMS "
+            text += (f". The data favour a skew the zero-skew model lacks (residual RMS "
                      + ", ".join(f"{d} {a:.4f} -> {b:.4f} px" for d, (a, b) in self.rms_px.items())
                      + "; with skew free " + ", ".join(f"{k} moves {v:+.1f} sigma" for k, v in moved)
-                     + "): its estimates are biased; calibrate with --skew.")
+                     + "): the zero-skew estimates are biased by as much; calibrate with --skew.")
         else:
             text += f": consistent with 0 (within {self.threshold_z:g} sigma); the zero-skew model fits."
         return text
