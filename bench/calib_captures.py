@@ -2,7 +2,8 @@
 
     python -m bench.calib_captures                 # cost table + spread over 10 noise draws
     python -m bench.calib_captures --draws 30 --only spread [--jitter DEG MM]
-    python -m bench.calib_captures --only spread --system real --distortion 5 4 --skew both --draws 24
+    python -m bench.calib_captures --quick         # the paper's session once, and 2 draws
+    python -m bench.calib_captures --only spread --system real --distortion 5 4 --skew both --draws 60
 
 ``--system`` picks the truth that is rendered: ``twin`` (default: the built-in real system without
 skew and distortion, what Blender represents), ``real`` (the built-in system as it is: distorted
@@ -38,14 +39,14 @@ def truth_system(name: str = "twin"):
     """The system a benchmark renders: ``twin`` (no skew, no distortion), ``real`` (the built-in
     system: distorted and skewed) or ``real-noskew`` (distorted, skew 0)."""
     from calib import default_system
+
     from calib.system import SystemModel
 
     s = default_system()
     if name == "real":
         return s
     if name == "twin":
-        return SystemModel(s.camera.without_skew_and_distortion(), s.projector.without_skew_and_distortion(),
-                           {"name": "ideal-pinhole twin of the built-in system"})
+        return s.ideal({"name": "ideal-pinhole twin of the built-in system"})
     if name == "real-noskew":
         return SystemModel(s.camera.without_skew(), s.projector.without_skew(), {"name": "built-in system, skew 0"})
     raise ValueError(f"system: expected one of {SYSTEMS}, got {name!r}")
@@ -127,12 +128,13 @@ def one_session(truth_system, work: Path, *, views=9, steps=12, frequencies=(1, 
     return r
 
 
-def cost_table(truth_system, work: Path, out=sys.stdout) -> None:
+def cost_table(truth_system, work: Path, out=sys.stdout, *, quick: bool = False) -> None:
     paper = dict(views=9, steps=12, frequencies=(1, 8, 48), n_dist=5)
-    rows = [dict(paper, views=v) for v in (3, 5, 9, 15)]
-    rows += [dict(paper, steps=s) for s in (3, 4)]
-    rows += [dict(paper, frequencies=(1, 48))]
-    rows += [dict(paper, n_dist=0)]
+    rows = [dict(paper, views=v) for v in ((9,) if quick else (3, 5, 9, 15))]
+    if not quick:
+        rows += [dict(paper, steps=s) for s in (3, 4)]
+        rows += [dict(paper, frequencies=(1, 48))]
+        rows += [dict(paper, n_dist=0)]
     print(f"\n### What accuracy costs (one noise draw each; truth = {truth_system.meta.get('name', 'given system')})\n",
           file=out)
     print("| views | steps | frequencies | dist terms | images | std cam fx px | std prj fy px | RMS cam px |"
@@ -268,18 +270,20 @@ def main(argv=None) -> int:
                     help="distortion terms of the spread table's model(s) (default 5)")
     ap.add_argument("--skew", choices=("fixed", "estimated", "both"), default="fixed",
                     help="skew of the spread table's model(s): fixed at 0 (default, as calib run), estimated, both")
+    ap.add_argument("--quick", action="store_true", help="the paper's session only in the cost table, 2 draws")
     args = ap.parse_args(argv)
-    if args.draws < 2:
-        ap.error(f"--draws: need at least 2 draws for a spread, got {args.draws}")
+    draws = 2 if args.quick else args.draws
+    if draws < 2:
+        ap.error(f"--draws: need at least 2 draws for a spread, got {draws}")
     truth = truth_system(args.system)
     skews = {"fixed": (False,), "estimated": (True,), "both": (False, True)}[args.skew]
     models = tuple((n, s) for s in skews for n in args.distortion)
     with tempfile.TemporaryDirectory(prefix="sltwin-bench-") as tmp:
         work = Path(tmp)
         if args.only in (None, "cost"):
-            cost_table(truth, work)
+            cost_table(truth, work, quick=args.quick)
         if args.only in (None, "spread"):
-            spread_table(truth, work, args.draws, jitter=tuple(args.jitter) if any(args.jitter) else None,
+            spread_table(truth, work, draws, jitter=tuple(args.jitter) if any(args.jitter) else None,
                          save=args.save, models=models, system_name=args.system)
     print("\n(2-core CPU; times are wall-clock seconds of this run)")
     return 0

@@ -1,30 +1,29 @@
 """Circle-grid detection on rendered boards (synth): identities, sub-pixel centres against the true
 projections, the perspective bias and its correction, and the hard cases (partial, mirrored,
 turned, no board, low contrast, saturation, polarity)."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
-from calib.board import Board
+from calib.board import Board, paper_board
 from calib.detect import (BoardDetection, DetectionError, circle_image_centre, detect_board, lens_centre_bias,
                           perspective_bias)
 from bench.detect_accuracy import centre_errors, close_system, render_white
 from calib.detect.blobs import fit_ellipse_direct
 from calib.system import default_system
-from synth import BoardSpec
 from synth.poses import rotation_xyz_deg
 
 
 @pytest.fixture(scope="session")
 def renders(tmp_path_factory):
     """Small renders shared by the tests of this module (cached on disk for the session)."""
-    from synth import BoardSpec
-
     cache = tmp_path_factory.mktemp("detect_renders")
-    paper, big = BoardSpec(), BoardSpec(small_diameter_mm=8.0, large_diameter_mm=14.0)
+    paper, big = paper_board(), paper_board(small_diameter_mm=8.0, large_diameter_mm=14.0)
     twin, close = default_system(), close_system()
     jobs = {"twin_10_20_noisy": (twin, paper, (10, 20), 1), "twin_0_0": (twin, paper, (0, 0), None),
             "close_big_40": (close, big, (40, 0), None),
-            "close_no_markers": (close, BoardSpec(large_markers=()), (10, 20), 2)}
+            "close_no_markers": (close, paper_board(large_markers=()), (10, 20), 2)}
     out = {}
     for name, (system, spec, tilt, noise) in jobs.items():
         path = cache / f"{name}.npz"
@@ -42,13 +41,9 @@ def _truth(system, board, ids, R_wb):
     return system.camera.project(board.points_board(ids) @ R_wb.T)
 
 
-def _board(spec):
-    return Board.from_dict(spec.capture_toml_table())
-
-
 def test_paper_twin_circles_identified_with_sub_0_1_px_centres(renders):
     img, R, system, spec = renders["twin_10_20_noisy"]
-    board = _board(spec)
+    board = spec
     det = detect_board(img, board)
     assert isinstance(det, BoardDetection)
     assert np.all(np.diff(det.ids) > 0) and det.ids.dtype == np.int64
@@ -129,7 +124,7 @@ def test_lens_aware_correction_recovers_the_projected_centre_through_a_strong_le
 
     system = _distorted_close([-0.6, 0.3, 0.001, -0.001, 0.0])
     cam = system.camera
-    board = Board("circles", 9, 11, 20.0, 14.0, 8.0, [[4, 5], [4, 6], [4, 7], [3, 5], [2, 5]])
+    board = paper_board(small_diameter_mm=8.0, large_diameter_mm=14.0)
     R_wb = rotation_xyz_deg([30.0, 30.0, 0.0])
     ids = np.arange(board.n_points)
     pts = board.points_board(ids)[:, :2]
@@ -158,8 +153,7 @@ def test_lens_aware_detection_removes_the_radial_error_on_a_rendered_distorted_b
     pulls the measured centres inwards) and within +-0.005 px with the lens-aware correction."""
     system = _distorted_close([-0.6, 0.3, 0.001, -0.001, 0.0])
     cam = system.camera
-    spec = BoardSpec(small_diameter_mm=8.0, large_diameter_mm=14.0)
-    board = _board(spec)
+    board = spec = paper_board(small_diameter_mm=8.0, large_diameter_mm=14.0)
     radial = {None: [], "lens": []}
     for tilt in [(20, 0), (30, 30)]:
         img, R = render_white(system, spec, tilt, None)
@@ -179,7 +173,7 @@ def test_lens_aware_detection_removes_the_radial_error_on_a_rendered_distorted_b
 
 def test_partial_board_keeps_identities_and_drops_cut_circles(renders):
     img, R, system, spec = renders["twin_0_0"]
-    board = _board(spec)
+    board = spec
     col4 = _truth(system, board, [4 * board.cols + 3], R)[0, 0]
     x0 = int(round(col4))          # cuts through the circles of column 3
     det = detect_board(img[:, x0:], board)
@@ -193,7 +187,7 @@ def test_partial_board_keeps_identities_and_drops_cut_circles(renders):
 
 def test_board_turned_180_deg_in_the_image_keeps_its_identities(renders):
     img, R, system, spec = renders["twin_10_20_noisy"]
-    board = _board(spec)
+    board = spec
     H, W = img.shape
     det = detect_board(np.ascontiguousarray(img[::-1, ::-1]), board)
     truth = _truth(system, board, det.ids, R)
@@ -205,13 +199,13 @@ def test_board_turned_180_deg_in_the_image_keeps_its_identities(renders):
 def test_mirror_flipped_image_is_refused(renders):
     img, _, _, spec = renders["twin_10_20_noisy"]
     with pytest.raises(DetectionError, match="MIRROR|mirror"):
-        detect_board(np.ascontiguousarray(img[:, ::-1]), _board(spec))
+        detect_board(np.ascontiguousarray(img[:, ::-1]), spec)
 
 
 def test_light_on_dark_board_and_low_contrast(renders):
     img, R, system, spec = renders["twin_10_20_noisy"]
-    board = _board(spec)
-    inv = Board.from_dict({**spec.capture_toml_table(), "polarity": "light-on-dark"})
+    board = spec
+    inv = replace(spec, polarity="light-on-dark")
     det = detect_board(255 - img, inv)
     assert len(det) >= 75
     det16 = detect_board(img.astype(np.uint16) * 257, board)      # 16-bit input, same answer
@@ -227,7 +221,7 @@ def test_light_on_dark_board_and_low_contrast(renders):
 
 def test_saturated_patch_loses_only_the_circles_under_it(renders):
     img, R, system, spec = renders["twin_10_20_noisy"]
-    board = _board(spec)
+    board = spec
     sat = img.copy()
     sat[300:420, 60:260] = 255
     det = detect_board(sat, board)
@@ -239,7 +233,7 @@ def test_saturated_patch_loses_only_the_circles_under_it(renders):
 
 def test_no_board_and_bad_inputs_are_refused_with_clear_messages(renders):
     img, _, _, spec = renders["twin_0_0"]
-    board = _board(spec)
+    board = spec
     rng = np.random.default_rng(0)
     noise = np.clip(128 + rng.normal(0, 10, (480, 640)), 0, 255).astype(np.uint8)
     with pytest.raises(DetectionError, match="640x480 px"):
@@ -258,7 +252,7 @@ def test_no_board_and_bad_inputs_are_refused_with_clear_messages(renders):
     with pytest.raises(DetectionError, match="Board"):
         detect_board(img, {"kind": "circles"})
     # a board with a different marker layout is not read as this one
-    other = Board.from_dict({**spec.capture_toml_table(), "large_markers": [[1, 1], [1, 2], [2, 1], [6, 8]]})
+    other = replace(spec, large_markers=((1, 1), (1, 2), (2, 1), (6, 8)))
     with pytest.raises(DetectionError):
         detect_board(img, other)
 
@@ -285,7 +279,7 @@ def test_docstring_examples_run():
 
 def test_board_half_out_of_view_identified_when_the_markers_tell_else_refused(renders):
     img, R, system, spec = renders["twin_10_20_noisy"]
-    board = _board(spec)
+    board = spec
     det = detect_board(np.ascontiguousarray(img[:, 320:]), board)      # right half: all markers, 37 circles
     truth = _truth(system, board, det.ids, R) - [320, 0]
     assert len(det) >= 30 and np.linalg.norm(det.q - truth, axis=1).max() < 0.1

@@ -7,7 +7,7 @@ import json
 import numpy as np
 
 from calib import default_system
-from calib.board import Board
+from calib.board import paper_board
 from calib.bundle_adjustment import BAConfig, DeviceConfig
 from calib.calibrate import run_calibration
 from sltwin.cli import main as cli_main
@@ -16,7 +16,7 @@ from calib.simulate import simulate_observations
 from calib.skew_check import check_skew
 from calib.system import SystemModel
 
-BOARD = Board("circles", 9, 11, 20.0, 5.0, 2.0, [[4, 5], [4, 6], [4, 7], [3, 5], [2, 5]])
+BOARD = paper_board()   # the paper's 9 x 11 circle board
 
 
 def _session(system, seed=0):
