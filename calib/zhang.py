@@ -65,7 +65,7 @@ def homography(xy_board, q) -> np.ndarray:
     for (x, y, _), (u, v, _) in zip(a, b):
         rows.append([x, y, 1, 0, 0, 0, -u * x, -u * y, -u])
         rows.append([0, 0, 0, x, y, 1, -v * x, -v * y, -v])
-    _, _, vt = np.linalg.svd(np.asarray(rows))
+    _, _, vt = np.linalg.svd(np.asarray(rows), full_matrices=False)  # vt only: thin SVD
     Hn = vt[-1].reshape(3, 3)
     H = np.linalg.inv(Tb) @ Hn @ Ta
     return H / H[2, 2]

@@ -1,0 +1,160 @@
+"""Normal equations of the bundle adjustment, reduced on the global parameters (Schur complement).
+
+The Jacobian of the adjustment has an arrow structure: every residual row depends on the global
+parameters (intrinsics, distortion, rig, warp: G columns) and on one pose block (6 columns). With
+the rows laid out padded per pose block, ``(S, R)`` rows for S blocks, the normal matrix is
+
+    [ U    W ]      U = Jg^T Jg (G, G),  W_s = Jg_s^T Jv_s (G, 6),  V_s = Jv_s^T Jv_s (6, 6)
+    [ W^T  V ]      V block-diagonal
+
+and a (damped) Gauss-Newton step solves it by eliminating the poses: ``S = U - sum_s W_s V_s^-1
+W_s^T`` (G, G), one Cholesky of S, then each pose's step from its own 6x6 block. Forming and solving
+cost time and memory linear in S (as COLMAP/Ceres's Schur solvers; mrcal uses a sparse Cholesky).
+The covariance of the globals is ``S^-1`` and that of pose s is ``V_s^-1 + Y_s^T S^-1 Y_s`` with
+``Y_s = W_s V_s^-1``: the same factorisation.
+
+Everything is Jacobi-scaled (each column divided by its norm) before damping and factorising, so
+Levenberg-Marquardt's damping ``lam * diag(J^T J)`` is ``lam * I`` here. ``plus_second_order``
+adds the residuals' second-order term (same block pattern) for Newton steps.
+
+SYNOPSIS
+
+    >>> import numpy as np
+    >>> from calib.ba_normal import NormalEquations
+    >>> rng = np.random.default_rng(0)
+    >>> Jg, Jv, r = rng.normal(size=(40, 3)), rng.normal(size=(40, 6)), rng.normal(size=40)
+    >>> step = NormalEquations(Jg, Jv, r, n_slots=2).solve(0.0)
+    >>> J = np.zeros((40, 15)); J[:, :3] = Jg; J[:20, 3:9] = Jv[:20]; J[20:, 9:] = Jv[20:]
+    >>> full = np.linalg.lstsq(J, -r, rcond=None)[0]
+    >>> bool(np.allclose(np.r_[step.dg, step.dv.ravel()], full))
+    True
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def _spd_inverse(V: np.ndarray) -> np.ndarray:
+    """Inverses of a stack of symmetric positive definite matrices (S, n, n), by Cholesky
+    (``np.linalg.inv`` on many tiny matrices costs ~20x more); LinAlgError if one is not SPD."""
+    L = np.linalg.cholesky(V)
+    n = V.shape[-1]
+    Linv = np.zeros_like(V)
+    for i in range(n):                     # forward substitution, all matrices at once
+        row = -np.einsum("sk,skj->sj", L[:, i, :i], Linv[:, :i, :])
+        row[:, i] += 1.0
+        Linv[:, i, :] = row / L[:, i, i, None]
+    return np.matmul(Linv.transpose(0, 2, 1), Linv)
+
+
+class SingularNormalEquations(np.linalg.LinAlgError):
+    """The (damped) normal matrix is not positive definite."""
+
+
+@dataclass
+class Step:
+    """A step: dg (G,) globals, dv (S, 6) poses; predicted cost decrease (model) and the
+    directional derivative of the cost along the step, ``2 (J^T r) . d`` (negative)."""
+
+    dg: np.ndarray
+    dv: np.ndarray
+    predicted: float
+    slope: float
+
+
+class NormalEquations:
+    """``J^T J`` and ``J^T r`` of one linearisation, Jacobi-scaled.
+
+    ARGUMENTS
+    - Jg (rows, G), Jv (rows, 6), r (rows,): rows padded per pose block, S * R rows in block order.
+    - n_slots: S.
+    """
+
+    def __init__(self, Jg: np.ndarray, Jv: np.ndarray, r: np.ndarray, n_slots: int):
+        S = int(n_slots)
+        G = Jg.shape[1]
+        Jg3 = Jg.reshape(S, -1, G)
+        Jv3 = Jv.reshape(S, -1, 6)
+        Jv3t = Jv3.transpose(0, 2, 1)
+        U = Jg.T @ Jg
+        W = np.matmul(Jg3.transpose(0, 2, 1), Jv3)
+        V = np.matmul(Jv3t, Jv3)
+        bg = Jg.T @ r
+        bv = np.matmul(Jv3t, r.reshape(S, -1, 1))[..., 0]
+        self.col_norm_g = np.sqrt(np.diag(U).copy())
+        self.col_norm_v = np.sqrt(np.einsum("sii->si", V))
+        sg = 1.0 / np.where(self.col_norm_g > 0, self.col_norm_g, 1.0)
+        sv = 1.0 / np.where(self.col_norm_v > 0, self.col_norm_v, 1.0)
+        self.scale_g, self.scale_v = sg, sv
+        self.U = U * sg[:, None] * sg[None, :]
+        self.W = W * sg[None, :, None] * sv[:, None, :]
+        self.V = V * sv[:, :, None] * sv[:, None, :]
+        self.bg = bg * sg
+        self.bv = bv * sv
+        self.cost = float(r @ r)
+        self._factor = None
+
+    def plus_second_order(self, U2: np.ndarray, W2: np.ndarray, V2: np.ndarray) -> "NormalEquations":
+        """Newton's equations: these Gauss-Newton ones plus the second-order term of the residuals,
+        ``sum_i r_i d2r_i`` in blocks U2 (G, G), W2 (S, G, 6), V2 (S, 6, 6) (unscaled); same scaling."""
+        sg, sv = self.scale_g, self.scale_v
+        out = object.__new__(NormalEquations)
+        out.__dict__.update(self.__dict__)
+        out.U = self.U + U2 * sg[:, None] * sg[None, :]
+        out.W = self.W + W2 * sg[None, :, None] * sv[:, None, :]
+        out.V = self.V + V2 * sv[:, :, None] * sv[:, None, :]
+        out._factor = None
+        return out
+
+    def _reduce(self, lam: float):
+        """(Schur complement, its right-hand side part, V^-1, Y) with damping ``lam``."""
+        eye6 = np.eye(6)
+        Vd = self.V + lam * eye6
+        try:
+            Vinv = _spd_inverse(Vd)
+        except np.linalg.LinAlgError:
+            raise SingularNormalEquations("a pose block of the normal matrix is singular") from None
+        Y = np.matmul(self.W, Vinv)
+        Sm = self.U + lam * np.eye(len(self.U)) - np.tensordot(Y, self.W, axes=([0, 2], [0, 2]))
+        Sm = 0.5 * (Sm + Sm.T)
+        try:
+            np.linalg.cholesky(Sm)
+        except np.linalg.LinAlgError:
+            raise SingularNormalEquations("the reduced normal matrix of the global parameters is "
+                                          "singular") from None
+        return Sm, Vinv, Y
+
+    def solve(self, lam: float) -> Step:
+        """Step minimising ``|r + J d|^2 + lam |D d|^2`` (D: column norms); raises
+        SingularNormalEquations where the damped matrix is not positive definite."""
+        Sm, Vinv, Y = self._reduce(lam)
+        if lam == 0.0:
+            self._factor = (Sm, Vinv, Y)
+        rhs = self.bg - np.tensordot(Y, self.bv, axes=([0, 2], [0, 1]))
+        xg = -np.linalg.solve(Sm, rhs) if len(Sm) else np.zeros(0)
+        xv = -np.matmul(Vinv, (self.bv + np.einsum("sgi,g->si", self.W, xg))[..., None])[..., 0]
+        bx = float(self.bg @ xg + np.sum(self.bv * xv))
+        predicted = -bx + lam * float(xg @ xg + np.sum(xv * xv))
+        return Step(xg * self.scale_g, xv * self.scale_v, predicted, 2.0 * bx)
+
+    def covariance(self):
+        """Undamped ``(J^T J)^-1`` blocks: (globals (G, G), poses (S, 6, 6)), unit residual variance."""
+        Sm, Vinv, Y = self._factor if self._factor is not None else self._reduce(0.0)
+        Sinv = np.linalg.inv(Sm) if len(Sm) else np.zeros((0, 0))
+        Sinv = 0.5 * (Sinv + Sinv.T)
+        cov_v = Vinv + np.matmul(np.matmul(Y.transpose(0, 2, 1), Sinv), Y)
+        sg, sv = self.scale_g, self.scale_v
+        return Sinv * sg[:, None] * sg[None, :], cov_v * sv[:, :, None] * sv[:, None, :]
+
+    def conditioning(self) -> dict:
+        """Condition numbers of the scaled reduced matrix S and the worst pose block (undamped)."""
+        Sm, _, _ = self._factor if self._factor is not None else self._reduce(0.0)
+        ev = np.linalg.eigvalsh(Sm) if len(Sm) else np.ones(1)
+        evv = np.linalg.eigvalsh(self.V)
+        unscaled = np.linalg.eigvalsh(Sm / (self.scale_g[:, None] * self.scale_g[None, :])) if len(Sm) \
+            else np.ones(1)
+        return {"reduced_scaled": float(ev[-1] / ev[0]), "reduced_unscaled": float(unscaled[-1] / unscaled[0]),
+                "pose_blocks_worst": float(np.max(evv[:, -1] / evv[:, 0])),
+                "normal_matrix_rcond": float(min(ev[0] / ev[-1], np.min(evv[:, 0] / evv[:, -1])))}
