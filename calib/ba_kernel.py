@@ -4,13 +4,13 @@ the Jacobian of that pixel, as one casadi function evaluated over every point.
 The model of one point (DESIGN.md conventions; ``calib.bundle_adjustment`` has the whole problem):
 
     X  = (x, y, z + warp . warp_basis)                      board frame, mm
-    Y  = R1 (X + w1 x X) + t1                               pose 1: board -> device (or camera), mm
-    Y  = R2 (Y + w2 x Y) + t2                               pose 2 (chain 2 only): camera -> projector
+    Y  = R1 Exp(w1) X + t1                                  pose 1: board -> device (or camera), mm
+    Y  = R2 Exp(w2) Y + t2                                  pose 2 (chain 2 only): camera -> projector
     q  = K distort(Y_x / Y_z, Y_y / Y_z)                    pixels
 
-``w1``, ``w2`` are rotation increments on the right of the reference rotations (``R Exp(w)`` to first
-order); the kernel is always evaluated at ``w = 0`` (the solver folds every accepted increment into
-``R``), so the Jacobian with respect to ``w`` is the exact tangent-space derivative.
+``w1``, ``w2`` are rotation increments on the right of the reference rotations, with ``Exp`` expanded
+to second order; the kernel is always evaluated at ``w = 0`` (the solver folds every accepted
+increment into ``R``), so its first and second derivatives with respect to ``w`` are exact.
 
 Structure, not data, defines a kernel: ``KernelSpec(n_distortion, chain, hessian)``. Its casadi
 function is turned into C, compiled once with the system C compiler (``$CC``, else ``cc``/``gcc``) and
@@ -153,6 +153,12 @@ def distort_casadi(ca, x, y, c):
     return xd, yd
 
 
+def _exp_applied(ca, w, X):
+    """``Exp(w) X`` to second order in ``w`` (exact value, first and second derivatives at w = 0)."""
+    wX = ca.cross(w, X)
+    return X + wX + 0.5 * ca.cross(w, wX)
+
+
 def casadi_point_function(spec: KernelSpec):
     """The casadi ``Function`` of one point (inputs and output as in the module docstring)."""
     import casadi as ca
@@ -162,13 +168,13 @@ def casadi_point_function(spec: KernelSpec):
     Xb = ca.vertcat(X[0], X[1], X[2] + ca.dot(basis, warp))
     w1 = ca.SX.sym("w1", 3)
     R1 = ca.reshape(syms["R1"], 3, 3).T          # row-major input
-    Y = R1 @ (Xb + ca.cross(w1, Xb)) + syms["t1"]
+    Y = R1 @ _exp_applied(ca, w1, Xb) + syms["t1"]
     pose_vars = [ca.vertcat(w1, syms["t1"])]
     increments = [w1]
     if spec.chain == 2:
         w2 = ca.SX.sym("w2", 3)
         R2 = ca.reshape(syms["R2"], 3, 3).T
-        Y = R2 @ (Y + ca.cross(w2, Y)) + syms["t2"]
+        Y = R2 @ _exp_applied(ca, w2, Y) + syms["t2"]
         pose_vars.append(ca.vertcat(w2, syms["t2"]))
         increments.append(w2)
     x, y = Y[0] / Y[2], Y[1] / Y[2]
