@@ -15,7 +15,9 @@ The covariance of the globals is ``S^-1`` and that of pose s is ``V_s^-1 + Y_s^T
 
 Everything is Jacobi-scaled (each column divided by its norm) before damping and factorising, so
 Levenberg-Marquardt's damping ``lam * diag(J^T J)`` is ``lam * I`` here. ``plus_second_order``
-adds the residuals' second-order term (same block pattern) for Newton steps.
+adds the residuals' second-order term (same block pattern) for Newton steps; ``solve(low_rank=)``
+subtracts a few dense rank-one terms by the Woodbury identity (the device noise estimated jointly,
+``calib.ba_solver``) without giving up the block structure.
 
 SYNOPSIS
 
@@ -70,19 +72,25 @@ class NormalEquations:
     ARGUMENTS
     - Jg (rows, G), Jv (rows, 6), r (rows,): rows padded per pose block, S * R rows in block order.
     - n_slots: S.
+    - row_groups: optional list of boolean row masks; ``parts`` then holds each group's share of
+      ``J^T r`` (scaled), for ``solve``'s low-rank term.
     """
 
-    def __init__(self, Jg: np.ndarray, Jv: np.ndarray, r: np.ndarray, n_slots: int):
+    def __init__(self, Jg: np.ndarray, Jv: np.ndarray, r: np.ndarray, n_slots: int, row_groups=()):
         S = int(n_slots)
         G = Jg.shape[1]
         Jg3 = Jg.reshape(S, -1, G)
         Jv3 = Jv.reshape(S, -1, 6)
         Jv3t = Jv3.transpose(0, 2, 1)
-        U = Jg.T @ Jg
-        W = np.matmul(Jg3.transpose(0, 2, 1), Jv3)
+        Jg3t = Jg3.transpose(0, 2, 1)
+        r3 = r.reshape(S, -1, 1)
+        # per-block products summed: small single-threaded BLAS calls, no large threaded gemm (a
+        # multi-threaded BLAS stalls on a machine whose cores are busy)
+        U = np.matmul(Jg3t, Jg3).sum(axis=0)
+        W = np.matmul(Jg3t, Jv3)
         V = np.matmul(Jv3t, Jv3)
-        bg = Jg.T @ r
-        bv = np.matmul(Jv3t, r.reshape(S, -1, 1))[..., 0]
+        bg = np.matmul(Jg3t, r3).sum(axis=0)[:, 0]
+        bv = np.matmul(Jv3t, r3)[..., 0]
         self.col_norm_g = np.sqrt(np.diag(U).copy())
         self.col_norm_v = np.sqrt(np.einsum("sii->si", V))
         sg = 1.0 / np.where(self.col_norm_g > 0, self.col_norm_g, 1.0)
@@ -95,6 +103,10 @@ class NormalEquations:
         self.bv = bv * sv
         self.cost = float(r @ r)
         self._factor = None
+        self.parts = []
+        for mask in row_groups:
+            rm = (r * mask).reshape(S, -1, 1)
+            self.parts.append((np.matmul(Jg3t, rm).sum(axis=0)[:, 0] * sg, np.matmul(Jv3t, rm)[..., 0] * sv))
 
     def plus_second_order(self, U2: np.ndarray, W2: np.ndarray, V2: np.ndarray) -> "NormalEquations":
         """Newton's equations: these Gauss-Newton ones plus the second-order term of the residuals,
@@ -117,7 +129,7 @@ class NormalEquations:
         except np.linalg.LinAlgError:
             raise SingularNormalEquations("a pose block of the normal matrix is singular") from None
         Y = np.matmul(self.W, Vinv)
-        Sm = self.U + lam * np.eye(len(self.U)) - np.tensordot(Y, self.W, axes=([0, 2], [0, 2]))
+        Sm = self.U + lam * np.eye(len(self.U)) - np.matmul(Y, self.W.transpose(0, 2, 1)).sum(axis=0)
         Sm = 0.5 * (Sm + Sm.T)
         try:
             np.linalg.cholesky(Sm)
@@ -126,15 +138,37 @@ class NormalEquations:
                                           "singular") from None
         return Sm, Vinv, Y
 
-    def solve(self, lam: float) -> Step:
+    def _apply_inverse(self, factor, bg, bv):
+        """(H + lam I)^-1 [bg; bv] (scaled) from a factorisation of ``_reduce``."""
+        Sm, Vinv, Y = factor
+        rhs = bg - np.matmul(Y, bv[..., None]).sum(axis=0)[:, 0]
+        xg = np.linalg.solve(Sm, rhs) if len(Sm) else np.zeros(0)
+        xv = np.matmul(Vinv, (bv - np.einsum("sgi,g->si", self.W, xg))[..., None])[..., 0]
+        return xg, xv
+
+    def solve(self, lam: float, low_rank=None) -> Step:
         """Step minimising ``|r + J d|^2 + lam |D d|^2`` (D: column norms); raises
-        SingularNormalEquations where the damped matrix is not positive definite."""
-        Sm, Vinv, Y = self._reduce(lam)
+        SingularNormalEquations where the damped matrix is not positive definite.
+
+        ``low_rank``: coefficients ``c`` (one per ``row_groups`` entry): the matrix becomes
+        ``H - sum_k c_k p_k p_k^T`` with ``p_k`` the groups' shares of ``J^T r`` (Woodbury; two
+        extra solves with the same factorisation). SingularNormalEquations where that is not
+        positive definite."""
+        factor = self._reduce(lam)
         if lam == 0.0:
-            self._factor = (Sm, Vinv, Y)
-        rhs = self.bg - np.tensordot(Y, self.bv, axes=([0, 2], [0, 1]))
-        xg = -np.linalg.solve(Sm, rhs) if len(Sm) else np.zeros(0)
-        xv = -np.matmul(Vinv, (self.bv + np.einsum("sgi,g->si", self.W, xg))[..., None])[..., 0]
+            self._factor = factor
+        xg, xv = self._apply_inverse(factor, self.bg, self.bv)
+        if low_rank is not None:
+            Z = [self._apply_inverse(factor, pg, pv) for pg, pv in self.parts]
+            BtZ = np.array([[pg @ zg + np.sum(pv * zv) for zg, zv in Z] for pg, pv in self.parts])
+            K = np.diag(1.0 / np.asarray(low_rank, float)) - 0.5 * (BtZ + BtZ.T)
+            if np.linalg.eigvalsh(K)[0] <= 0:
+                raise SingularNormalEquations("the low-rank corrected matrix is not positive definite")
+            Btu = np.array([pg @ xg + np.sum(pv * xv) for pg, pv in self.parts])
+            coef = np.linalg.solve(K, Btu)
+            xg = xg + sum(c * zg for c, (zg, _) in zip(coef, Z))
+            xv = xv + sum(c * zv for c, (_, zv) in zip(coef, Z))
+        xg, xv = -xg, -xv
         bx = float(self.bg @ xg + np.sum(self.bv * xv))
         predicted = -bx + lam * float(xg @ xg + np.sum(xv * xv))
         return Step(xg * self.scale_g, xv * self.scale_v, predicted, 2.0 * bx)

@@ -197,30 +197,68 @@ def poorly_determined(names, values, cov, sizes=None) -> list:
     return out
 
 
-def _solve_or_none(ne: NormalEquations, lam: float, second_order=None):
-    """The step of ``ne`` (plus a second-order term, for Newton) at damping ``lam``, or None
-    where the matrix is not positive definite."""
+def _solve_or_none(ne: NormalEquations, lam: float, second_order=None, low_rank=None):
+    """The step of ``ne`` (plus a second-order term, for Newton; minus the low-rank term of the
+    device noise, see ``_Objective``) at damping ``lam``, or None where the matrix is not positive
+    definite (with ``low_rank``: the step without it)."""
+    eq = ne.plus_second_order(*second_order) if second_order is not None else ne
     try:
-        return (ne.plus_second_order(*second_order) if second_order is not None else ne).solve(lam)
+        return eq.solve(lam, low_rank)
     except SingularNormalEquations:
-        return None
+        return _solve_or_none(ne, lam, second_order) if low_rank is not None else None
 
 
-def _try_step(problem: BAProblem, state, step, cost: float, sw):
+class _Objective:
+    """What a step must lower, relative to the current state (so that tiny changes are resolved).
+
+    Fixed weights: the weighted sum of squares. With two devices weighted by their own noise
+    (``reweight_devices``, linear loss) the weights are themselves estimates, ``w_d = m_d / S_d``
+    (``m_d`` residual rows, ``S_d`` their sum of squares): the adjustment then maximises the
+    likelihood with each device's variance profiled out, ``Phi = sum_d m_d log S_d``, whose
+    gradient is the weighted one and whose Hessian is the weighted one minus
+    ``sum_d (2 / m_d) g_d g_d^T`` (``g_d`` device d's share of ``J^T W r``): the rank-one terms
+    ``low_rank`` gives ``NormalEquations.solve``. With them the weights converge with the
+    parameters (quadratically) instead of by fixed-point iteration (linearly, ~25x per step).
+    """
+
+    def __init__(self, problem: BAProblem, ev, sw, inlier, devices, profile: bool):
+        self.sw = sw
+        self.cost = float(np.sum((ev.r * sw) ** 2))
+        self.groups, self.low_rank = [], None
+        if profile:
+            masks = [problem.point_rows(((problem.point_device == d) & inlier).astype(float)) > 0 for d in devices]
+            self.groups = [(m, 2.0 * np.count_nonzero(m) // 2, float(np.sum(ev.r[m] ** 2))) for m in masks]
+            self.low_rank = [2.0 / m_d for _, m_d, _ in self.groups]
+
+    @property
+    def row_groups(self):
+        return [m for m, _, _ in self.groups]
+
+    def change(self, ev) -> float:
+        """Objective at ``ev`` minus the current one (inf where ``ev`` is not valid)."""
+        if not ev.valid:
+            return np.inf
+        if not self.groups:
+            return float(np.sum((ev.r * self.sw) ** 2)) - self.cost
+        return float(sum(m_d * np.log1p((np.sum(ev.r[m] ** 2) - S0) / S0) for m, m_d, S0 in self.groups))
+
+
+def _try_step(problem: BAProblem, state, step, objective: _Objective):
     """Evaluate ``state + step`` (and, by a quadratic line search, a multiple of it); returns
-    (state, evaluation, cost) of the best point if it lowers ``cost`` (else Nones), and the number
-    of evaluations. ``sw`` (rows,): square roots of the point weights on the residual rows."""
-    best, n_eval = (None, None, cost), 0
+    (state, evaluation, objective change) of the best point if it lowers the objective (else
+    Nones), and the number of evaluations."""
+    best, n_eval = (None, None, 0.0), 0
     alpha = 1.0
     for _ in range(2):
         trial = state.moved(problem, alpha * step.dg, alpha * step.dv)
         ev = problem.evaluate(trial)
         n_eval += 1
-        c = float(np.sum((ev.r * sw) ** 2)) if ev.valid else np.inf
+        c = objective.change(ev)
         if c < best[2]:
             best = (trial, ev, c)
-        # a quadratic through cost(0), its slope and cost(1): its minimum, if well away from 1
-        curvature = c - cost - step.slope
+        # a quadratic through the change 0 at alpha 0, its slope and the change at alpha 1: its
+        # minimum, if well away from 1
+        curvature = c - step.slope
         if n_eval > 1 or not (np.isfinite(c) and curvature > 0):
             break
         alpha = -step.slope / (2 * curvature)
@@ -264,19 +302,21 @@ def solve(problem: BAProblem) -> BAResult:
     e = problem.point_norms(ev.r)
     dev_w, rob_w = _weights(problem, e, inlier, devices)
     lam, iterations, rounds, newton = 0.0, 0, 1, False
+    profile = cfg.reweight_devices and len(devices) > 1 and cfg.loss == "linear"
     converged = False
     while True:
         weights = dev_w * rob_w * inlier
         sw = np.sqrt(problem.point_rows(weights))
         row_scale = (sw * problem.inv_sigma_rows)[:, None]
-        ne = NormalEquations(ev.Jg * row_scale, ev.Jv * row_scale, ev.r * sw, S)
+        objective = _Objective(problem, ev, sw, inlier, devices, profile)
+        ne = NormalEquations(ev.Jg * row_scale, ev.Jv * row_scale, ev.r * sw, S, objective.row_groups)
         iterations += 1
         cost = ne.cost
         dof = max(2 * int(inlier.sum()) - n_free, 1)
         # the undamped model (Newton's where switched on, else Gauss-Newton's) judges convergence
-        gn, newton_step = _solve_or_none(ne, 0.0), None
-        if newton:
-            newton_step = _solve_or_none(ne, 0.0, problem.second_order(state, ev, weights))
+        gn = _solve_or_none(ne, 0.0, low_rank=objective.low_rank)
+        newton_step = _solve_or_none(ne, 0.0, problem.second_order(state, ev, weights), objective.low_rank) \
+            if newton else None
         model = newton_step or gn
         predicted = model.predicted if model is not None else np.inf
         small = predicted <= max(cfg.tolerance ** 2 * cost / dof, ROUNDING * cost)
@@ -289,25 +329,24 @@ def solve(problem: BAProblem) -> BAResult:
             converged = True
             if model is not None and model.predicted > 0:
                 # the last (tiny) step of the converged model: free precision, checked only
-                # against a cost increase beyond rounding
+                # against an increase beyond rounding
                 trial = state.moved(problem, model.dg, model.dv)
                 ev_t = problem.evaluate(trial)
                 evaluations += 1
-                cost_t = float(np.sum((ev_t.r * sw) ** 2)) if ev_t.valid else np.inf
-                if cost_t <= cost * (1 + ROUNDING):
-                    state, ev, cost = trial, ev_t, cost_t
+                if objective.change(ev_t) <= ROUNDING * cost:
+                    state, ev = trial, ev_t
             break
         if iterations >= cfg.max_iterations:
             log.append(f"stopped after {iterations} iterations without converging")
             break
         steps = [("newton", newton_step)] if newton_step is not None else []
         steps += [("gauss-newton", gn if lam == 0.0 else _solve_or_none(ne, lam))]
-        accepted = (None, None, cost, 0)
+        accepted = (None, None, 0.0, 0)
         for tries in range(MAX_REJECTED_STEPS):
             for kind, step in steps:
                 if step is None:
                     continue
-                accepted = _try_step(problem, state, step, cost, sw)
+                accepted = _try_step(problem, state, step, objective)
                 evaluations += accepted[3]
                 if accepted[0] is not None:
                     break
@@ -326,15 +365,16 @@ def solve(problem: BAProblem) -> BAResult:
                 continue
             converged = True
             break
-        state, ev, cost_t = accepted[:3]
+        state, ev, change = accepted[:3]
         if kind == "gauss-newton":
-            rho = (cost - cost_t) / max(step.predicted, 1e-300)
+            rho = -change / max(step.predicted, 1e-300)
             if lam == 0.0 and abs(rho - 1) > NEWTON_SWITCH and cfg.newton:
                 newton = True              # the Gauss-Newton model misjudges the cost: add the 2nd order
             lam = 0.0 if lam <= LAM_FIRST else lam / 10
         dev_w, rob_w = _weights(problem, problem.point_norms(ev.r), inlier, devices)
         if cfg.progress:
-            cfg.progress(f"  iteration {iterations} ({kind}): cost {cost_t:.10g}")
+            cfg.progress(f"  iteration {iterations} ({kind}): objective change {change:.6g}")
+    cost = float(np.sum((ev.r * np.sqrt(problem.point_rows(dev_w * rob_w * inlier))) ** 2))
     log.append(f"{iterations} linearisations ({evaluations} evaluations, {rounds - 1} outlier rejection round(s)), cost "
                f"{cost:.12g}, converged={converged}")
     if (~inlier).sum() > 0.2 * P:

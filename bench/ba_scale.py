@@ -1,0 +1,197 @@
+"""Bundle adjustment at scale: time, iterations and memory against views, and mrcal side by side.
+
+    python -m bench.ba_scale [--views 9 30 100 300] [--repeats 3] [--baseline DIR] [--no-cli]
+
+Simulated sessions of the paper's system (``calib.default_system()``), the 9 x 11 circle board,
+camera noise 0.06 px, projector noise 0.2 px, no outlier rejection. For each number of views, for
+4 and 5 distortion terms:
+
+- single device (the camera alone): seed (Zhang), build and solve time of ``run_calibration``, its
+  iterations (linearisations), and ``mrcal.optimize`` on the identical problem from the same seed
+  in the same process (regularisation and outlier rejection off), with the largest relative
+  difference of the intrinsics;
+- joint rig (camera + projector, shared board poses): the same times and iterations;
+- time per iteration (solve / linearisations) and the peak resident memory of the process that ran
+  our adjustment (each configuration runs in a fresh process, before mrcal is imported).
+
+``--baseline DIR``: also run an older checkout's ``calib`` (e.g. ``git archive REV | tar -x -C
+DIR``) on the same problems, for its iterations and times. Then ``calib run`` as a whole on the
+paper's real observations (../shared/data/dp-tpu): wall time (min of repeats, start-up included)
+and where ``python -X importtime`` spends the start-up. Timings are the minimum over repeats.
+Prints Markdown tables.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+DP_TPU = ROOT.parent / "shared" / "data" / "dp-tpu"
+
+
+def _simulate(n_views: int):
+    import numpy as np
+
+    from calib import default_system
+    from calib.board import Board
+    from calib.simulate import simulate_observations
+
+    board = Board("circles", 9, 11, 20.0, 5.0, 2.0, [[4, 5], [4, 6], [4, 7], [3, 5], [2, 5]])
+    obs, _ = simulate_observations(default_system(), board, n_views, 0.06, np.random.default_rng(n_views),
+                                   noise_prj_px=0.2)
+    return obs
+
+
+def child(n_views: int, mode: str, n_dist: int, repeats: int, with_mrcal: bool) -> dict:
+    """One configuration in this (fresh) process; returns the measurements."""
+    import numpy as np
+
+    from calib.bundle_adjustment import BAConfig, DeviceConfig
+    from calib.calibrate import run_calibration
+
+    obs = _simulate(n_views)
+    if mode == "single":
+        obs = obs.only("camera")
+    cfg = BAConfig(mode=mode, camera=DeviceConfig(n_dist), projector=DeviceConfig(n_dist), outlier_threshold=None)
+    run_calibration(obs, cfg)                      # warm-up: kernels compiled / loaded, caches filled
+    best = None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        cal = run_calibration(obs, cfg)
+        total = time.perf_counter() - t0
+        t = dict(cal.timings, wall_s=total)
+        best = t if best is None else {k: min(best[k], t[k]) for k in t}
+    out = {"views": n_views, "mode": mode, "n_dist": n_dist, "points": int(sum(obs.count(d) for d in obs.devices())),
+           "seed_s": best["init_s"], "build_s": best["build_s"], "solve_s": best["solve_s"], "total_s": best["wall_s"],
+           "iterations": int(cal.ba.iterations), "evaluations": int(cal.ba.timings.get("evaluations", 0)),
+           "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+    if with_mrcal and mode == "single":
+        from calib.mrcal_reference import mrcal_calibrate
+        from calib.rotation import matrix_from_rotvec
+
+        s = cal.seeds["camera"]
+        poses = [(matrix_from_rotvec(r), t) for r, t in zip(s.rvec_dev_board, s.t_dev_board)]
+        times = []
+        for _ in range(repeats):
+            theirs, _, t_m = mrcal_calibrate(obs, "camera", n_dist, s.K, s.distortion, poses)
+            times.append(t_m)
+        d = cal.system.camera
+        ours = np.r_[d.fx, d.fy, d.cx, d.cy, d.distortion]
+        rel = np.abs(ours - theirs) / np.abs(theirs)
+        out.update(mrcal_s=min(times), rel_core=float(rel[:4].max()), rel_dist=float(rel[4:].max()))
+    return out
+
+
+def _run_child(args_list, pythonpath: str) -> dict:
+    env = dict(os.environ, PYTHONPATH=pythonpath)
+    proc = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--child", *map(str, args_list)],
+                          capture_output=True, text=True, env=env, timeout=3600)
+    if proc.returncode != 0:
+        return {"error": proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else f"exit {proc.returncode}"}
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def _fmt(v, spec):
+    return "-" if v is None else format(v, spec)
+
+
+def scale_tables(views, repeats: int, baseline: str | None):
+    rows = []
+    for n_views in views:
+        for n_dist in (4, 5):
+            for mode in ("single", "joint"):
+                r = _run_child([n_views, mode, n_dist, repeats, 1], str(ROOT))
+                if baseline and n_views <= 100:
+                    b = _run_child([n_views, mode, n_dist, 1, 0], baseline)
+                    r["before"] = b
+                rows.append(r)
+                print(f"  measured {n_views} views, {n_dist} terms, {mode}: {r}", file=sys.stderr, flush=True)
+    print("### Single device (camera alone) vs mrcal.optimize on the identical problem\n")
+    print("| views | points | dist terms | seed s | build s | solve s | iterations | mrcal.optimize s | "
+          "solve / mrcal | max rel. diff fx fy cx cy | max rel. diff distortion | before: iterations, solve s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        if r.get("mode") != "single":
+            continue
+        b = r.get("before") or {}
+        print(f"| {r['views']} | {r['points']} | {r['n_dist']} | {r['seed_s']:.4f} | {r['build_s']:.4f} | "
+              f"{r['solve_s']:.4f} | {r['iterations']} | {r['mrcal_s']:.4f} | {r['solve_s'] / r['mrcal_s']:.1f} | "
+              f"{r['rel_core']:.1e} | {r['rel_dist']:.1e} | "
+              f"{(str(b['iterations']) + ', ' + format(b['solve_s'], '.3f')) if 'iterations' in b else '-'} |")
+    print("\n### Joint rig (camera + projector)\n")
+    print("| views | points | dist terms | seed s | build s | solve s | seed + build + solve s | iterations | "
+          "s / iteration | peak RSS MB | before: iterations, build + solve s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        if r.get("mode") != "joint":
+            continue
+        b = r.get("before") or {}
+        before = f"{b['iterations']}, {b['build_s'] + b['solve_s']:.2f}" if "iterations" in b else "-"
+        print(f"| {r['views']} | {r['points']} | {r['n_dist']} | {r['seed_s']:.4f} | {r['build_s']:.4f} | "
+              f"{r['solve_s']:.4f} | {r['seed_s'] + r['build_s'] + r['solve_s']:.3f} | {r['iterations']} | "
+              f"{r['solve_s'] / r['iterations'] * 1e3:.2f} ms | {r['peak_rss_mb']:.0f} | {before} |")
+
+
+def cli_table(repeats: int):
+    cam, prj = DP_TPU / "CamCalibResult_real.mat", DP_TPU / "PrjCalibResult_real.mat"
+    if not cam.exists():
+        print("\n(../shared/data/dp-tpu absent: calib run not measured)")
+        return
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [sys.executable, "-m", "calib.cli", "run", "--observations", str(cam), str(prj), "-o", tmp, "-q"]
+        walls = []
+        for _ in range(repeats + 1):           # the first run may compile kernels
+            t0 = time.perf_counter()
+            subprocess.run(cmd, env=env, check=True, capture_output=True)
+            walls.append(time.perf_counter() - t0)
+        stamp = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True)
+        inner = re.search(r"total ([0-9.]+) s", stamp.stdout)
+        imp = subprocess.run([sys.executable, "-X", "importtime", *cmd[1:]], env=env, check=True,
+                             capture_output=True, text=True).stderr
+        t_py = subprocess.run([sys.executable, "-c", "pass"], env=env, capture_output=True)
+    mods = {}
+    for line in imp.splitlines():
+        m = re.match(r"import time:\s+(\d+) \|\s+(\d+) \|( *)(\S+)", line)
+        if m and len(m.group(3)) <= 1:            # top-level imports: cumulative time
+            mods[m.group(4)] = int(m.group(2)) / 1e6
+    top = sorted(mods.items(), key=lambda kv: -kv[1])[:8]
+    print("\n### `calib run --observations CamCalibResult_real.mat PrjCalibResult_real.mat` (paper's real data)\n")
+    print(f"wall (min of {repeats} after one warm-up): {min(walls[1:]):.2f} s; seed + build + solve inside: "
+          f"{inner.group(1) if inner else '?'} s; torch imported: {'torch' in mods or ' torch' in imp}\n")
+    print("| top-level import | cumulative s |")
+    print("|---|---|")
+    for name, s in top:
+        print(f"| {name} | {s:.3f} |")
+    del t_py
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--views", type=int, nargs="+", default=[9, 30, 100, 300])
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--baseline", help="an older checkout to run on the same problems (iterations, times)")
+    ap.add_argument("--no-cli", action="store_true", help="skip the calib run measurement")
+    ap.add_argument("--child", nargs=5, help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.child:
+        v, mode, n_dist, repeats, with_mrcal = args.child
+        print(json.dumps(child(int(v), mode, int(n_dist), int(repeats), bool(int(with_mrcal)))))
+        return
+    print(f"machine: {os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.1f} at start "
+          "(shared with other jobs: times are upper bounds)\n")
+    scale_tables(args.views, args.repeats, args.baseline)
+    if not args.no_cli:
+        cli_table(args.repeats)
+
+
+if __name__ == "__main__":
+    main()
