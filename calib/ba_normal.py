@@ -121,7 +121,8 @@ class NormalEquations:
         return out
 
     def _reduce(self, lam: float):
-        """(Schur complement, its right-hand side part, V^-1, Y) with damping ``lam``."""
+        """(Schur complement S, S^-1, V^-1, Y = W V^-1) with damping ``lam`` (inverses by Cholesky:
+        LAPACK's general solvers, called many times on tiny matrices, cost far more)."""
         eye6 = np.eye(6)
         Vd = self.V + lam * eye6
         try:
@@ -132,17 +133,16 @@ class NormalEquations:
         Sm = self.U + lam * np.eye(len(self.U)) - np.matmul(Y, self.W.transpose(0, 2, 1)).sum(axis=0)
         Sm = 0.5 * (Sm + Sm.T)
         try:
-            np.linalg.cholesky(Sm)
+            Sinv = _spd_inverse(Sm[None])[0] if len(Sm) else np.zeros((0, 0))
         except np.linalg.LinAlgError:
             raise SingularNormalEquations("the reduced normal matrix of the global parameters is "
                                           "singular") from None
-        return Sm, Vinv, Y
+        return Sm, Sinv, Vinv, Y
 
     def _apply_inverse(self, factor, bg, bv):
         """(H + lam I)^-1 [bg; bv] (scaled) from a factorisation of ``_reduce``."""
-        Sm, Vinv, Y = factor
-        rhs = bg - np.matmul(Y, bv[..., None]).sum(axis=0)[:, 0]
-        xg = np.linalg.solve(Sm, rhs) if len(Sm) else np.zeros(0)
+        _, Sinv, Vinv, Y = factor
+        xg = Sinv @ (bg - np.matmul(Y, bv[..., None]).sum(axis=0)[:, 0])
         xv = np.matmul(Vinv, (bv - np.einsum("sgi,g->si", self.W, xg))[..., None])[..., 0]
         return xg, xv
 
@@ -175,8 +175,7 @@ class NormalEquations:
 
     def covariance(self):
         """Undamped ``(J^T J)^-1`` blocks: (globals (G, G), poses (S, 6, 6)), unit residual variance."""
-        Sm, Vinv, Y = self._factor if self._factor is not None else self._reduce(0.0)
-        Sinv = np.linalg.inv(Sm) if len(Sm) else np.zeros((0, 0))
+        _, Sinv, Vinv, Y = self._factor if self._factor is not None else self._reduce(0.0)
         Sinv = 0.5 * (Sinv + Sinv.T)
         cov_v = Vinv + np.matmul(np.matmul(Y.transpose(0, 2, 1), Sinv), Y)
         sg, sv = self.scale_g, self.scale_v
@@ -184,7 +183,7 @@ class NormalEquations:
 
     def conditioning(self) -> dict:
         """Condition numbers of the scaled reduced matrix S and the worst pose block (undamped)."""
-        Sm, _, _ = self._factor if self._factor is not None else self._reduce(0.0)
+        Sm = (self._factor if self._factor is not None else self._reduce(0.0))[0]
         ev = np.linalg.eigvalsh(Sm) if len(Sm) else np.ones(1)
         evv = np.linalg.eigvalsh(self.V)
         unscaled = np.linalg.eigvalsh(Sm / (self.scale_g[:, None] * self.scale_g[None, :])) if len(Sm) \

@@ -55,7 +55,8 @@ LINE_SEARCH_RANGE = (0.05, 20.0)
 OUTLIER_TOLERANCE = 1e-1       # outliers are looked for once the step is below this many sigmas
 MAX_OUTLIER_ROUNDS = 10
 NEWTON_SWITCH = 0.1            # |actual / predicted decrease - 1| of a Gauss-Newton step that
-                               # switches to Newton steps (residual curvature matters)
+NEWTON_NEAR = 1e-2             # predicts less than this fraction of the cost: switch to Newton steps
+NEWTON_RATE = 1e-2             # ... as when its predicted decrease falls by less than this per step
 
 
 @dataclass
@@ -149,6 +150,26 @@ def _stats(res_px, mask):
     return {"n": int(mask.sum()), "rms_px": float(np.sqrt(np.mean(rr ** 2))),
             "std_px": np.std(rr, axis=0, ddof=1).tolist() if len(rr) > 1 else [0.0, 0.0],
             "mean_px": rr.mean(axis=0).tolist(), "max_px": float(norm.max())}
+
+
+def _stats_per_view(res_px, point_view, mask, n_views: int) -> list:
+    """``_stats`` of the points in ``mask`` of each view (one pass: sums per view)."""
+    v, rr = point_view[mask], res_px[mask]
+    n = np.bincount(v, minlength=n_views)
+    s1 = np.stack([np.bincount(v, rr[:, c], n_views) for c in (0, 1)], axis=1)
+    s2 = np.stack([np.bincount(v, rr[:, c] ** 2, n_views) for c in (0, 1)], axis=1)
+    mx = np.zeros(n_views)
+    np.maximum.at(mx, v, np.sqrt(np.sum(rr ** 2, axis=1)))
+    out = []
+    for k in range(n_views):
+        if n[k] == 0:
+            out.append({"n": 0, "rms_px": None, "std_px": None, "max_px": None, "mean_px": None})
+            continue
+        mean = s1[k] / n[k]
+        std = np.sqrt(np.maximum(s2[k] - n[k] * mean ** 2, 0.0) / (n[k] - 1)) if n[k] > 1 else np.zeros(2)
+        out.append({"n": int(n[k]), "rms_px": float(np.sqrt(s2[k].sum() / (2 * n[k]))), "std_px": std.tolist(),
+                    "mean_px": mean.tolist(), "max_px": float(mx[k])})
+    return out
 
 
 def poorly_determined(names, values, cov, sizes=None) -> list:
@@ -301,7 +322,7 @@ def solve(problem: BAProblem) -> BAResult:
     inlier = np.ones(P, bool)
     e = problem.point_norms(ev.r)
     dev_w, rob_w = _weights(problem, e, inlier, devices)
-    lam, iterations, rounds, newton = 0.0, 0, 1, False
+    lam, iterations, rounds, newton, prev_gn = 0.0, 0, 1, False, None
     profile = cfg.reweight_devices and len(devices) > 1 and cfg.loss == "linear"
     converged = False
     while True:
@@ -315,6 +336,12 @@ def solve(problem: BAProblem) -> BAResult:
         dof = max(2 * int(inlier.sum()) - n_free, 1)
         # the undamped model (Newton's where switched on, else Gauss-Newton's) judges convergence
         gn = _solve_or_none(ne, 0.0, low_rank=objective.low_rank)
+        if gn is not None and cfg.newton and not newton:
+            # Gauss-Newton converging linearly near the optimum (its predicted decrease falling by
+            # less than NEWTON_RATE a step): the residuals' curvature matters, add the 2nd order
+            newton = prev_gn is not None and gn.predicted < NEWTON_NEAR * cost and \
+                gn.predicted > NEWTON_RATE * prev_gn
+            prev_gn = gn.predicted
         newton_step = _solve_or_none(ne, 0.0, problem.second_order(state, ev, weights), objective.low_rank) \
             if newton else None
         model = newton_step or gn
@@ -324,6 +351,7 @@ def solve(problem: BAProblem) -> BAResult:
         if (near or small) and _outlier_round(problem, ev, inlier, devices, rounds, log):
             rounds += 1
             dev_w, rob_w = _weights(problem, problem.point_norms(ev.r), inlier, devices)
+            prev_gn = None
             continue
         if small:
             converged = True
@@ -368,8 +396,10 @@ def solve(problem: BAProblem) -> BAResult:
         state, ev, change = accepted[:3]
         if kind == "gauss-newton":
             rho = -change / max(step.predicted, 1e-300)
-            if lam == 0.0 and abs(rho - 1) > NEWTON_SWITCH and cfg.newton:
-                newton = True              # the Gauss-Newton model misjudges the cost: add the 2nd order
+            if lam == 0.0 and abs(rho - 1) > NEWTON_SWITCH and step.predicted < NEWTON_NEAR * cost and cfg.newton:
+                newton = True              # near the optimum the Gauss-Newton model misjudges the cost
+            if lam > 0.0:
+                prev_gn = None
             lam = 0.0 if lam <= LAM_FIRST else lam / 10
         dev_w, rob_w = _weights(problem, problem.point_norms(ev.r), inlier, devices)
         if cfg.progress:
@@ -417,14 +447,14 @@ def solve(problem: BAProblem) -> BAResult:
         g = ev.r_transfer_px[m]
         stats["projector"]["rms_given_camera_px"] = float(np.sqrt(np.mean(g ** 2))) if m.any() else None
         stats["projector"]["n_transferred"] = int(len(problem.transfer_prj))
-    stats["views"] = []
-    for i, v in enumerate(problem.obs.views):
-        entry = {"view": i, "name": v.name}
-        for d in devices:
-            m = (problem.point_view == i) & (problem.point_device == d)
-            entry[d] = _stats(res_px, m & inlier)
-            entry[d]["rejected"] = int((m & ~inlier).sum())
-        stats["views"].append(entry)
+    n_views = len(problem.obs.views)
+    stats["views"] = [{"view": i, "name": v.name} for i, v in enumerate(problem.obs.views)]
+    for d in devices:
+        m = problem.point_device == d
+        rejected_per_view = np.bincount(problem.point_view[m & ~inlier], minlength=n_views)
+        for entry, st, n_rej in zip(stats["views"], _stats_per_view(res_px, problem.point_view, m & inlier, n_views),
+                                    rejected_per_view):
+            entry[d] = dict(st, rejected=int(n_rej))
     rejected = [{"device": str(problem.point_device[k]), "view": int(problem.point_view[k]),
                  "id": int(problem.point_id[k]), "residual_px": float(np.linalg.norm(res_px[k]))}
                 for k in np.flatnonzero(~inlier)]
