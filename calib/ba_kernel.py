@@ -15,7 +15,7 @@ increment into ``R``), so its first and second derivatives with respect to ``w``
 Structure, not data, defines a kernel: ``KernelSpec(n_distortion, chain, hessian)``. Its casadi
 function is turned into C, compiled once with the system C compiler (``$CC``, else ``cc``/``gcc``) and
 cached on disk (``$SLTWIN_CACHE_DIR``, else ``$XDG_CACHE_HOME/sltwin``, else ``~/.cache/sltwin``),
-keyed by this module's source, the spec, casadi's version and the compiler; two small C loops
+keyed by this module's source, the spec, casadi's installed files and the compiler; two small C loops
 beside it evaluate the points reading numpy arrays in place: ``evaluate`` (outputs per point, or
 summed per row for the second-order kernels) and ``assemble`` (residuals and Jacobian entries
 written straight into the adjustment's padded arrays, ``calib.bundle_adjustment``). Building a
@@ -296,12 +296,15 @@ class KernelBuildError(RuntimeError):
 
 def _cache_key(spec: KernelSpec, cc: str) -> str:
     """Hash of what determines a kernel's binary: this module's source (the model), the spec,
-    casadi's version, the compiler and its flags. Needs no symbolic work, so a cached kernel
-    loads without importing casadi."""
-    from importlib.metadata import version
+    casadi's installation (path, size and time of its ``__init__``), the compiler and its flags.
+    Needs no symbolic work, so a cached kernel loads without importing casadi."""
+    from importlib.util import find_spec
 
+    casadi = find_spec("casadi")             # its installed files, without importing it
+    stamp = os.stat(casadi.origin) if casadi and casadi.origin else None
     h = hashlib.sha256(Path(__file__).read_bytes())
-    h.update(f"{spec}|{version('casadi')}|{os.path.basename(cc)}|{' '.join(_C_FLAGS)}".encode())
+    h.update(f"{spec}|{casadi and casadi.origin}|{stamp and (stamp.st_size, stamp.st_mtime_ns)}|"
+             f"{os.path.basename(cc)}|{' '.join(_C_FLAGS)}".encode())
     return h.hexdigest()[:20]
 
 

@@ -69,13 +69,14 @@ def calibration_dict_extra(cal: Calibration, obs) -> dict:
 
 def plot_residuals(cal: Calibration, obs, path) -> Path:
     """Residual scatter per device and per-view RMS bars (PNG)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure   # no pyplot: no global state, a faster import
 
     ba = cal.ba
     devices = [d for d in ("camera", "projector") if d in ba.stats]
-    fig, axes = plt.subplots(2, len(devices), figsize=(5.5 * len(devices), 9), squeeze=False)
+    fig = Figure(figsize=(5.5 * len(devices), 9))
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(2, len(devices), squeeze=False)
     for k, d in enumerate(devices):
         m = ba.point_device == d
         ax = axes[0, k]
@@ -96,10 +97,10 @@ def plot_residuals(cal: Calibration, obs, path) -> Path:
         ax.set_xlabel("view")
         ax.set_ylabel("RMS residual (px)")
         ax.set_title(f"{d}: per-view RMS")
-    fig.tight_layout()
+    # fixed margins: tight_layout would draw the figure once more to measure it (a third of the time)
+    fig.subplots_adjust(left=0.08, right=0.97, bottom=0.06, top=0.96, wspace=0.3, hspace=0.25)
     path = Path(path)
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return path
 
 
