@@ -64,13 +64,14 @@ def child(n_views: int, mode: str, n_dist: int, repeats: int, with_mrcal: bool) 
     run_calibration(obs, cfg)                      # warm-up: kernels compiled / loaded, caches filled
     best = None
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         cal = run_calibration(obs, cfg)
-        total = time.perf_counter() - t0
-        t = dict(cal.timings, wall_s=total)
+        t = dict(cal.timings, wall_s=time.perf_counter() - t0, cpu_s=time.process_time() - c0,
+                 build_solve_s=cal.timings["build_s"] + cal.timings["solve_s"])
         best = t if best is None else {k: min(best[k], t[k]) for k in t}
     out = {"views": n_views, "mode": mode, "n_dist": n_dist, "points": int(sum(obs.count(d) for d in obs.devices())),
            "seed_s": best["init_s"], "build_s": best["build_s"], "solve_s": best["solve_s"], "total_s": best["wall_s"],
+           "total_cpu_s": best["cpu_s"], "build_solve_s": best["build_solve_s"],
            "iterations": int(cal.ba.iterations), "evaluations": int(cal.ba.timings.get("evaluations", 0)),
            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
     if with_mrcal and mode == "single":
@@ -103,6 +104,34 @@ def _fmt(v, spec):
     return "-" if v is None else format(v, spec)
 
 
+def _table(rows, columns):
+    """Markdown table of ``rows`` (dicts); ``columns``: (header, function of a row -> str)."""
+    print("| " + " | ".join(h for h, _ in columns) + " |")
+    print("|" + "---|" * len(columns))
+    for r in rows:
+        print("| " + " | ".join(f(r) for _, f in columns) + " |")
+
+
+def _before(r, key):
+    b = r.get("before") or {}
+    return f"{b['iterations']}, {b[key]:.3f} s, {b['peak_rss_mb']:.0f} MB" if "iterations" in b else "-"
+
+
+COMMON = [("views", lambda r: str(r["views"])), ("points", lambda r: str(r["points"])),
+          ("dist terms", lambda r: str(r["n_dist"])), ("seed s", lambda r: f"{r['seed_s']:.4f}"),
+          ("build s", lambda r: f"{r['build_s']:.4f}"), ("solve s", lambda r: f"{r['solve_s']:.4f}"),
+          ("iterations", lambda r: str(r["iterations"])),
+          ("ms / iteration", lambda r: f"{r['solve_s'] / r['iterations'] * 1e3:.2f}")]
+SINGLE = COMMON + [("mrcal.optimize s", lambda r: f"{r['mrcal_s']:.4f}"),
+                   ("solve / mrcal", lambda r: f"{r['solve_s'] / r['mrcal_s']:.1f}"),
+                   ("max rel. diff fx fy cx cy", lambda r: f"{r['rel_core']:.1e}"),
+                   ("max rel. diff distortion", lambda r: f"{r['rel_dist']:.1e}"),
+                   ("before: iterations, solve, peak RSS", lambda r: _before(r, "solve_s"))]
+JOINT = COMMON + [("seed + build + solve s (CPU s)", lambda r: f"{r['total_s']:.3f} ({r['total_cpu_s']:.3f})"),
+                  ("peak RSS MB", lambda r: f"{r['peak_rss_mb']:.0f}"),
+                  ("before: iterations, build + solve, peak RSS", lambda r: _before(r, "build_solve_s"))]
+
+
 def scale_tables(views, repeats: int, baseline: str | None):
     rows = []
     for n_views in views:
@@ -110,34 +139,17 @@ def scale_tables(views, repeats: int, baseline: str | None):
             for mode in ("single", "joint"):
                 r = _run_child([n_views, mode, n_dist, repeats, 1], str(ROOT))
                 if baseline and n_views <= 100:
-                    b = _run_child([n_views, mode, n_dist, 1, 0], baseline)
-                    r["before"] = b
+                    r["before"] = _run_child([n_views, mode, n_dist, 1, 0], baseline)
                 rows.append(r)
                 print(f"  measured {n_views} views, {n_dist} terms, {mode}: {r}", file=sys.stderr, flush=True)
+    failed = [r for r in rows if "error" in r]
+    rows = [r for r in rows if "error" not in r]
     print("### Single device (camera alone) vs mrcal.optimize on the identical problem\n")
-    print("| views | points | dist terms | seed s | build s | solve s | iterations | mrcal.optimize s | "
-          "solve / mrcal | max rel. diff fx fy cx cy | max rel. diff distortion | before: iterations, solve s |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for r in rows:
-        if r.get("mode") != "single":
-            continue
-        b = r.get("before") or {}
-        print(f"| {r['views']} | {r['points']} | {r['n_dist']} | {r['seed_s']:.4f} | {r['build_s']:.4f} | "
-              f"{r['solve_s']:.4f} | {r['iterations']} | {r['mrcal_s']:.4f} | {r['solve_s'] / r['mrcal_s']:.1f} | "
-              f"{r['rel_core']:.1e} | {r['rel_dist']:.1e} | "
-              f"{(str(b['iterations']) + ', ' + format(b['solve_s'], '.3f')) if 'iterations' in b else '-'} |")
+    _table([r for r in rows if r["mode"] == "single"], SINGLE)
     print("\n### Joint rig (camera + projector)\n")
-    print("| views | points | dist terms | seed s | build s | solve s | seed + build + solve s | iterations | "
-          "s / iteration | peak RSS MB | before: iterations, build + solve s |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
-    for r in rows:
-        if r.get("mode") != "joint":
-            continue
-        b = r.get("before") or {}
-        before = f"{b['iterations']}, {b['build_s'] + b['solve_s']:.2f}" if "iterations" in b else "-"
-        print(f"| {r['views']} | {r['points']} | {r['n_dist']} | {r['seed_s']:.4f} | {r['build_s']:.4f} | "
-              f"{r['solve_s']:.4f} | {r['seed_s'] + r['build_s'] + r['solve_s']:.3f} | {r['iterations']} | "
-              f"{r['solve_s'] / r['iterations'] * 1e3:.2f} ms | {r['peak_rss_mb']:.0f} | {before} |")
+    _table([r for r in rows if r["mode"] == "joint"], JOINT)
+    for r in failed:
+        print(f"\nfailed: {r['error']}")
 
 
 def cli_table(repeats: int):

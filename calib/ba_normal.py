@@ -181,6 +181,24 @@ class NormalEquations:
         sg, sv = self.scale_g, self.scale_v
         return Sinv * sg[:, None] * sg[None, :], cov_v * sv[:, :, None] * sv[:, None, :]
 
+    def weakest_direction(self):
+        """(global part (G,), pose index or None): the scaled parameter combination the undamped
+        matrix determines worst (also where it is singular): the worst-conditioned pose block if
+        that is singular or worse than the reduced matrix, else the eigenvector of the smallest
+        eigenvalue of the reduced matrix."""
+        G = len(self.U)
+        evv = np.linalg.eigvalsh(self.V)
+        ratio_v = evv[:, 0] / np.maximum(evv[:, -1], 1e-300)
+        worst = int(np.argmin(ratio_v))
+        if ratio_v[worst] < 1e-15 or G == 0:
+            return np.zeros(G), worst
+        Y = np.matmul(self.W, _spd_inverse(self.V))
+        Sm = self.U - np.matmul(Y, self.W.transpose(0, 2, 1)).sum(axis=0)
+        ev, vec = np.linalg.eigh(0.5 * (Sm + Sm.T))
+        if ev[0] / max(ev[-1], 1e-300) <= ratio_v[worst]:
+            return vec[:, 0], None
+        return np.zeros(G), worst
+
     def conditioning(self) -> dict:
         """Condition numbers of the scaled reduced matrix S and the worst pose block (undamped)."""
         Sm = (self._factor if self._factor is not None else self._reduce(0.0))[0]

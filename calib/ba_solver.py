@@ -218,6 +218,15 @@ def poorly_determined(names, values, cov, sizes=None) -> list:
     return out
 
 
+def _undetermined(problem: BAProblem, ne: NormalEquations) -> str:
+    """Names of the parameters in the worst-determined direction of the normal matrix."""
+    g, slot = ne.weakest_direction()
+    if slot is not None:
+        return f"the board pose {problem.pose_names[slot]}"
+    big = np.flatnonzero(np.abs(g) > 0.25 * np.abs(g).max())
+    return "the combination of " + ", ".join(problem.global_names[problem.global_free_index[k]] for k in big)
+
+
 def _solve_or_none(ne: NormalEquations, lam: float, second_order=None, low_rank=None):
     """The step of ``ne`` (plus a second-order term, for Newton; minus the low-rank term of the
     device noise, see ``_Objective``) at damping ``lam``, or None where the matrix is not positive
@@ -421,12 +430,14 @@ def solve(problem: BAProblem) -> BAResult:
         cov_g, cov_v = ne.covariance()
         conditioning = ne.conditioning()
     except (SingularNormalEquations, np.linalg.LinAlgError):
-        raise BundleAdjustmentError("the normal matrix is singular: some parameters are not determined "
-                                    "by the observations (degenerate views?)") from None
+        raise BundleAdjustmentError(f"the normal matrix is singular: the views do not determine "
+                                    f"{_undetermined(problem, ne)} (degenerate geometry, or a model with more "
+                                    "terms than the views constrain: fix them or use fewer)") from None
     if conditioning["normal_matrix_rcond"] < 1e-15:
         raise BundleAdjustmentError(f"the normal matrix is numerically singular (rcond "
                                     f"{conditioning['normal_matrix_rcond']:.2e}): the views do not determine "
-                                    "every parameter (degenerate geometry?)")
+                                    f"{_undetermined(problem, ne)} (degenerate geometry, or a model with more "
+                                    "terms than the views constrain: fix them or use fewer)")
     cov_g, cov_v = sigma2 * cov_g, sigma2 * cov_v
     cov_names = [problem.global_names[j] for j in problem.global_free_index]
     std = {n: float(np.sqrt(max(cov_g[k, k], 0.0))) for k, n in enumerate(cov_names)}

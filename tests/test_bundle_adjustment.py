@@ -299,3 +299,26 @@ def test_solve_reports_iterations_and_keeps_fixed_parameters():
     res = solve(problem)
     assert res.converged and res.state.K["camera"][0, 2] == 312.5 and "camera.cx" not in res.std
     assert res.cov.shape == (len(res.cov_names),) * 2 and "camera.cx" not in res.cov_names
+
+
+def test_a_singular_direction_is_named_by_its_parameters():
+    """The refusal of a numerically singular problem names what the views do not determine."""
+    from types import SimpleNamespace
+
+    from calib.ba_solver import _undetermined
+
+    rng = np.random.default_rng(0)
+    S, R = 3, 20
+    Jg = rng.normal(size=(S * R, 4))
+    Jg[:, 3] = Jg[:, 1] * 2.0                      # k4 only ever acts as 2 k1
+    ne = NormalEquations(Jg, rng.normal(size=(S * R, 6)), rng.normal(size=S * R), S)
+    problem = SimpleNamespace(pose_names=["cam_board/0", "cam_board/1", "cam_board/2"],
+                              global_names=["camera.fx", "camera.k1", "camera.k2", "camera.k4"],
+                              global_free_index=np.arange(4))
+    with pytest.raises(np.linalg.LinAlgError):
+        ne.covariance()
+    assert _undetermined(problem, ne) == "the combination of camera.k1, camera.k4"
+    Jv = rng.normal(size=(S * R, 6))
+    Jv[R:2 * R, 5] = 0.0                           # a pose whose depth no point sees
+    ne = NormalEquations(rng.normal(size=(S * R, 4)), Jv, rng.normal(size=S * R), S)
+    assert _undetermined(problem, ne) == "the board pose cam_board/1"
