@@ -229,7 +229,7 @@ def cli_table(repeats: int):
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     with tempfile.TemporaryDirectory() as tmp:
         args = ["--observations", str(cam), str(prj), "-o", tmp, "-q"]
-        full = [sys.executable, "-m", "calib.cli", "run", *args]
+        full = [sys.executable, "-m", "sltwin.cli", "run", *args]
         only = [sys.executable, "-c", _RUN_ONLY, *args]
         rows = [("`calib run` (today's command line: every sub-command's module is imported to build "
                  "the parser)", full), ("the run sub-command alone (a command line that imports only the "

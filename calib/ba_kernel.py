@@ -68,6 +68,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import BundleAdjustmentError
+
 log = logging.getLogger(__name__)
 
 N_INTRINSIC = 5          # fx fy cx cy skew
@@ -290,10 +292,6 @@ def c_compiler() -> str | None:
     return shutil.which("cc") or shutil.which("gcc")
 
 
-class KernelBuildError(RuntimeError):
-    """A kernel could not be compiled (no compiler, compiler error, cache not writable)."""
-
-
 def _cache_key(spec: KernelSpec, cc: str) -> str:
     """Hash of what determines a kernel's binary: this module's source (the model), the spec,
     casadi's installation (path, size and time of its ``__init__``), the compiler and its flags.
@@ -312,7 +310,7 @@ def compile_kernel(spec: KernelSpec) -> Path:
     """Path of the compiled shared library of ``spec``, compiling it unless cached."""
     cc = c_compiler()
     if cc is None:
-        raise KernelBuildError("no C compiler found ($CC, cc, gcc)")
+        raise BundleAdjustmentError("no C compiler found ($CC, cc, gcc)")
     folder = cache_dir()
     lib = folder / f"{spec.name}_{_cache_key(spec, cc)}.so"
     if lib.exists():
@@ -327,10 +325,10 @@ def compile_kernel(spec: KernelSpec) -> Path:
             proc = subprocess.run([cc, *_C_FLAGS, "-o", str(tmp_lib), str(c_file), "-lm"],
                                   capture_output=True, text=True, timeout=300)
             if proc.returncode != 0:
-                raise KernelBuildError(f"{os.path.basename(cc)} failed: {proc.stderr.strip()[:300]}")
+                raise BundleAdjustmentError(f"{os.path.basename(cc)} failed: {proc.stderr.strip()[:300]}")
             os.replace(tmp_lib, lib)    # atomic: concurrent builders leave one complete file
     except OSError as exc:
-        raise KernelBuildError(f"cannot write the kernel cache {folder}: {exc}") from None
+        raise BundleAdjustmentError(f"cannot write the kernel cache {folder}: {exc}") from None
     return lib
 
 
@@ -369,13 +367,13 @@ class PointKernel:
     def _check(self, inputs) -> tuple[list, int]:
         inputs = [np.ascontiguousarray(a, dtype=np.float64) for a in inputs]
         if len(inputs) != len(self.spec.inputs):
-            raise ValueError(f"{self.spec.name}: expected {len(self.spec.inputs)} inputs, got {len(inputs)}")
+            raise BundleAdjustmentError(f"{self.spec.name}: expected {len(self.spec.inputs)} inputs, got {len(inputs)}")
         for a, (name, size) in zip(inputs, self.spec.inputs):
             if a.shape[-1] != size or a.ndim not in (1, 2):
-                raise ValueError(f"{self.spec.name}: input {name} must be ({size},) or (N, {size}), got {a.shape}")
+                raise BundleAdjustmentError(f"{self.spec.name}: input {name} must be ({size},) or (N, {size}), got {a.shape}")
         sizes = {a.shape[0] for a in inputs if a.ndim == 2}
         if len(sizes) > 1:
-            raise ValueError(f"{self.spec.name}: per-point inputs disagree on the point count {sorted(sizes)}")
+            raise BundleAdjustmentError(f"{self.spec.name}: per-point inputs disagree on the point count {sorted(sizes)}")
         return inputs, (sizes.pop() if sizes else 1)
 
     def evaluate(self, inputs, rows=None, n_rows: int = 0, accumulate: bool = False) -> np.ndarray:
@@ -387,16 +385,16 @@ class PointKernel:
         if rows is not None:
             rows = np.ascontiguousarray(rows, dtype=np.int64)
             if rows.shape != (n,) or (n and (rows.min() < 0 or rows.max() >= n_rows)):
-                raise ValueError(f"{self.spec.name}: rows must be ({n},) in [0, {n_rows})")
+                raise BundleAdjustmentError(f"{self.spec.name}: rows must be ({n},) in [0, {n_rows})")
         elif accumulate:
-            raise ValueError(f"{self.spec.name}: accumulate needs rows")
+            raise BundleAdjustmentError(f"{self.spec.name}: accumulate needs rows")
         if self.backend == "compiled":
             out = np.zeros((n_rows, L)) if rows is not None else np.empty((n, L))
             base = (ctypes.c_void_p * len(inputs))(*[a.ctypes.data for a in inputs])
             stride = (ctypes.c_longlong * len(inputs))(*[a.shape[1] if a.ndim == 2 else 0 for a in inputs])
             if n and self._fn(n, base, stride, out.ctypes.data, L,
                               None if rows is None else rows.ctypes.data, int(accumulate)):
-                raise ValueError(f"{self.spec.name}: kernel evaluation failed")
+                raise BundleAdjustmentError(f"{self.spec.name}: kernel evaluation failed")
             return out
         if rows is None:
             return self._vm(inputs, 0, n)
@@ -426,21 +424,21 @@ class PointKernel:
         jmap = np.ascontiguousarray(jmap, dtype=np.int64)
         if rows.shape != (n,) or q_obs.shape != (n, 2) or jmap.shape != (self.spec.n_local,) or \
                 z.shape != (n,) or (n and (rows.min() < 0 or rows.max() >= len(r))):
-            raise ValueError(f"{self.spec.name}: assemble: inconsistent shapes")
+            raise BundleAdjustmentError(f"{self.spec.name}: assemble: inconsistent shapes")
         arrays = [r, z] + ([Jg, Jv] if Jg is not None else [])
         if any(not (a.flags.c_contiguous and a.dtype == np.float64) for a in arrays):
-            raise ValueError(f"{self.spec.name}: assemble: outputs must be C-contiguous float64")
+            raise BundleAdjustmentError(f"{self.spec.name}: assemble: outputs must be C-contiguous float64")
         n_g = Jg.shape[-1] if Jg is not None else 0
         if Jg is not None and (Jg.shape != (len(r), 2, n_g) or Jv.shape != (len(r), 2, 6) or
                                jmap.max(initial=-1) >= n_g or jmap.min(initial=0) < -8):
-            raise ValueError(f"{self.spec.name}: assemble: Jacobian arrays do not match")
+            raise BundleAdjustmentError(f"{self.spec.name}: assemble: Jacobian arrays do not match")
         if self.backend == "compiled":
             base = (ctypes.c_void_p * len(inputs))(*[a.ctypes.data for a in inputs])
             stride = (ctypes.c_longlong * len(inputs))(*[a.shape[1] if a.ndim == 2 else 0 for a in inputs])
             if n and self._asm(n, base, stride, rows.ctypes.data, q_obs.ctypes.data, jmap.ctypes.data, n_g,
                                r.ctypes.data, z.ctypes.data, None if Jg is None else Jg.ctypes.data,
                                None if Jv is None else Jv.ctypes.data):
-                raise ValueError(f"{self.spec.name}: kernel evaluation failed")
+                raise BundleAdjustmentError(f"{self.spec.name}: kernel evaluation failed")
             return
         L = self.spec.n_local
         to_g, to_v = np.flatnonzero(jmap >= 0), np.flatnonzero(jmap <= -2)
@@ -473,14 +471,15 @@ def point_kernel(spec: KernelSpec, backend: str = "auto") -> PointKernel:
     """The kernel of ``spec``: compiled (cached on disk) or on casadi's virtual machine.
 
     ``backend``: "auto" (compiled where a C compiler works, else the virtual machine with a
-    one-line note), "compiled" (KernelBuildError where it cannot be built), "vm".
+    one-line note), "compiled" (BundleAdjustmentError where it cannot be built: no compiler, a
+    compiler error, a cache folder that cannot be written), "vm".
     """
     if backend not in BACKENDS:
-        raise ValueError(f"backend: expected one of {BACKENDS}, got {backend!r}")
+        raise BundleAdjustmentError(f"backend: expected one of {BACKENDS}, got {backend!r}")
     if backend == "auto":
         try:
             return point_kernel(spec, "compiled")
-        except KernelBuildError as exc:
+        except BundleAdjustmentError as exc:
             if "vm" not in _NOTED:
                 _NOTED.add("vm")
                 log.warning("bundle adjustment: residuals on casadi's virtual machine (slower): %s", exc)

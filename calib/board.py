@@ -23,14 +23,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import CalibError
+from .errors import BoardError
 
 KINDS = ("circles", "checkerboard", "charuco")
 POLARITIES = ("dark-on-light", "light-on-dark")
-
-
-class BoardError(CalibError, ValueError):
-    """A board definition is invalid (sizes, markers, polarity)."""
 
 
 def _rot90_cells(cells: set, rows: int, cols: int, k: int) -> set:

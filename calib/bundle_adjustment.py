@@ -62,17 +62,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import CalibError
+from .errors import BundleAdjustmentError
 
 INTRINSIC_NAMES = ("fx", "fy", "cx", "cy", "skew")
 DISTORTION_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4")
 LOSSES = ("linear", "huber", "cauchy")
 MODES = ("joint", "single")
 SHORT = {"camera": "cam", "projector": "prj"}
-
-
-class BundleAdjustmentError(CalibError, ValueError):
-    """The adjustment cannot be set up or did not produce a usable estimate."""
 
 
 @dataclass

@@ -16,8 +16,9 @@ SYNOPSIS
 """
 from __future__ import annotations
 
+import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -28,6 +29,8 @@ from .observations import ObservationError, Observations
 from .rotation import matrix_from_rotvec, nearest_rotation, rotvec_from_matrix
 from .system import SystemModel
 from .zhang import init_device
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -46,11 +49,6 @@ class Calibration:
     seeds: dict
     timings: dict
     baseline_scatter_mm: float | None
-
-
-def _say(config, msg):
-    if config.progress:
-        config.progress(msg)
 
 
 def _average_rotation(Rs):
@@ -131,8 +129,13 @@ def system_from_result(obs: Observations, res: BAResult) -> SystemModel:
 
 
 def run_calibration(obs: Observations, config: BAConfig | None = None) -> Calibration:
-    """Seed + adjust (see the module docstring). Raises a ValueError subclass on failure."""
+    """Seed + adjust (see the module docstring). Raises a ValueError subclass on failure.
+
+    Progress goes to the ``calib`` logger, or to ``config.progress`` (a callable taking one line)
+    when it is set."""
     config = config or BAConfig()
+    say = config.progress or log.info
+    config = replace(config, progress=say)   # the adjustment reports through the same sink
     t0 = time.perf_counter()
     devices = obs.devices()
     if not devices:
@@ -148,17 +151,17 @@ def run_calibration(obs: Observations, config: BAConfig | None = None) -> Calibr
     seeds = {}
     for d in devices:
         views = [v for v in obs.views if v.seen(d).sum() >= 6]
-        _say(config, f"seeding {d}: Zhang closed form on {len(views)} view(s)")
+        say(f"seeding {d}: Zhang closed form on {len(views)} view(s)")
         seeds[d] = init_device([v.points_board[v.seen(d)] for v in views],
                                [v.q[d][v.seen(d)] for v in views], obs.sizes[d],
                                n_distortion=config.device(d).n_distortion, refine=False, label=d)
-        _say(config, f"  {d} seed: fx {seeds[d].K[0, 0]:.2f} fy {seeds[d].K[1, 1]:.2f} cx {seeds[d].K[0, 2]:.2f}"
+        say(f"  {d} seed: fx {seeds[d].K[0, 0]:.2f} fy {seeds[d].K[1, 1]:.2f} cx {seeds[d].K[0, 2]:.2f}"
                      f" cy {seeds[d].K[1, 2]:.2f}, RMS {seeds[d].rms_px:.4f} px")
     t_init = time.perf_counter() - t0
     state, scatter = start_state(obs, seeds, config)
-    _say(config, f"building the {config.mode} adjustment")
+    say(f"building the {config.mode} adjustment")
     problem = build_problem(obs, state, config)
-    _say(config, f"  {int(problem.free.sum())} parameters, {2 * problem.n_points} residuals "
+    say(f"  {int(problem.free.sum())} parameters, {2 * problem.n_points} residuals "
                  f"(built in {problem.build_seconds:.2f} s); solving")
     res = solve(problem)
     system = system_from_result(obs, res)

@@ -26,6 +26,7 @@ does not account for, no board found) is skipped and the reason is reported in
 """
 from __future__ import annotations
 
+import logging
 import re
 import time
 import tomllib
@@ -35,15 +36,13 @@ from pathlib import Path
 import numpy as np
 
 from .board import Board
-from .errors import CalibError
+from .errors import CaptureError
 from .marker_phase import fit_projector_points, window_radii
 from .observations import ObservationError, Observations, ViewObservations
 
 BOARD_IMAGE_SOURCES = ("white", "background", "modulation")
 
-
-class CaptureError(CalibError, ValueError):
-    """A capture folder or its description cannot be used (missing keys, frames, poses)."""
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -187,14 +186,15 @@ def observe_pose(session: CaptureSession, name: str, pose_dir: Path, *, method: 
                  detector=None, degree: int = 2, keep_image: bool = False, progress=None) -> PoseObservation:
     """Unwrap, detect and fit one pose (see the module docstring). ``detector(image, board)``
     defaults to :func:`calib.detect.detect_board`. Raises CaptureError / UnwrapError /
-    DetectionError naming the problem."""
+    DetectionError naming the problem. Progress goes to the ``calib`` logger (or to ``progress``,
+    a callable taking one line, when given)."""
     from unwrap.capture import load_capture
     from unwrap.patterns import projector_coordinate
     from unwrap.pipeline import unwrap_orientation
 
     if detector is None:
         from .detect import detect_board as detector
-    say = progress or (lambda msg: None)
+    say = progress or log.info
     t0 = time.perf_counter()
     if session.preset == "design":
         cap = load_capture(session.folder, "design", pose=name)
@@ -280,8 +280,9 @@ class CaptureObservations:
 def observations_from_captures(folder, *, capture_toml=None, method=None, strict: bool = False,
                                min_poses: int = 3, detector=None, degree: int = 2, keep_images: bool = False,
                                progress=None) -> CaptureObservations:
-    """Every pose of a capture folder -> :class:`CaptureObservations` (see the module docstring)."""
-    say = progress or (lambda msg: None)
+    """Every pose of a capture folder -> :class:`CaptureObservations` (see the module docstring).
+    Progress goes to the ``calib`` logger (or to ``progress``, a callable taking one line)."""
+    say = progress or log.info
     t0 = time.perf_counter()
     session = read_session(folder, capture_toml)
     say(f"capture {session.folder}: {len(session.poses)} pose(s), board {session.board.kind} "

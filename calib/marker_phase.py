@@ -37,11 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import CalibError
-
-
-class MarkerPhaseError(CalibError, ValueError):
-    """Inputs of the marker phase fit are inconsistent (shapes, sizes, non-finite centres)."""
+from .errors import MarkerPhaseError
 
 
 @dataclass

@@ -28,13 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import CalibError
+from .errors import ObservationError
 
 DEVICES = ("camera", "projector")
-
-
-class ObservationError(CalibError, ValueError):
-    """Observations are missing, inconsistent or too few for a calibration."""
 
 
 def _points(a, shape_tail, name):

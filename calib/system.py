@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from importlib import resources
 
 from .device import DeviceModel
+from .errors import FormatError
 
 
 @dataclass(frozen=True, eq=False)
@@ -26,6 +27,30 @@ class SystemModel:
     projector: DeviceModel
     meta: dict = field(default_factory=dict)
 
+    @classmethod
+    def from_dict(cls, d: dict, *, repair_rotation: bool = False, source: str = "calibration") -> "SystemModel":
+        """Build a system from the ``calibration.json`` dictionary (DESIGN.md keys; other keys go
+        to ``meta``). ``source`` names the input in error messages."""
+        if not isinstance(d, dict):
+            raise FormatError(f"{source}: expected a JSON object, got {type(d).__name__}")
+        units = d.get("units", "mm")
+        if units != "mm":
+            raise FormatError(f"{source}: units = {units!r}; only 'mm' is supported")
+        missing = [k for k in ("camera", "projector") if k not in d]
+        if missing:
+            raise FormatError(f"{source}: missing key(s) {missing}; found {sorted(d)}")
+        cam = DeviceModel.from_dict(d["camera"], kind="camera", name="camera", repair_rotation=repair_rotation)
+        prj = DeviceModel.from_dict(d["projector"], kind="projector", name="projector",
+                                    repair_rotation=repair_rotation)
+        return cls(cam, prj, {k: v for k, v in d.items() if k not in ("camera", "projector", "units")})
+
+    def to_dict(self, **extra) -> dict:
+        """The ``calibration.json`` dictionary (plus ``extra`` top-level keys)."""
+        d = {"units": "mm", "camera": self.camera.to_dict(), "projector": self.projector.to_dict()}
+        d.update(self.meta)
+        d.update(extra)
+        return d
+
     def devices(self) -> dict:
         return {"camera": self.camera, "projector": self.projector}
 
@@ -33,10 +58,14 @@ class SystemModel:
     def repairs(self) -> tuple:
         return self.camera.repairs + self.projector.repairs
 
+    def ideal(self, meta: dict | None = None) -> "SystemModel":
+        """The same system without skew and lens distortion: the ideal pinholes a Blender twin
+        represents. ``meta``: the new system's metadata (default: a copy of this one's)."""
+        return SystemModel(self.camera.without_skew_and_distortion(), self.projector.without_skew_and_distortion(),
+                           dict(self.meta) if meta is None else dict(meta))
+
 
 def default_system() -> SystemModel:
     """The paper's real system at full precision (see the module docstring)."""
-    from .io.calibration_json import system_from_dict
-
     text = resources.files("calib").joinpath("data/default_system.json").read_text()
-    return system_from_dict(json.loads(text))
+    return SystemModel.from_dict(json.loads(text))

@@ -30,11 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import CalibError
-
-
-class TriangulationError(CalibError, ValueError):
-    """Inputs to triangulation are inconsistent (shapes, non-finite calibration)."""
+from .errors import TriangulationError
 
 
 def _check(q_cam, coord):

@@ -20,13 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import CalibError
+from .errors import InitError
 
 MIN_VIEWS = 3
-
-
-class InitError(CalibError, ValueError):
-    """The views do not determine a starting point (degenerate geometry, too few views)."""
 
 
 @dataclass

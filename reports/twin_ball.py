@@ -45,7 +45,7 @@ SYNOPSIS
 """
 from __future__ import annotations
 
-import sys
+import logging
 import time
 
 import numpy as np
@@ -60,9 +60,12 @@ READ_NOISE_E = 5.0
 """Read noise of the twin camera (electrons); the full well is solved to match the real noise."""
 
 
+log = logging.getLogger(__name__)
+
+
 def _say(progress, msg):
-    if progress:
-        print(f"twin ball: {msg}", file=sys.stderr, flush=True)
+    """Progress to the logger: INFO when ``progress`` is asked for, else DEBUG."""
+    log.log(logging.INFO if progress else logging.DEBUG, f"twin ball: {msg}")
 
 
 def _check_phase_map(phase, system, what) -> np.ndarray:
@@ -268,11 +271,11 @@ def render_twin_ball_phase(real_system, twin_system, real_phase, frequency: floa
     patterns = phase_sequence(("v",), freqs, steps)
     sphere = Sphere("ball", np.eye(3), centre_twin_world, 0.8, radius)
     scene = Scene(twin_system, [sphere], patterns, Effects(bits=bits), "twin ball")
-    geometry = compute_geometry(scene, log=_Quiet())
+    geometry = compute_geometry(scene)
     truth, _, lit = phase_truth(geometry, twin_system.projector.size, "v", freqs[-1])
     if lit.sum() < 100:
         raise ReportError(f"twin ball: only {int(lit.sum())} camera pixels of the twin see the lit ball")
-    clean = render(scene, geometry=geometry, keep_linear=True, log=_Quiet())
+    clean = render(scene, geometry=geometry, keep_linear=True)
     width = twin_system.projector.width
     phase0, order0, valid0, _ = _decode(clean.images, freqs, steps, width)
     timings["render + decode, noise-free"] = time.perf_counter() - t
@@ -296,7 +299,7 @@ def render_twin_ball_phase(real_system, twin_system, real_phase, frequency: floa
                 break
             noisy = Scene(twin_system, [sphere], patterns, Effects(bits=bits, noise=Noise(full_well, READ_NOISE_E, seed)),
                           "twin ball")
-            images = render(noisy, geometry=geometry, log=_Quiet()).images
+            images = render(noisy, geometry=geometry).images
             phase_n, order_n, valid_n, B_n = _decode(images, freqs, steps, width)
             sigma_twin = phase_noise_rad(phase_n, truth)
             note = (f"Poisson shot noise, full well {full_well:.0f} e-, read noise {READ_NOISE_E:g} e-, "
@@ -329,7 +332,7 @@ def render_twin_ball_phase(real_system, twin_system, real_phase, frequency: floa
 
     t = time.perf_counter()
     _say(progress, "[5/5] floor: the rendered phase reconstructed with the true twin system")
-    float_phase = _decode_float(render(scene, geometry=geometry, quantised=False, log=_Quiet()).images,
+    float_phase = _decode_float(render(scene, geometry=geometry, quantised=False).images,
                                 freqs, steps, width, lit)
     floor = {"render_and_decode": _floor(twin_system, float_phase, freqs[-1]),
              "noise_free_8bit": _floor(twin_system, np.where(valid0, phase0, np.nan), freqs[-1]),
@@ -382,10 +385,3 @@ def write_twin_ball_phase(path, phase, info: dict):
         g.attrs["frequency"] = float(info["patterns"]["frequencies"][-1])
         f.attrs["twin_ball"] = json.dumps({k: v for k, v in info.items() if k != "file"}, default=float)
     return path
-
-
-class _Quiet:
-    """A plan log that keeps synth's stage decisions out of the terminal."""
-
-    def info(self, *args, **kwargs):
-        pass

@@ -9,6 +9,7 @@ The world frame is the board at its reference (untilted) pose, so pose 0 has ``R
 from __future__ import annotations
 
 import json
+import logging
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -26,6 +27,8 @@ from .scene import Scene
 from .sequence import PatternSpec, phase_sequence
 
 #: (rx, ry) tilts in degrees: the 3 x 3 grid of the paper's (0 +- 10, 0 +- 20, 0).
+log = logging.getLogger(__name__)
+
 PAPER_TILTS_DEG = [(0, 0), (10, 0), (-10, 0), (0, 20), (0, -20), (10, 20), (10, -20), (-10, 20), (-10, -20)]
 
 
@@ -91,7 +94,8 @@ def render_board_session(out_dir, system=None, *, steps: int = 12, frequencies=(
     """Render the session into ``out_dir`` (capture.toml, pose_XX/*.png, truth.json); returns
     the truth dictionary. ``noise`` None renders noise-free; its seed is offset per pose.
     ``jitter`` ``(rotation_deg, translation_mm)`` perturbs every board pose at random
-    (``pose_jitter``, drawn from ``seed``): a repeated session with the board placed again."""
+    (``pose_jitter``, drawn from ``seed``): a repeated session with the board placed again.
+    One progress line per pose goes to the ``synth`` logger (or to ``progress``, a callable)."""
     from calib.io.calibration_json import system_to_dict
     from calib.system import default_system
 
@@ -125,9 +129,8 @@ def render_board_session(out_dir, system=None, *, steps: int = 12, frequencies=(
         W, H = system.camera.size
         visible.append(int(np.sum((q[:, 0] >= 0) & (q[:, 0] <= W - 1) & (q[:, 1] >= 0) & (q[:, 1] <= H - 1))))
         timings.append(time.perf_counter() - t0)
-        if progress:
-            progress(f"pose {i + 1}/{n_poses}: tilt ({rx:+.1f}, {ry:+.1f}) deg, {len(patterns)} images, "
-                     f"{visible[-1]}/{len(pts)} board points in view, {timings[-1]:.1f} s")
+        (progress or log.info)(f"pose {i + 1}/{n_poses}: tilt ({rx:+.1f}, {ry:+.1f}) deg, {len(patterns)} images, "
+                                 f"{visible[-1]}/{len(pts)} board points in view, {timings[-1]:.1f} s")
     (out_dir / "capture.toml").write_text(capture_toml(
         board, [int(steps)] * len(freqs), freqs, system.camera.size, system.projector.size,
         {"bits": int(bits), "seed": int(seed), "noise": noise is not None, "software": "sltwin synth"}))

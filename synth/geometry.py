@@ -9,7 +9,6 @@ buffers are flattened over the camera image, index ``row * W + col``.
 """
 from __future__ import annotations
 
-import logging
 import math
 from dataclasses import dataclass, field
 
@@ -19,8 +18,8 @@ import torch
 from calib.distortion import distort, undistort
 
 from .objects import Rays
+from .plan_log import PlanLog
 
-LOG = logging.getLogger("synth")
 F64 = torch.float64
 
 
@@ -188,9 +187,11 @@ class _Clock:
         return _C()
 
 
-def compute_geometry(scene, *, shadows: bool | None = None, log=LOG) -> Geometry:
+def compute_geometry(scene, *, shadows: bool | None = None, log=None) -> Geometry:
     """Run the geometry stage of ``scene`` (see the module docstring). ``shadows`` overrides
-    the scene's choice (None: follow ``effects.shadows``)."""
+    the scene's choice (None: follow ``effects.shadows``). ``log``: where the stage decisions go
+    (:class:`synth.plan_log.PlanLog`, or a ``logging.Logger`` they go to at DEBUG)."""
+    log = PlanLog.of(log)
     sysm, eff = scene.system, scene.effects
     cam, prj = sysm.camera, sysm.projector
     timings: dict = {}

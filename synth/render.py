@@ -13,11 +13,10 @@ SYNOPSIS
 
 Only the stages a scene asks for are built, and a stage that cannot change this scene's image is
 skipped; ``result.plan`` lists every stage with "run" or the reason it was skipped (also logged
-to the ``synth`` logger at INFO).
+to the ``synth`` logger at DEBUG, :mod:`synth.plan_log`).
 """
 from __future__ import annotations
 
-import logging
 import time
 from dataclasses import dataclass, field
 
@@ -25,27 +24,12 @@ import numpy as np
 import torch
 
 from .geometry import Geometry, compute_geometry
+from .plan_log import PlanLog
 from .projection import linear_model, nonlinear_values
 
 F64 = torch.float64
 from .sensor import add_noise, camera_defocus, quantise
 from .truth import fringe_frequencies, phase_truth
-
-LOG = logging.getLogger("synth")
-
-
-class _PlanLog:
-    """Collects the plan lines and forwards them to the logger."""
-
-    def __init__(self, log):
-        self.lines: list[str] = []
-        self.log = log
-
-    def info(self, fmt, *args):
-        line = fmt % args if args else fmt
-        self.lines.append(line)
-        self.log.info(line)
-
 
 @dataclass
 class RenderResult:
@@ -106,10 +90,11 @@ def _quantised_stack(geometry, lit, idx, C, rows, other, p_other, K, eff) -> tor
 
 
 def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry: Geometry | None = None,
-           log=LOG) -> RenderResult:
+           log=None) -> RenderResult:
     """Render every pattern of ``scene``. ``geometry`` reuses a previous geometry stage of the
-    same scene pose (e.g. to render another pattern sequence)."""
-    plan = _PlanLog(log)
+    same scene pose (e.g. to render another pattern sequence). ``log``: a ``logging.Logger`` the
+    plan lines also go to, at DEBUG (default: the ``synth`` logger)."""
+    plan = PlanLog.of(log)
     eff = scene.effects
     timings: dict = {}
     t0 = time.perf_counter()

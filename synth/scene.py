@@ -72,9 +72,9 @@ class Scene:
 
 
 def ideal_system(system: SystemModel) -> SystemModel:
-    """The system without skew and distortion (what a Blender twin represents)."""
-    return SystemModel(system.camera.without_skew_and_distortion(),
-                       system.projector.without_skew_and_distortion(), dict(system.meta))
+    """The system without skew and distortion (what a Blender twin represents):
+    :meth:`calib.system.SystemModel.ideal`, kept under this name."""
+    return system.ideal()
 
 
 _OBJECT_KEYS = {

@@ -13,7 +13,7 @@ from calib import default_system
 from calib.board import Board, BoardError
 from calib.bundle_adjustment import BAConfig, DeviceConfig
 from calib.calibrate import run_calibration
-from calib.cli import main as cli_main
+from sltwin.cli import main as cli_main
 from calib.io.bouguet import read_bouguet, read_bouguet_pair
 from calib.mrcal_reference import mrcal_calibrate
 from calib.observations import (ObservationError, Observations, from_bouguet, read_observations_json,

@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from calib.cli import main
+from sltwin.cli import main
 from tests.conftest import REPO, shared_data
 
 UPSTREAM_FLAGS = ["--distortion", "4", "--fix", "camera.cx=843.5", "--fix", "camera.cy=675.5",

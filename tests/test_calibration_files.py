@@ -110,7 +110,7 @@ def test_unknown_formats_are_refused(tmp_path):
 
 
 def test_cli_twin_prints_table_s3_and_refuses_bad_input_without_traceback(tmp_path, capsys):
-    from calib.cli import main
+    from sltwin.cli import main
 
     assert main(["twin", "-o", str(tmp_path / "twin.json"), "--blender-script", str(tmp_path / "s.py")]) == 0
     out = capsys.readouterr().out

@@ -1,7 +1,7 @@
 """`make demo`'s job: twin -> calibration session rendered in the twin -> calib run on the images -> report."""
 import json
 
-from calib.cli import main
+from sltwin.cli import main
 
 
 def test_demo_recovers_the_twins_true_intrinsics_within_predicted_3_sigma(tmp_path, capsys):

@@ -7,7 +7,7 @@ import pytest
 
 from calib.board import Board
 from calib.detect import DetectionError, detect_board
-from calib.detect.accuracy import render_white
+from bench.detect_accuracy import render_white
 from calib.detect.result import apply_homography
 from calib.system import default_system
 from tests.conftest import shared_data

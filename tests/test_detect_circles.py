@@ -6,7 +6,7 @@ import pytest
 
 from calib.board import Board
 from calib.detect import BoardDetection, DetectionError, circle_image_centre, detect_board, perspective_bias
-from calib.detect.accuracy import centre_errors, close_system, render_white
+from bench.detect_accuracy import centre_errors, close_system, render_white
 from calib.detect.blobs import fit_ellipse_direct
 from calib.system import default_system
 

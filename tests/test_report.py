@@ -52,7 +52,7 @@ def test_report_refuses_mismatched_image_sizes(tmp_path):
 
 
 def test_report_refuses_other_units_and_missing_keys(tmp_path, capsys):
-    from calib.cli import main
+    from sltwin.cli import main
 
     s = default_system()
     real = _write_json(tmp_path / "real.json", s)

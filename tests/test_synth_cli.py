@@ -8,7 +8,7 @@ import h5py
 import numpy as np
 import pytest
 
-from calib.cli import main
+from sltwin.cli import main
 
 SCENE = """
 name = "ball-on-wall"

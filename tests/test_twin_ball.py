@@ -89,7 +89,7 @@ def cli_report(tmp_path_factory):
     import contextlib
     import io
 
-    from calib.cli import main
+    from sltwin.cli import main
 
     d = shared_data("dp-tpu")
     out = tmp_path_factory.mktemp("twin_ball_report")

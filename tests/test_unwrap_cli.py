@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from calib.cli import main
+from sltwin.cli import main
 from unwrap.patterns import absolute_phase, fringe_intensity
 
 CAPTURE_TOML = """

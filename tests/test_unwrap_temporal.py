@@ -204,3 +204,27 @@ def test_float32_breaks_where_its_phase_resolution_exceeds_the_quantisation_nois
     assert all(e64 < 1e-9 for _, e64 in out.values())
     assert out[96][0] > sigma_16bit and out[96][0] > 1e4 * out[96][1]
     assert out[96][0] < sigma_8bit < out[4096][0]
+
+
+def test_half_integer_prior_is_a_tie_resolved_down_identically_on_every_path():
+    """A prior within 1e-9 of a half integer goes to the lower order (numpy, torch and the fused
+    kernel alike), so the last bit of the prior - which BLAS kernels, FMA and thread counts
+    change - never decides the order (issue 15, item 1: 2.4999999999999996 vs 2.5000000000000004)."""
+    import torch
+
+    from unwrap._fused_kernel import _refine
+    from unwrap._xp import TIE_BAND, round_order
+    from unwrap.temporal import refine
+    below, above = np.nextafter(2.5, 0.0), np.nextafter(2.5, 3.0)
+    prior = np.array([2.4, below, 2.5, above, 2.5 + 0.5 * TIE_BAND, 2.5 + 3 * TIE_BAND,
+                      -0.5, 3.5, 95.5, np.nextafter(95.5, 96.0), 0.0])
+    expect = np.array([2, 2, 2, 2, 2, 3, -1, 3, 95, 95, 0], dtype=float)
+    assert np.array_equal(round_order(prior), expect)
+    assert np.array_equal(round_order(torch.from_numpy(prior)).numpy(), expect)
+    # the kernel's eq. 7 step, fed a coarse phase that puts the prior on the same values
+    Phi_s = prior * 2.0 * np.pi
+    pr_s, k_s = np.empty_like(prior), np.empty_like(prior)
+    _refine(np.zeros_like(prior), 1.0, Phi_s.copy(), pr_s, k_s)
+    _, k_ref, _ = refine(prior * 2.0 * np.pi, 1.0, np.zeros_like(prior))
+    assert np.array_equal(k_s, k_ref)
+    assert np.abs(k_ref - expect).max() <= 1   # prior * 2 pi / 2 pi may move a value by an ulp

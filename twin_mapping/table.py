@@ -17,6 +17,21 @@ def is_papers_system(system, rtol: float = 1e-6) -> bool:
     return True
 
 
+def twin_with_paper(system, paper: str = "auto") -> dict:
+    """``to_twin(system)``, with the paper's table S3 and eqs. S1-S3 beside it (key
+    ``paper_table_s3``, rows of :func:`twin_mapping.paper.compare_with_table_s3`) when ``paper``
+    is "yes", or "auto" and the system is the paper's (:func:`is_papers_system`); "no": never."""
+    from .errors import TwinError
+    from .twin import to_twin
+
+    if paper not in ("auto", "yes", "no"):
+        raise TwinError(f"paper: expected 'auto', 'yes' or 'no', got {paper!r}")
+    twin = to_twin(system)
+    if paper == "yes" or (paper == "auto" and is_papers_system(system)):
+        twin["paper_table_s3"] = compare_with_table_s3(twin)
+    return twin
+
+
 def format_twin_table(twin: dict, with_paper: bool) -> str:
     """The twin parameters as a text table; with the paper's S3/eq. S1-S3 values when asked."""
     lines = []

@@ -14,8 +14,8 @@ from .patterns import (absolute_phase, fringe_intensity, fringe_pattern,  # noqa
 from .phase_shift import (WrappedPhase, equal_shifts, least_squares_weights,  # noqa: F401
                           phase_noise_gain, wrapped_phase)
 from .plan import plan_fringes  # noqa: F401
-from .reliability import (error_rate, monte_carlo_error_rate, phase_error_pdf,  # noqa: F401
-                          phase_sigma)
+from .monte_carlo import monte_carlo_error_rate  # noqa: F401
+from .reliability import error_rate, phase_error_pdf, phase_sigma  # noqa: F401
 from .temporal import (Unwrapped, base_phase, mf_unwrap, mw_unwrap, nt_lookup_table,  # noqa: F401
                        nt_unwrap, refine)
 

@@ -42,6 +42,7 @@ _PI_2 = 0.5 * math.pi
 _PI_4 = 0.25 * math.pi
 _PI_4_LO = 3.061616997868383e-17  # pi/4 - float(pi/4)
 _TWO_PI = 2.0 * math.pi
+_HALF_TIE = 0.5 + 1e-9  # unwrap._xp.round_order: ceil(prior - 1/2 - TIE_BAND), ties down
 _JIT = dict(cache=True, error_model="numpy", nogil=True)
 
 
@@ -251,11 +252,11 @@ def _base(p0, cut, Phi_s):
 
 @nb.njit(**_JIT)
 def _refine(p_i, ratio, Phi_s, pr_s, k_s):
-    """unwrap.temporal.refine (eq. 7) in place: prior, k = rint(prior) (half to even), Phi."""
+    """unwrap.temporal.refine (eq. 7) in place: prior, k = round_order(prior) (ties down), Phi."""
     for j in range(p_i.size):
         phi = p_i[j]
         pr = (ratio * Phi_s[j] - phi) / _TWO_PI
-        k = np.rint(pr)
+        k = np.ceil(pr - _HALF_TIE)
         Phi_s[j] = phi + _TWO_PI * k
         pr_s[j] = pr
         k_s[j] = k
@@ -263,7 +264,7 @@ def _refine(p_i, ratio, Phi_s, pr_s, k_s):
 
 @nb.njit(**_JIT)
 def _final(ok, k_s, Phi_s, pr_s, kmax, phase, order, valid, prior):
-    """unwrap.temporal._finish for one block (output slices)."""
+    """unwrap.temporal.finish_unwrapped for one block (output slices)."""
     for j in range(ok.size):
         k = k_s[j]
         g = ok[j] & (k >= 0.0) & (k <= kmax)
@@ -279,7 +280,7 @@ def _refine_final(p_i, ratio, Phi_s, ok, kmax, phase, order, valid, prior):
     for j in range(p_i.size):
         phi = p_i[j]
         pr = (ratio * Phi_s[j] - phi) / _TWO_PI
-        k = np.rint(pr)
+        k = np.ceil(pr - _HALF_TIE)
         Phi = phi + _TWO_PI * k
         g = ok[j] & (k >= 0.0) & (k <= kmax)
         phase[j] = Phi if g else np.nan

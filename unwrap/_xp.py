@@ -11,6 +11,12 @@ import numpy as np
 
 TWO_PI = 2.0 * math.pi
 
+#: Half-width of the tie band of :func:`round_order`. A prior within this distance of a half
+#: integer is a tie between two fringe orders that the data cannot decide; two computations of
+#: the same prior (a BLAS kernel vs our fused sums, FMA or not, another thread count) differ by
+#: ~1e-15, far inside the band, so every path and every machine resolves the tie the same way.
+TIE_BAND = 1e-9
+
 
 def is_torch(x) -> bool:
     return type(x).__module__.startswith("torch")
@@ -21,6 +27,7 @@ class _Numpy:
     atan2 = staticmethod(np.arctan2)
     hypot = staticmethod(np.hypot)
     round = staticmethod(np.round)   # half to even; ties only at exact half integers
+    ceil = staticmethod(np.ceil)
     floor = staticmethod(np.floor)
     where = staticmethod(np.where)
     isfinite = staticmethod(np.isfinite)
@@ -58,6 +65,7 @@ class _Torch:
         self.hypot = torch.hypot
         self.round = torch.round
         self.floor = torch.floor
+        self.ceil = torch.ceil
         self.where = torch.where
         self.isfinite = torch.isfinite
         self.abs = torch.abs
@@ -92,6 +100,18 @@ def namespace(*arrays):
             _TORCH = _Torch()
         return _TORCH
     return _NUMPY
+
+
+def round_order(prior, xp=None):
+    """Fringe order nearest to ``prior``, ties (within :data:`TIE_BAND` of a half integer) down.
+
+    ``ceil(prior - 1/2 - TIE_BAND)``: 2.4 -> 2, 2.5 -> 2, 2.5 + 1e-15 -> 2, 2.5000001 -> 3.
+    A prior halfway between two orders means the coarse and fine phases disagree by exactly pi:
+    both orders explain the data equally, and plain rounding would let the last bit of the prior
+    (which depends on the CPU's floating-point paths) choose. Float-valued result (numpy / torch).
+    """
+    xp = xp or namespace(prior)
+    return xp.ceil(prior - (0.5 + TIE_BAND))
 
 
 def wrap(x, xp=None):

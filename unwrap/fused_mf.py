@@ -18,7 +18,10 @@ reference's BLAS rounding leaves +-4e-15 and gives pi or -pi; both then describe
 absolute phase with k one apart (and the prior exactly one apart). Bit-identity would need the
 BLAS library's summation order and fused multiply-adds, which numpy does not fix. After the
 arctangent (own, at most 2 ulp from numpy's) the kernel repeats the reference's float64
-operations (base phase, eq. 7 steps, rounding half to even, masks) in the same order.
+operations (base phase, eq. 7 steps, rounding with ties down, masks) in the same order. A prior
+that lands on a half integer (a tie between two orders: 2.4999999999999996 on one path,
+2.5000000000000004 on the other) goes to the lower order on both paths (``TIE_BAND``), so the
+kernel and the reference agree there on every machine.
 
 SYNOPSIS
 

@@ -26,7 +26,7 @@ from ._xp import TWO_PI, namespace
 
 _NS = namespace(np.zeros(1))
 from .errors import UnwrapError
-from .temporal import Unwrapped, _finish, refine  # noqa: F401
+from .temporal import Unwrapped, finish_unwrapped, refine  # noqa: F401  (Unwrapped: re-exported)
 
 
 def binarize(frames, inverse=None, *, threshold=None, min_contrast: float = 0.0):
@@ -95,7 +95,7 @@ def gray_unwrap(phi, code_index, frequency: float, *, reliable=None, valid=None)
     phi0 = np.where(np.abs(phi0) < 1e-9, 0.0, phi0)  # the block start (phi = 0) belongs to c
     prior = c + 0.5 - phi0 / TWO_PI
     k = c + (phi0 < 0)
-    return _finish(_NS, phi0 + TWO_PI * k, k, prior, ok, frequency, "gray", [])
+    return finish_unwrapped(_NS, phi0 + TWO_PI * k, k, prior, ok, frequency, "gray", [])
 
 
 def complementary_gray_unwrap(phi, period_index, half_period_index, frequency: float, *,
@@ -116,7 +116,7 @@ def complementary_gray_unwrap(phi, period_index, half_period_index, frequency: f
     middle = np.abs(phi0) <= 0.5 * math.pi
     coarse = np.where(middle, TWO_PI * K2, TWO_PI * (K1 + 0.5))
     prior, k, Phi = refine(coarse, 1.0, phi0)
-    return _finish(_NS, Phi, k, prior, ok, frequency, "gray", [])
+    return finish_unwrapped(_NS, Phi, k, prior, ok, frequency, "gray", [])
 
 
 def gray_coarse_unwrap(code_index, block_px: float, width: float, phases, frequencies, *,
@@ -150,4 +150,4 @@ def gray_coarse_unwrap(code_index, block_px: float, width: float, phases, freque
     for i in range(1, f.size):
         prior, k, Phi = refine(Phi, f[i] / f[i - 1], phis[i])
         levels.append((float(f[i]), prior, k))
-    return _finish(_NS, Phi, k, prior, ok, f[-1], "gray", levels)
+    return finish_unwrapped(_NS, Phi, k, prior, ok, f[-1], "gray", levels)

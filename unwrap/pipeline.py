@@ -13,8 +13,8 @@ plus ``prior`` (float64 physics prior), ``modulation`` (float64 B of the highest
 """
 from __future__ import annotations
 
+import logging
 import math
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,10 +26,13 @@ from .errors import UnwrapError
 from .fused_mf import mf_unwrap_stacks
 from .graycode import (binarize, complementary_gray_unwrap, gray_coarse_unwrap, gray_to_index)
 from .patterns import projector_coordinate
+from .phase_io import write_phase_file
 from .phase_shift import wrapped_phase
 from .temporal import Unwrapped, mf_unwrap, mw_unwrap, nt_unwrap
 
 METHODS = ("mf", "mw", "nt", "gray")
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -57,8 +60,8 @@ def _kernel_cold() -> bool:
 
 
 def _log(progress, msg):
-    if progress:
-        print(msg, file=sys.stderr, flush=True)
+    """Progress to the ``unwrap`` logger: INFO when ``progress`` is asked for, else DEBUG."""
+    log.log(logging.INFO if progress else logging.DEBUG, msg)
 
 
 def unwrap_orientation(oc: OrientationCapture, method: str, *, min_modulation=None,
@@ -149,28 +152,20 @@ def unwrap_capture(folder, method: str | None = None, *, preset: str | None = No
 
 
 def write_results(results: dict, out_dir, *, previews: bool = True, attrs: dict | None = None) -> Path:
-    """Write ``unwrap.h5`` (DESIGN.md layout) and PNG previews into ``out_dir``; returns the h5 path."""
-    import h5py
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / "unwrap.h5"
-    with h5py.File(path, "w") as h5:
-        for k, v in (attrs or {}).items():
-            h5.attrs[k] = v
-        for o, r in results.items():
-            g = h5.create_group(o)
-            u = r.result
-            g.create_dataset("phase", data=np.asarray(u.phase, dtype=np.float64), compression="gzip")
-            g.create_dataset("order", data=np.asarray(u.order, dtype=np.int32), compression="gzip")
-            g.create_dataset("valid", data=np.asarray(u.valid, dtype=bool), compression="gzip")
-            g.create_dataset("prior", data=np.asarray(u.prior, dtype=np.float64), compression="gzip")
-            g.create_dataset("modulation", data=np.asarray(r.modulation, np.float64), compression="gzip")
-            g.create_dataset("projector_coordinate", compression="gzip",
-                             data=projector_coordinate(np.asarray(u.phase), u.frequency, r.width))
-            g.attrs.update(method=u.method, frequency=u.frequency, width=r.width,
-                           valid_fraction=float(np.mean(u.valid)))
+    """Write ``unwrap.h5`` (DESIGN.md layout, :mod:`unwrap.phase_io`) and PNG previews into
+    ``out_dir``; returns the h5 path."""
+    groups = {}
+    for o, r in results.items():
+        u = r.result
+        groups[o] = {"phase": u.phase, "order": u.order, "valid": u.valid, "frequency": u.frequency,
+                     "extra": {"prior": np.asarray(u.prior, dtype=np.float64),
+                               "modulation": np.asarray(r.modulation, np.float64),
+                               "projector_coordinate": projector_coordinate(np.asarray(u.phase), u.frequency,
+                                                                            r.width)},
+                     "attrs": {"method": u.method, "width": r.width, "valid_fraction": float(np.mean(u.valid))}}
+    path = write_phase_file(Path(out_dir) / "unwrap.h5", groups, attrs=attrs)
     if previews:
-        _previews(results, out)
+        _previews(results, Path(out_dir))
     return path
 
 

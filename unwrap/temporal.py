@@ -3,7 +3,9 @@
 Conventions (DESIGN.md): a wrapped phase ``phi`` lies in (-pi, pi] (atan2); the absolute phase of
 a pattern with ``f`` periods across the projector is ``Phi = 2*pi*f*u_p/W_p`` in [0, 2*pi*f); the
 fringe order is ``k = (Phi - phi) / (2*pi)``, an integer in [0, round(f)] (k = f on the last half
-period). Every method returns :class:`Unwrapped` with the absolute phase of its highest
+period). The order is the prior rounded to the nearest integer, a prior within 1e-9 of a half
+integer (a tie: the two phases disagree by exactly pi) going to the lower order on every path and
+machine (:func:`unwrap._xp.round_order`). Every method returns :class:`Unwrapped` with the absolute phase of its highest
 frequency, ``k``, a validity mask and the *physics prior*: the real-valued quantity inside
 ``Round[]`` of eqs. 7-9 of the paper's supplementary (for MF/MW the real fringe-order estimate,
 for NT the real-valued residue ``(f1*phi2 - f2*phi1) / (2*pi)``).
@@ -31,7 +33,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ._xp import TWO_PI, is_torch, namespace, wrap
+from ._xp import TWO_PI, is_torch, namespace, round_order, wrap
 from .errors import UnreliableFringesWarning, UnwrapError
 
 
@@ -132,11 +134,13 @@ def refine(Phi_coarse, ratio: float, phi):
     """
     xp = namespace(Phi_coarse, phi)
     prior = (ratio * Phi_coarse - phi) / TWO_PI
-    k = xp.round(prior)
+    k = round_order(prior, xp)
     return prior, k, phi + TWO_PI * k
 
 
-def _finish(xp, Phi, k, prior, ok, frequency, method, levels):
+def finish_unwrapped(xp, Phi, k, prior, ok, frequency, method, levels) -> Unwrapped:
+    """The :class:`Unwrapped` every method returns: orders outside [0, round(f)] and pixels not
+    ``ok`` are invalid (phase NaN, order -1); the prior is NaN where the inputs were invalid."""
     kmax = math.floor(frequency + 0.5)
     in_range = (k >= 0) & (k <= kmax)
     valid = ok & in_range
@@ -195,7 +199,7 @@ def mf_unwrap(phases, frequencies, *, width=None, valid=None, phase_sigma=None, 
     for i in range(1, len(f)):
         prior, k, Phi = refine(Phi, f[i] / f[i - 1], phis[i])
         levels.append((float(f[i]), prior, k))
-    return _finish(xp, Phi, k, prior, ok, f[-1], "mf", levels)
+    return finish_unwrapped(xp, Phi, k, prior, ok, f[-1], "mf", levels)
 
 
 def _frequencies_from(frequencies, pitches, width, n):
@@ -276,7 +280,7 @@ def mw_unwrap(phases, frequencies=None, *, pitches=None, width=None, valid=None,
         f_eq = f12
     prior, k, Phi = refine(Phi_eq, f[0] / f_eq, phis[0])
     levels.append((float(f[0]), prior, k))
-    return _finish(xp, Phi, k, prior, ok, f[0], "mw", levels)
+    return finish_unwrapped(xp, Phi, k, prior, ok, f[0], "mw", levels)
 
 
 @lru_cache(maxsize=128)
@@ -329,7 +333,7 @@ def nt_unwrap(phases, frequencies, *, width=None, valid=None, phase_sigma=None, 
                            f"NT pair ({f1}, {f2}) at phase noise {np.round(sig, 4).tolist()} rad")
     ok = _finite_mask(namespace(phi1), (phi1, phi2), valid)
     prior = (f1 * phi2 - f2 * phi1) / TWO_PI
-    m = np.round(np.where(ok, prior, 0.0)).astype(np.int64)
+    m = round_order(np.where(ok, prior, 0.0)).astype(np.int64)
     k1 = table[np.clip(m + offset, 0, table.size - 1)].astype(np.int64)
     # k1 = 0 and k1 = f1 share the residue: below u = -0.5 px it is the last half period (k1 = f1)
     k1 = np.where((k1 == 0) & (phi1 < -TWO_PI * f1 * edge_fraction(width)), f1, k1)
@@ -341,5 +345,5 @@ def nt_unwrap(phases, frequencies, *, width=None, valid=None, phase_sigma=None, 
     else:
         Phi, k, fout = phi1 + TWO_PI * k1, k1, f1
     levels = [(float(f1), None, k1), (float(f2), None, k2)]
-    return _finish(namespace(Phi), Phi, k.astype(np.float64), prior, ok & (k1 <= f1) & (k2 >= 0) & (k2 <= f2),
+    return finish_unwrapped(namespace(Phi), Phi, k.astype(np.float64), prior, ok & (k1 <= f1) & (k2 >= 0) & (k2 <= f2),
                    fout, "nt", levels)

@@ -8,11 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import CalibError
-
-
-class DetectionError(CalibError, ValueError):
-    """No usable board in an image: not found, too few features, ambiguous orientation, bad input."""
+from ..errors import DetectionError  # noqa: F401  (defined in calib.errors, re-exported)
 
 
 @dataclass

@@ -1,6 +1,8 @@
 """``calib unwrap CAPTURE_DIR [--method mf|mw|nt|gray] -o OUT``: absolute phase, k, masks, previews."""
 from __future__ import annotations
 
+HELP = "absolute phase, fringe order and masks of a fringe capture (HDF5 + PNG)"
+
 
 def add_arguments(parser):
     parser.add_argument("capture_dir", help="capture folder (DESIGN.md layout or a scanner preset)")
@@ -20,9 +22,10 @@ def add_arguments(parser):
 def run(args) -> int:
     import numpy as np
 
-    from .pipeline import unwrap_capture, write_results
+    from unwrap.pipeline import unwrap_capture, write_results
+
     results = unwrap_capture(args.capture_dir, args.method, preset=args.preset, pose=args.pose,
-                             min_modulation=args.min_modulation, progress=not args.quiet)
+                             min_modulation=args.min_modulation, progress=True)
     path = write_results(results, args.output, previews=not args.no_previews,
                          attrs={"capture": str(args.capture_dir)})
     for o, r in results.items():

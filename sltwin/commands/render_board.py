@@ -2,6 +2,10 @@
 the twin (9 board poses, v/h fringes, 12 steps, frequencies 1 8 48, white), with truth.json."""
 from __future__ import annotations
 
+from ..errors import CommandError
+
+HELP = "render the paper's calibration session from the twin"
+
 
 def add_arguments(parser):
     parser.add_argument("system", nargs="*", help="calibration file(s) of the system (default: built-in)")
@@ -17,23 +21,17 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
-    from calib.system import default_system
-
-    from .board_session import render_board_session
-    from .effects import Noise
-    from .errors import SynthError
+    from calib.io import load_system
+    from synth.board_session import render_board_session
+    from synth.effects import Noise
 
     if args.steps < 3:
-        raise SynthError(f"--steps: expected >= 3, got {args.steps}")
-    if args.system:
-        from calib.io import load_system
-        system = load_system(args.system)
-    else:
-        system = default_system()
+        raise CommandError(f"--steps: expected >= 3, got {args.steps}")
+    system = load_system(args.system)
     truth = render_board_session(args.output, system, steps=args.steps, frequencies=args.frequencies,
                                  n_poses=args.poses, bits=args.bits, seed=args.seed,
                                  noise=None if args.no_noise else Noise(seed=args.seed),
-                                 truth_h5=args.truth_h5, progress=print)
+                                 truth_h5=args.truth_h5)
     print(f"wrote {len(truth['board_poses'])} poses to {args.output} (capture.toml, truth.json), "
           f"{sum(truth['render_seconds']):.1f} s")
     return 0

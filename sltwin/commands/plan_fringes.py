@@ -1,6 +1,8 @@
 """``calib plan-fringes``: predicted fringe-order error rate vs number of images (Markdown table)."""
 from __future__ import annotations
 
+HELP = "predicted fringe-order error rate vs number of images"
+
 
 def add_arguments(parser):
     parser.add_argument("--sigma", type=float, default=2.0,
@@ -17,7 +19,8 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
-    from .plan import DEFAULT_SETS, format_table, plan_fringes
+    from unwrap.plan import DEFAULT_SETS, format_table, plan_fringes
+
     rows = plan_fringes(args.sets or DEFAULT_SETS, args.steps, sigma=args.sigma,
                         modulation=args.modulation)
     print(f"Predicted fringe-order error rate (interior pixels), noise sigma = {args.sigma:g}, "

@@ -4,6 +4,8 @@ from __future__ import annotations
 import argparse
 import json
 
+HELP = "calibration -> digital-twin parameters (+ Blender scene script)"
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("calibration", nargs="*", metavar="CALIBRATION",
@@ -21,28 +23,29 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="print the paper's table S3 beside ours (auto: when the system is the paper's)")
 
 
+def write_twin(system, output, blender_script=None, paper: str = "auto") -> dict:
+    """Print the twin of ``system`` (with the paper's table S3 where it applies), write
+    ``twin.json`` to ``output`` and, when asked, the Blender scene script; returns the twin."""
+    from twin_mapping.blender_export import write_blender_script
+    from twin_mapping.table import format_twin_table, twin_with_paper
+    from twin_mapping.twin import write_twin_json
+
+    twin = twin_with_paper(system, paper)
+    print(format_twin_table(twin, "paper_table_s3" in twin))
+    print(f"\nwrote {write_twin_json(twin, output)}")
+    if blender_script:
+        print(f"wrote {write_blender_script(twin, blender_script)} (blender --background --python {blender_script})")
+    return twin
+
+
 def run(args) -> int:
     from calib.io import load_system
 
-    from .blender_export import write_blender_script
-    from .table import format_twin_table, is_papers_system
-    from .twin import to_twin, write_twin_json
-
     system = load_system(args.calibration, repair_rotation=args.repair_rotation,
                          camera_size=args.camera_size, projector_size=args.projector_size)
-    twin = to_twin(system)
-    with_paper = args.paper == "yes" or (args.paper == "auto" and is_papers_system(system))
-    if with_paper:
-        from .paper import compare_with_table_s3
-        twin["paper_table_s3"] = compare_with_table_s3(twin)
-    print(format_twin_table(twin, with_paper))
-    path = write_twin_json(twin, args.output)
-    print(f"\nwrote {path}")
-    if args.blender_script:
-        print(f"wrote {write_blender_script(twin, args.blender_script)} "
-              f"(blender --background --python {args.blender_script})")
+    twin = write_twin(system, args.output, args.blender_script, args.paper)
     if args.blender:
-        from .blender_check import check_twin_in_blender
+        from twin_mapping.blender_check import check_twin_in_blender
         result = check_twin_in_blender(system, twin=twin)
         for kind in ("camera", "projector"):
             r = result[kind]

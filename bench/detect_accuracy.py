@@ -1,4 +1,4 @@
-"""Measured accuracy of the circle centres on rendered boards: ``python -m calib.detect.accuracy``.
+"""Measured accuracy of the circle centres on rendered boards: ``python -m bench.detect_accuracy``.
 
 For each setup (the paper's twin: 640x480 camera at ~850 mm; a closer camera; a board with
 larger circles) and each tilt, the board is rendered by ``synth`` (white frame, analytic
@@ -46,8 +46,8 @@ def render_white(system, spec, tilt_deg, noise_seed=None):
 def centre_errors(image, system, spec, R_wb, *, centre_method="moments", correct_bias=True):
     """(errors (N, 2) px detected - true, detection) for one rendered image."""
     from calib.board import Board
-    from .circles import detect_circles
-    from .result import image_as_float
+    from calib.detect.circles import detect_circles
+    from calib.detect.result import image_as_float
 
     board = Board.from_dict(spec.capture_toml_table())
     det = detect_circles(image_as_float(image), board, centre_method=centre_method, correct_bias=correct_bias)

@@ -3,6 +3,10 @@ from __future__ import annotations
 
 import argparse
 
+from ..errors import CommandError
+
+HELP = "twin-equivalence report (HTML + Markdown)"
+
 
 def add_arguments(p) -> None:
     p.add_argument("--real", nargs="+", required=True, metavar="FILE",
@@ -25,11 +29,8 @@ def add_arguments(p) -> None:
     p.add_argument("-o", "--output", default="report", help="output folder (default: %(default)s)")
 
 
-def run(args) -> int:
-    from .twin_report import write_twin_report
-
-    from .errors import ReportError
-
+def ball_options(args) -> dict:
+    """Keyword arguments of the twin ball render from ``--ball-frequencies`` / ``--ball-noise``."""
     opts = {}
     if args.ball_frequencies:
         opts["frequencies"] = args.ball_frequencies
@@ -37,11 +38,12 @@ def run(args) -> int:
         try:
             opts["noise"] = None if args.ball_noise == "none" else float(args.ball_noise)
         except ValueError:
-            raise ReportError(f"--ball-noise: expected match, none or a number (rad), got {args.ball_noise!r}") from None
-    summary = write_twin_report(args.real, args.twin, args.output, phases={
-        k: v for k, v in (("real", args.phase_real), ("twin", args.phase_twin)) if v}, frequency=args.frequency,
-        render_twin_ball=args.twin_ball_render, twin_ball_options=opts,
-        twin_render_system="real" if args.twin_ball_system == "real" else None)
+            raise CommandError(f"--ball-noise: expected match, none or a number (rad), got {args.ball_noise!r}") from None
+    return opts
+
+
+def print_summary(summary: dict) -> None:
+    """What ``calib report`` prints: the files, the flagged parameters, the twin ball and the matrix."""
     print(f"wrote {summary['paths']['html']} and {summary['paths']['md']}")
     flagged = summary["beyond_3_sigma"]
     print("parameters beyond 3 sigma: " + (", ".join(flagged) if flagged else "none"))
@@ -50,9 +52,21 @@ def run(args) -> int:
         p = ball["pose"]
         print(f"twin ball: centre {' '.join(f'{v:.3f}' for v in p['centre_cam_mm'])} mm (camera frame), radius "
               f"{p['radius_mm']:.3f} mm; footprint IoU {ball['footprint']['iou']:.3f}; floor "
-              f"{ball['floor']['render_and_decode']['distortion_aware_um']:.2g} um (render + decode, distortion-aware); phase in {ball['file']}")
+              f"{ball['floor']['render_and_decode']['distortion_aware_um']:.2g} um (render + decode, "
+              f"distortion-aware); phase in {ball['file']}")
     for r in summary.get("sphere_matrix", []):
         paper = f" (paper {r['paper_um']:.3f})" if r.get("paper_um") else ""
         print(f"sphere RMS, {r['phase']} phase + {r['calibration']} calibration, {r['method']}: "
               f"{r['rms_um']:.4g} um{paper}")
+
+
+def run(args) -> int:
+    from reports.twin_report import write_twin_report
+
+    opts = ball_options(args)
+    summary = write_twin_report(args.real, args.twin, args.output, phases={
+        k: v for k, v in (("real", args.phase_real), ("twin", args.phase_twin)) if v}, frequency=args.frequency,
+        render_twin_ball=args.twin_ball_render, twin_ball_options=opts,
+        twin_render_system="real" if args.twin_ball_system == "real" else None)
+    print_summary(summary)
     return 0

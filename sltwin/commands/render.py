@@ -1,6 +1,8 @@
 """``calib render SCENE.toml -o OUT/``: render a scene to PNG images + HDF5 ground truth."""
 from __future__ import annotations
 
+HELP = "render a scene TOML to PNG images + HDF5 ground truth"
+
 
 def add_arguments(parser):
     parser.add_argument("scene", help="scene TOML file (schema: docs/synth.md)")
@@ -11,19 +13,17 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
-    import logging
     from dataclasses import replace
     from pathlib import Path
 
-    from .output import write_pngs, write_truth_h5
-    from .render import render
-    from .scene import load_scene
+    from synth.output import write_pngs, write_truth_h5
+    from synth.render import render
+    from synth.scene import load_scene
 
     scene = load_scene(args.scene)
     if args.seed is not None and scene.effects.noise is not None:
         scene.effects = replace(scene.effects, noise=replace(scene.effects.noise, seed=args.seed))
-    log = logging.getLogger("synth.cli")
-    result = render(scene, log=log)
+    result = render(scene)
     out = Path(args.output)
     write_pngs(result, out)
     if not args.no_truth:

@@ -1,0 +1,102 @@
+"""Calibrate a capture folder, or point observations, and write every output: what ``calib run``
+and ``calib demo`` do, one function each.
+
+1. captures -> observations (:func:`calib.captures.observations_from_captures`: unwrapping, board
+   detection, projector pixels from a local phase fit);
+2. observations -> calibration (:func:`calib.calibrate.run_calibration`: Zhang seeds, joint
+   bundle adjustment);
+3. the outputs in ``out``: ``calibration.json`` (DESIGN.md keys plus uncertainties, residuals,
+   board poses, solver facts and, for captures, the capture summary), ``camera.cameramodel``,
+   ``projector.cameramodel``, ``residuals.png``; for captures also ``observations.json`` and
+   ``detections.png`` (:mod:`calib.capture_outputs`).
+
+Progress goes to the ``calib`` logger. Errors are ``calib`` errors (``ValueError`` subclasses):
+``ObservationError`` (too few views or points), ``InitError`` (degenerate views),
+``BundleAdjustmentError``, ``CaptureError``, ``OutputError`` (outputs not writable).
+
+SYNOPSIS
+
+    from calib.pipeline import calibrate_captures
+    run = calibrate_captures("out/demo/captures", "out/demo/twin_calibration")
+    run.calibration.system.projector.fy, run.written["calibration.json"]
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from .bundle_adjustment import BAConfig
+from .calibrate import Calibration, run_calibration
+from .calibration_report import write_outputs
+from .capture_outputs import write_capture_outputs
+from .captures import CaptureObservations, observations_from_captures
+from .errors import OutputError
+from .observations import Observations
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class CalibrationRun:
+    """What :func:`calibrate_captures` / :func:`calibrate_observations` computed and wrote.
+
+    - calibration: the :class:`calib.calibrate.Calibration` (system, adjustment, seeds, timings).
+    - observations: the :class:`calib.observations.Observations` it was computed from.
+    - captured: the per-pose facts of a capture folder (None for point observations).
+    - written: ``{file name: path}``, or a note where a file could not be written (a
+      ``.cameramodel`` of a device with skew).
+    """
+
+    calibration: Calibration
+    observations: Observations
+    captured: CaptureObservations | None
+    written: dict
+
+
+def calibrate_observations(obs: Observations, out, config: BAConfig | None = None, *,
+                           skew_tol_px: float = 0.01, captured: CaptureObservations | None = None
+                           ) -> CalibrationRun:
+    """Calibrate from point observations and write the outputs into ``out`` (module docstring).
+
+    A joint ``config`` with only one device observed falls back to single-device mode (logged).
+    ``captured``: the capture folder's facts, written beside the calibration when given.
+    """
+    config = config or BAConfig()
+    devices = obs.devices()
+    if config.mode == "joint" and len(devices) < 2:
+        log.info(f"only {devices} observed: calibrating in single-device mode")
+        config = replace(config, mode="single")
+    log.info(f"{len(obs.views)} view(s) from {obs.source}; devices {devices}; mode {config.mode}")
+    cal = run_calibration(obs, config)
+    try:
+        written = write_outputs(cal, obs, out, skew_tol_px=skew_tol_px,
+                                extra=None if captured is None else {"captures": captured.summary()})
+        if captured is not None:
+            written.update(write_capture_outputs(captured, out))
+    except OSError as exc:
+        raise OutputError(f"cannot write outputs to {out}: {exc}") from None
+    for name, path in written.items():
+        log.info(f"wrote {name}: {path}")
+    return CalibrationRun(cal, obs, captured, written)
+
+
+def calibrate_captures(folder, out, config: BAConfig | None = None, *, capture_toml=None, method=None,
+                       strict: bool = False, degree: int = 2, skew_tol_px: float = 0.01) -> CalibrationRun:
+    """Calibrate from the board captures in ``folder`` and write the outputs into ``out``.
+
+    ARGUMENTS
+    - folder: capture folder (DESIGN.md layout, or a scanner's layout described by
+      ``capture_toml``); see :mod:`calib.captures`.
+    - out: output folder (created).
+    - config: :class:`calib.bundle_adjustment.BAConfig` (default: joint, 5 distortion terms).
+    - method: temporal unwrapping method (default: the capture's); strict: refuse the run when a
+      pose cannot be used (default: skip it, and say so in the summary); degree: local polynomial
+      degree of the projector-pixel fit (1 or 2).
+    - skew_tol_px: see :func:`calib.io.mrcal_model.write_cameramodel`.
+    RETURNED VALUE: :class:`CalibrationRun`.
+    """
+    captured = observations_from_captures(folder, capture_toml=capture_toml, method=method, strict=strict,
+                                          degree=degree, keep_images=True)
+    return calibrate_observations(captured.observations, Path(out), config, skew_tol_px=skew_tol_px,
+                                  captured=captured)

@@ -1,0 +1,107 @@
+"""The ``calib`` command line: one dispatcher over one module per sub-command.
+
+Adding a command: write a module in ``sltwin/commands/`` with
+
+- ``HELP``: one line of help;
+- ``add_arguments(parser)``: its options (argparse);
+- ``run(args) -> int``: parse nothing, call library functions, print results, return the exit code;
+- optionally ``EXIT_CODES``: ``[(error type, exit code, message prefix), ...]`` for errors that
+  deserve their own exit code (``calib run``), and ``LOG_FORMAT`` (how progress lines look);
+
+then import it below and add ``("name", module)`` to ``COMMANDS``. A command module imports only
+light modules at top level (numpy, error types) and the heavy ones (torch, cv2, casadi) inside
+``run``, so that ``calib --help`` stays fast.
+
+Errors: every package's errors derive from one root per package (``calib.errors.CalibError``,
+``unwrap.errors.UnwrapError``, ``twin_mapping.errors.TwinError``, ``synth.errors.SynthError``,
+``reports.errors.ReportError``, ``sltwin.errors.CommandError``), all ``ValueError`` subclasses.
+``main`` maps them, here and only here, to exit code 2 (or the command's ``EXIT_CODES``) with the
+message on stderr, never a traceback; Ctrl-C ends with 130.
+
+Progress: library packages log through one logger each (``calib``, ``unwrap``, ``twin_mapping``,
+``synth``, ``reports``); ``main`` shows their INFO lines on stderr for the duration of the command
+(``-q`` where a command has it: warnings only; ``--debug``: everything).
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+from .commands import (demo, plan_fringes, reconstruct, render, render_board, report, run, twin,
+                       unwrap)
+
+#: (sub-command, module), in the order ``calib --help`` lists them.
+COMMANDS = [
+    ("run", run),
+    ("reconstruct", reconstruct),
+    ("twin", twin),
+    ("report", report),
+    ("demo", demo),
+    ("unwrap", unwrap),
+    ("plan-fringes", plan_fringes),
+    ("render", render),
+    ("render-board", render_board),
+]
+
+#: Loggers whose progress the command line shows.
+LOGGERS = ("calib", "unwrap", "twin_mapping", "synth", "reports", "sltwin")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="calib", description="sltwin: structured-light calibration, digital "
+                                     "twin, renderer and phase unwrapping")
+    parser.add_argument("--debug", action="store_true", help="show debug messages of every package")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name, module in COMMANDS:
+        p = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        p.set_defaults(_module=module)
+        module.add_arguments(p)
+    return parser
+
+
+def exit_code(module, exc: Exception) -> tuple[int, str]:
+    """(exit code, message prefix) of a toolkit error raised by a command: the command's own
+    ``EXIT_CODES`` entry for the error's type, else 2."""
+    for error_type, code, prefix in getattr(module, "EXIT_CODES", ()):
+        if isinstance(exc, error_type):
+            return code, prefix
+    return 2, ""
+
+
+def _show_progress(args) -> tuple[logging.Handler, dict]:
+    """Send the packages' log records to stderr while the command runs; returns the handler and
+    the loggers' previous levels, which ``main`` restores."""
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter(getattr(args._module, "LOG_FORMAT", "%(message)s")))
+    level = logging.DEBUG if args.debug else logging.WARNING if getattr(args, "quiet", False) else logging.INFO
+    saved = {}
+    for name in LOGGERS:
+        logger = logging.getLogger(name)
+        saved[name] = logger.level
+        logger.addHandler(handler)
+        logger.setLevel(level)
+    return handler, saved
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    handler, levels = _show_progress(args)
+    try:
+        return int(args._module.run(args) or 0)
+    except (ValueError, FileNotFoundError) as exc:   # toolkit errors are ValueErrors (module docstring)
+        code, prefix = exit_code(args._module, exc)
+        print(f"calib {args.command}: error: {prefix}{exc}", file=sys.stderr)
+        return code
+    except KeyboardInterrupt:
+        print(f"calib {args.command}: interrupted", file=sys.stderr)
+        return 130
+    finally:
+        for name, level in levels.items():
+            logging.getLogger(name).removeHandler(handler)
+            logging.getLogger(name).setLevel(level)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,2 @@
+"""One module per ``calib`` sub-command (``HELP``, ``add_arguments(parser)``, ``run(args)``);
+``sltwin.cli`` registers them."""

@@ -1,0 +1,134 @@
+"""Absolute phase maps on disk: the one reader, and the one writer of DESIGN.md's HDF5 phase layout.
+
+Layout (DESIGN.md): one group per orientation, ``v`` (fringes along projector columns -> u_p) or
+``h`` (rows -> v_p), holding
+
+- ``phase``: (H, W) float64 absolute phase of the group's frequency, rad, NaN where invalid;
+- ``order``: (H, W) int32 fringe order, -1 where invalid (when known);
+- ``valid``: (H, W) bool;
+- any further per-pixel datasets a writer adds (``prior``, ``modulation``, ``phase_f008`` ...);
+- attribute ``frequency`` (periods across the projector pattern) when known.
+
+``read_phase`` also reads the phase maps others publish: a MATLAB ``.mat`` (the dp-tpu ball
+phase: one 2-D array, e.g. ``phase3``) and ``.npy``. Pixels stored as 0, NaN or inf are invalid
+and come back as NaN.
+
+SYNOPSIS
+
+    >>> import numpy as np, tempfile, os
+    >>> from unwrap.phase_io import read_phase, write_phase_file
+    >>> phase = np.array([[0.0, 1.5], [2.5, np.nan]])
+    >>> path = write_phase_file(os.path.join(tempfile.mkdtemp(), "p.h5"), {"v": {"phase": phase}}, frequency=8.0)
+    >>> read_phase(path).tolist()
+    [[nan, 1.5], [2.5, nan]]
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .errors import UnwrapError
+
+ORIENTATIONS = ("v", "h")
+
+
+def read_phase(path, key: str | None = None, orientation: str = "v") -> np.ndarray:
+    """Absolute phase map (H, W) float64, NaN where invalid (stored as 0, NaN or inf).
+
+    ARGUMENTS
+    - path: ``.h5``/``.hdf5`` (DESIGN.md layout: dataset ``{orientation}/phase``, or ``key``),
+      ``.mat`` (the only 2-D array, or the variable ``key``) or ``.npy``.
+    - key: dataset (HDF5) or variable (.mat) name; orientation: ``v`` or ``h`` (HDF5 only).
+    Raises UnwrapError naming the file and what it holds when the map cannot be read.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise UnwrapError(f"{path}: no such phase file")
+    suffix = path.suffix.lower()
+    if suffix == ".mat":
+        phase = _read_mat(path, key)
+    elif suffix == ".npy":
+        phase = np.load(path)
+    elif suffix in (".h5", ".hdf5"):
+        phase = _read_h5(path, key or f"{orientation}/phase")
+    else:
+        raise UnwrapError(f"{path}: unknown phase format (expected .h5, .mat or .npy)")
+    phase = np.array(phase, dtype=np.float64)
+    if phase.ndim != 2:
+        raise UnwrapError(f"{path}: a phase map is 2-D, got shape {phase.shape}")
+    phase[~np.isfinite(phase) | (phase == 0)] = np.nan
+    return phase
+
+
+def _read_mat(path: Path, key):
+    import scipy.io
+
+    try:
+        m = {k: v for k, v in scipy.io.loadmat(str(path)).items() if not k.startswith("__")}
+    except (ValueError, OSError) as exc:
+        raise UnwrapError(f"{path}: not a readable MATLAB file ({exc})") from None
+    arrays = [k for k, v in m.items() if isinstance(v, np.ndarray) and v.ndim == 2]
+    if key is None:
+        if len(arrays) != 1:
+            raise UnwrapError(f"{path}: expected one 2-D phase array, found {arrays}; name the variable")
+        key = arrays[0]
+    if key not in m:
+        raise UnwrapError(f"{path}: no variable {key!r} (2-D arrays: {arrays})")
+    return m[key]
+
+
+def _read_h5(path: Path, key: str):
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            if key not in f:
+                raise UnwrapError(f"{path}: no dataset {key!r} (a phase file of DESIGN.md holds v/phase, h/phase)")
+            return np.asarray(f[key])
+    except OSError as exc:
+        raise UnwrapError(f"{path}: not a readable HDF5 file ({exc})") from None
+
+
+def write_phase_group(h5, orientation: str, phase, *, order=None, valid=None, frequency: float | None = None,
+                      extra: dict | None = None, attrs: dict | None = None, **dataset_options):
+    """Write one orientation group of the layout into an open ``h5py`` file or group ``h5``.
+
+    ``phase`` (H, W) rad (NaN invalid) is stored as float64, ``order`` as int32, ``valid`` as
+    bool (default: where the phase is finite); ``extra`` {name: (H, W, ...) array} adds datasets
+    as given; ``frequency`` and ``attrs`` become attributes. ``dataset_options`` (compression,
+    chunks, ...) go to every ``create_dataset``. Returns the group.
+    """
+    if orientation not in ORIENTATIONS:
+        raise UnwrapError(f"orientation: expected one of {ORIENTATIONS}, got {orientation!r}")
+    phase = np.asarray(phase, dtype=np.float64)
+    g = h5.require_group(orientation)
+    datasets = {"phase": phase}
+    if order is not None:
+        datasets["order"] = np.asarray(order, dtype=np.int32)
+    datasets["valid"] = np.isfinite(phase) if valid is None else np.asarray(valid, dtype=bool)
+    datasets.update(extra or {})
+    for name, data in datasets.items():
+        g.create_dataset(name, data=np.ascontiguousarray(data), **dataset_options)
+    if frequency is not None:
+        g.attrs["frequency"] = frequency
+    g.attrs.update(attrs or {})
+    return g
+
+
+def write_phase_file(path, groups: dict, *, frequency: float | None = None, attrs: dict | None = None,
+                     compression: str = "gzip") -> Path:
+    """Write a phase file: ``groups`` {orientation: keyword arguments of :func:`write_phase_group`
+    (``phase`` required)}, file attributes ``attrs``; ``frequency`` is the default of every group.
+    Returns the path (its folder is created)."""
+    import h5py
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with h5py.File(path, "w") as f:
+        f.attrs.update(attrs or {})
+        for orientation, kw in groups.items():
+            kw = dict(kw)
+            kw.setdefault("frequency", frequency)
+            write_phase_group(f, orientation, kw.pop("phase"), compression=compression, **kw)
+    return path
