@@ -17,8 +17,8 @@ camera noise 0.06 px, projector noise 0.2 px, no outlier rejection. For each num
 ``--baseline DIR``: also run an older checkout's ``calib`` (e.g. ``git archive REV | tar -x -C
 DIR``) on the same problems, for its iterations and times. Then ``calib run`` as a whole on the
 paper's real observations (../shared/data/dp-tpu): wall time (min of repeats, start-up included)
-and CPU time (start-up included) and where ``python -X importtime`` spends the start-up, for the
-command line as it is and for the run sub-command alone. Timings are the minimum over repeats;
+and CPU time (start-up included) and where ``python -X importtime`` spends the start-up. Timings
+are the minimum over repeats;
 CPU times are given beside wall times because the machine may be shared. Prints Markdown tables.
 """
 from __future__ import annotations
@@ -193,20 +193,6 @@ def scale_tables(views, repeats: int, baseline: str | None):
         print(f"\nfailed: {r['error']}")
 
 
-_RUN_ONLY = """
-import argparse, importlib, sys
-for name in ("sltwin.commands.run", "calib.cli_run"):      # the run sub-command's module
-    try:
-        command = importlib.import_module(name)
-        break
-    except ImportError:
-        continue
-parser = argparse.ArgumentParser()
-command.add_arguments(parser)
-sys.exit(command.run(parser.parse_args(sys.argv[1:])))
-"""
-
-
 def _timed_runs(cmd, env, repeats: int):
     """(min wall s, min CPU s of the child) over ``repeats`` runs after one warm-up."""
     walls, cpus = [], []
@@ -228,33 +214,27 @@ def cli_table(repeats: int):
         return
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     with tempfile.TemporaryDirectory() as tmp:
-        args = ["--observations", str(cam), str(prj), "-o", tmp, "-q"]
-        full = [sys.executable, "-m", "sltwin.cli", "run", *args]
-        only = [sys.executable, "-c", _RUN_ONLY, *args]
-        rows = [("`calib run` (today's command line: every sub-command's module is imported to build "
-                 "the parser)", full), ("the run sub-command alone (a command line that imports only the "
-                                        "command it runs)", only)]
-        measured = [(label, *_timed_runs(cmd, env, repeats)) for label, cmd in rows]
-        inner = re.search(r"total ([0-9.]+) s", subprocess.run(only, env=env, check=True, capture_output=True,
+        cmd = [sys.executable, "-c", "import sys; from sltwin.cli import main; sys.exit(main(sys.argv[1:]))",
+               "run", "--observations", str(cam), str(prj), "-o", tmp, "-q"]
+        wall, cpu = _timed_runs(cmd, env, repeats)
+        inner = re.search(r"total ([0-9.]+) s", subprocess.run(cmd, env=env, check=True, capture_output=True,
                                                                 text=True).stdout)
-        imports = {}
-        for label, cmd in rows:
-            imp = subprocess.run([sys.executable, "-X", "importtime", *cmd[1:]], env=env, check=True,
-                                 capture_output=True, text=True).stderr
-            mods = {}
-            for line in imp.splitlines():
-                m = re.match(r"import time:\s+(\d+) \|\s+(\d+) \|( *)(\S+)", line)
-                if m and len(m.group(3)) <= 1:        # top-level imports: cumulative time
-                    mods[m.group(4)] = int(m.group(2)) / 1e6
-            imports[label] = (sorted(mods.items(), key=lambda kv: -kv[1])[:6], "torch" in imp)
+        imp = subprocess.run([sys.executable, "-X", "importtime", *cmd[1:]], env=env, check=True,
+                             capture_output=True, text=True).stderr
+    mods = {}
+    for line in imp.splitlines():
+        m = re.match(r"import time:\s+(\d+) \|\s+(\d+) \|( *)(\S+)", line)
+        if m and len(m.group(3)) <= 1:            # top-level imports: cumulative time
+            mods[m.group(4)] = int(m.group(2)) / 1e6
+    top = sorted(mods.items(), key=lambda kv: -kv[1])[:8]
     print("\n### `calib run --observations CamCalibResult_real.mat PrjCalibResult_real.mat` (paper's real data)\n")
-    print(f"seed + build + solve inside the command: {inner.group(1) if inner else '?'} s\n")
-    print("| command | wall s (min) | CPU s (min) | torch imported | largest top-level imports (cumulative s) |")
-    print("|---|---|---|---|---|")
-    for label, wall, cpu in measured:
-        top, torch = imports[label]
-        print(f"| {label} | {wall:.2f} | {cpu:.2f} | {'yes' if torch else 'no'} | "
-              + ", ".join(f"{n} {t:.2f}" for n, t in top) + " |")
+    print(f"wall {wall:.2f} s, CPU {cpu:.2f} s (min of {repeats} after one warm-up, start-up included); seed + "
+          f"build + solve inside: {inner.group(1) if inner else '?'} s; torch imported: "
+          f"{'yes' if 'torch' in imp else 'no'}\n")
+    print("| top-level import | cumulative s |")
+    print("|---|---|")
+    for name, t in top:
+        print(f"| {name} | {t:.3f} |")
 
 
 def main(argv=None):
