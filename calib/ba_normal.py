@@ -39,16 +39,10 @@ import numpy as np
 
 
 def _spd_inverse(V: np.ndarray) -> np.ndarray:
-    """Inverses of a stack of symmetric positive definite matrices (S, n, n), by Cholesky
-    (``np.linalg.inv`` on many tiny matrices costs ~20x more); LinAlgError if one is not SPD."""
-    L = np.linalg.cholesky(V)
-    n = V.shape[-1]
-    Linv = np.zeros_like(V)
-    for i in range(n):                     # forward substitution, all matrices at once
-        row = -np.einsum("sk,skj->sj", L[:, i, :i], Linv[:, :i, :])
-        row[:, i] += 1.0
-        Linv[:, i, :] = row / L[:, i, i, None]
-    return np.matmul(Linv.transpose(0, 2, 1), Linv)
+    """Inverses of a stack of symmetric positive definite matrices (..., n, n); LinAlgError where
+    one is not positive definite (Cholesky decides)."""
+    np.linalg.cholesky(V)
+    return np.linalg.inv(V)
 
 
 class SingularNormalEquations(np.linalg.LinAlgError):
@@ -121,8 +115,7 @@ class NormalEquations:
         return out
 
     def _reduce(self, lam: float):
-        """(Schur complement S, S^-1, V^-1, Y = W V^-1) with damping ``lam`` (inverses by Cholesky:
-        LAPACK's general solvers, called many times on tiny matrices, cost far more)."""
+        """(Schur complement S, S^-1, V^-1, Y = W V^-1) with damping ``lam``."""
         eye6 = np.eye(6)
         Vd = self.V + lam * eye6
         try:

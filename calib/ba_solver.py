@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ._blas_threads import single_threaded_blas
 from .ba_normal import NormalEquations, SingularNormalEquations
 from .bundle_adjustment import BAProblem, BundleAdjustmentError, RigState
 
@@ -311,6 +312,11 @@ def _outlier_round(problem: BAProblem, ev, inlier, devices, rounds: int, log) ->
 
 def solve(problem: BAProblem) -> BAResult:
     """Solve a built problem (see module docstring); raises BundleAdjustmentError on failure."""
+    with single_threaded_blas():          # small matrices: BLAS threads cost more than they save
+        return _solve(problem)
+
+
+def _solve(problem: BAProblem) -> BAResult:
     cfg = problem.config
     t_start = time.perf_counter()
     log = []

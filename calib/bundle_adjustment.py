@@ -59,6 +59,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -307,9 +308,8 @@ class BAProblem:
     transfer_prj: np.ndarray | None = None
     transfer_cam: np.ndarray | None = None
     transfer_A: np.ndarray | None = None
-    _inv_sigma_rows: np.ndarray | None = None
 
-    @property
+    @cached_property
     def global_free_index(self) -> np.ndarray:
         return np.flatnonzero(self.global_free)
 
@@ -317,11 +317,11 @@ class BAProblem:
     def n_slots(self) -> int:
         return len(self.pose_names)
 
-    @property
+    @cached_property
     def names(self) -> list:
         return list(self.global_names) + [f"{pn}.{a}" for pn in self.pose_names for a in POSE_PARAMS]
 
-    @property
+    @cached_property
     def free(self) -> np.ndarray:
         return np.r_[self.global_free, np.ones(6 * self.n_slots, bool)]
 
@@ -329,12 +329,10 @@ class BAProblem:
     def n_rows(self) -> int:
         return 2 * self.n_slots * self.P_max
 
-    @property
+    @cached_property
     def inv_sigma_rows(self) -> np.ndarray:
         """(rows,) 1 / sigma of each residual row (0 on padding)."""
-        if self._inv_sigma_rows is None:
-            self._inv_sigma_rows = self.point_rows(1.0 / self.point_sigma)
-        return self._inv_sigma_rows
+        return self.point_rows(1.0 / self.point_sigma)
 
     def point_rows(self, values_per_point: np.ndarray) -> np.ndarray:
         """Per-point values (P,) spread onto the padded residual rows (rows,), 0 on padding."""
