@@ -14,7 +14,8 @@ increment into ``R``), so its first and second derivatives with respect to ``w``
 
 Structure, not data, defines a kernel: ``KernelSpec(n_distortion, chain, hessian)``. Its casadi
 function is turned into C, compiled once with the system C compiler (``$CC``, else ``cc``/``gcc``) and
-cached on disk (``$SLTWIN_CACHE_DIR``, else ``$XDG_CACHE_HOME/sltwin``, else ``~/.cache/sltwin``),
+cached on disk (``$SLTWIN_CACHE_DIR/ba_kernels``, else ``$XDG_CACHE_HOME/sltwin/ba_kernels``, else
+``~/.cache/sltwin/ba_kernels``),
 keyed by this module's source, the spec, casadi's installed files and the compiler; two small C loops
 beside it evaluate the points reading numpy arrays in place: ``evaluate`` (outputs per point, or
 summed per row for the second-order kernels) and ``assemble`` (residuals and Jacobian entries
@@ -35,7 +36,6 @@ Per-point inputs (numpy float64; a shared input is a 1-D array used for every po
 | 5 | X | 3 | board point, mm |
 | 6 | warp_basis | 2 | ``(1 - xn^2, 1 - yn^2)`` of the point |
 | 7 | warp | 2 | board warp coefficients, mm |
-
 | 8 | mu | 2 | (second-order kernels only) weights of the two pixel coordinates |
 
 Output row of a point (``KernelSpec.layout``): ``q`` (2) px, ``z`` (1) mm depth in the last device

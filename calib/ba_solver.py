@@ -1,5 +1,5 @@
-"""Gauss-Newton / Levenberg-Marquardt solver, reweighting, outlier rejection and covariance for a
-BAProblem.
+"""Gauss-Newton / Newton solver with Levenberg-Marquardt safeguards, device noise, robust
+reweighting, outlier rejection and covariance for a BAProblem.
 
 The problem (``calib.bundle_adjustment.build_problem``) evaluates whitened residuals and their
 block Jacobian; the normal equations are reduced on the global parameters (``calib.ba_normal``).
@@ -7,30 +7,38 @@ block Jacobian; the normal equations are reduced on the global parameters (``cal
 Iteration. Every iteration linearises once at the current state, with the point weights computed
 *at that state*: device weights (two devices: each device's inlier points weighted by
 ``1 / s_d^2``, ``s_d^2`` the mean squared whitened residual per coordinate of that device) times
-the robust-loss weights (IRLS, on the device-weighted residual norm) times the inlier mask. The
-step is Gauss-Newton (``lam = 0``); Levenberg-Marquardt damping ``lam * diag(J^T J)`` is switched
-on only when a step fails to lower the cost at those weights, and switched off again after a few
-good steps. The run stops when the Gauss-Newton step predicts a cost decrease below
-``tolerance^2 * sigma^2`` (``sigma^2`` the residual variance): the step moves the parameters by
-less than ``tolerance`` standard deviations (Mahalanobis), so the state is a fixed point of the
-weights and the minimiser of the cost they define. Then points beyond ``outlier_threshold``
-robust sigmas (per device) are rejected and the iteration goes on from where it is.
+the robust-loss weights (IRLS, on the device-weighted residual norm) times the inlier mask. With
+two devices and the linear loss the device noise is estimated jointly with the parameters
+(``_Objective``: a profile likelihood whose Hessian adds one rank-one term per device). The step is
+Gauss-Newton (``lam = 0``), or Newton's (the residuals' second-order term added,
+``BAProblem.second_order``) once Gauss-Newton is seen to converge linearly near the optimum; a
+quadratic line search scales it where the objective along it is not the model's;
+Levenberg-Marquardt damping ``lam * diag(J^T J)`` is switched on only when no step lowers the
+objective, and off again after good steps. The run stops when the step predicts a decrease below
+``tolerance^2 * sigma^2`` (``sigma^2`` the residual variance): it would move the parameters by less
+than ``tolerance`` standard deviations (Mahalanobis), so the state is a fixed point of the weights
+and the minimiser of the cost they define. Points beyond ``outlier_threshold`` robust sigmas (per
+device) are rejected as soon as the step is below ``OUTLIER_TOLERANCE`` sigmas, and the iteration
+goes on from where it is.
 
-Why this takes 5-15 linearisations where the previous solver took 60-120 (docs/calib.md has the
-measurements): (1) Gauss-Newton from the start, not damping ``lam = 1e-3`` divided by 5 per step:
-the projector's k2/k3 valley (correlation 0.9995 on the paper's data) has scaled eigenvalues near
-1e-7, so any damping above that turned the solve into a slow linear crawl along the valley (cost
-27.55 -> 27.17 -> 27.10 -> ... over 25 steps); (2) the device weights and robust weights are
-updated at every step instead of in outer rounds that each re-ran a full solve from a fresh
-damping (3-4 rounds of 20-28 steps); (3) convergence is judged on the predicted step in units of
-the parameters' own uncertainty instead of a 1e-15 relative cost decrease, which rounding noise
-rarely satisfies.
+Why this takes 5-18 linearisations where the previous solver took 54-113 (docs/calib.md, "Speed
+and scale", has the measurements): (1) Gauss-Newton from the start, not damping ``lam = 1e-3``
+divided by 5 per step: the smallest scaled eigenvalues of the paper's data are ~1e-7..1e-8 (the
+projector's k2/k3 direction), so any damping above that turned the solve into a crawl (cost 27.55
+-> 27.17 -> 27.10 -> ... over 28 steps); (2) the weights are updated at every step instead of in
+outer rounds that each re-ran a full solve from a fresh damping (4 rounds of 25-28 steps), and the
+device noise converges with the parameters instead of by fixed-point iteration (~25x per step);
+(3) on real data even undamped Gauss-Newton converges only linearly (0.3-0.4 per step, alternating
+directions: the residuals' curvature matters where J^T J is nearly singular; mrcal's dogleg shows
+the same), which the line search and Newton's term remove; (4) convergence is judged on the
+predicted step in units of the parameters' own uncertainty instead of a 1e-15 relative cost
+decrease, which rounding noise rarely satisfies.
 
 Covariance: ``sigma^2 (J^T J)^-1`` from the last Gauss-Newton factorisation, ``sigma^2 = cost /
 (m - n)``. Parameters the data hardly determine are flagged (``BAResult.poorly_determined``; see
 ``poorly_determined``): three standard deviations beyond the value (distortion) or beyond a
 fraction of the focal length / image size, or a correlation near 1 with another parameter of the
-same device.
+same device. A (numerically) singular problem is refused naming what the views do not determine.
 """
 from __future__ import annotations
 

@@ -69,7 +69,6 @@ INTRINSIC_NAMES = ("fx", "fy", "cx", "cy", "skew")
 DISTORTION_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4")
 LOSSES = ("linear", "huber", "cauchy")
 MODES = ("joint", "single")
-SHORT = {"camera": "cam", "projector": "prj"}
 
 
 @dataclass
@@ -172,13 +171,6 @@ class RigState:
                         {k: np.array(v) for k, v in self.dist.items()},
                         {k: (np.array(R), np.array(t)) for k, (R, t) in self.poses.items()},
                         np.array(self.warp))
-
-
-def pose_chain(mode: str, device: str, view: int) -> list[str]:
-    """Names of the poses composed (left to right) to map board view ``view`` into ``device``."""
-    if mode == "single":
-        return [f"{device}_board/{view}"]
-    return [f"cam_board/{view}"] if device == "camera" else ["prj_cam", f"cam_board/{view}"]
 
 
 # -- parameter state --------------------------------------------------------------------------

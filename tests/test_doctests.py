@@ -4,7 +4,8 @@ import importlib
 
 import pytest
 
-MODULES = ["calib.device", "calib.distortion", "calib.rotation", "calib.marker_phase", "unwrap.patterns", "twin_mapping.euler"]
+MODULES = ["calib.device", "calib.distortion", "calib.rotation", "calib.marker_phase", "unwrap.patterns", "twin_mapping.euler",
+           "calib.ba_kernel", "calib.ba_normal", "calib._blas_threads"]
 
 
 @pytest.mark.parametrize("name", MODULES)
