@@ -1,6 +1,6 @@
 """Bundle adjustment at scale: time, iterations and memory against views, and mrcal side by side.
 
-    python -m bench.ba_scale [--views 9 30 100 300] [--repeats 3] [--baseline DIR] [--no-cli]
+    python -m bench.ba_scale [--views 9 30 100 300] [--repeats 3] [--baseline DIR] [--no-cli] [--quick]
 
 Simulated sessions of the paper's system (``calib.default_system()``), the 9 x 11 circle board,
 camera noise 0.06 px, projector noise 0.2 px, no outlier rejection. For each number of views, for
@@ -243,12 +243,15 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--baseline", help="an older checkout to run on the same problems (iterations, times)")
     ap.add_argument("--no-cli", action="store_true", help="skip the calib run measurement")
+    ap.add_argument("--quick", action="store_true", help="9 and 30 views, one repeat (checks that it runs)")
     ap.add_argument("--child", nargs=5, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child:
         v, mode, n_dist, repeats, with_mrcal = args.child
         print(json.dumps(child(int(v), mode, int(n_dist), int(repeats), bool(int(with_mrcal)))))
         return
+    if args.quick:
+        args.views, args.repeats = [v for v in args.views if v <= 30] or [9], 1
     print(f"machine: {os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.1f} at start "
           "(shared with other jobs: times are upper bounds)\n")
     scale_tables(args.views, args.repeats, args.baseline)

@@ -6,13 +6,20 @@
 DESIGN.md convention, world = the board at the first view (as the paper's tables), together with
 the adjustment's uncertainties and residuals.
 
-SYNOPSIS
+SYNOPSIS (the paper's own observations: ``from_bouguet("CamCalibResult_real.mat",
+"PrjCalibResult_real.mat")``; here simulated, noise-free, so the truth comes back)
 
-    >>> from calib.calibrate import run_calibration               # doctest: +SKIP
-    >>> from calib.observations import from_bouguet                # doctest: +SKIP
-    >>> obs = from_bouguet("CamCalibResult_real.mat", "PrjCalibResult_real.mat")  # doctest: +SKIP
-    >>> cal = run_calibration(obs)                                 # doctest: +SKIP
-    >>> cal.system.projector.fy                                    # doctest: +SKIP
+    >>> import numpy as np
+    >>> from calib import default_system
+    >>> from calib.board import Board
+    >>> from calib.bundle_adjustment import BAConfig
+    >>> from calib.calibrate import run_calibration
+    >>> from calib.simulate import simulate_observations
+    >>> s = default_system().ideal()          # no skew: the default model holds it at 0
+    >>> obs, _ = simulate_observations(s, Board("checkerboard", 5, 7, 20.0), 6, 0.0, np.random.default_rng(0))
+    >>> cal = run_calibration(obs, BAConfig(outlier_threshold=None))
+    >>> round(cal.system.projector.fy / s.projector.fy, 6)
+    1.0
 """
 from __future__ import annotations
 

@@ -33,6 +33,15 @@ def uncertainties(cal: Calibration) -> dict:
     return out
 
 
+def covariance_of_system(cal: Calibration) -> dict:
+    """The joint covariance of the device intrinsics and the rig transform (``camera.fx``, ...,
+    ``prj_cam.w0..w2`` (rad, tangent: ``R = R0 Exp(w)``), ``prj_cam.t0..t2`` (mm)), without the
+    board poses: what a twin needs to draw systems from the calibration's posterior."""
+    keep = [k for k, n in enumerate(cal.ba.free_names) if "/" not in n and not n.startswith("board_warp")]
+    cov = np.asarray(cal.ba.cov)[np.ix_(keep, keep)]
+    return {"names": [cal.ba.free_names[k] for k in keep], "matrix": cov.tolist()}
+
+
 def calibration_dict_extra(cal: Calibration, obs) -> dict:
     ba = cal.ba
     poses = []
@@ -44,6 +53,7 @@ def calibration_dict_extra(cal: Calibration, obs) -> dict:
         poses.append(e)
     extra = {
         "uncertainties_1sigma": uncertainties(cal),
+        "covariance": covariance_of_system(cal),
         "residuals": {k: v for k, v in ba.stats.items()},
         "rejected_points": ba.rejected,
         "board_poses": poses,

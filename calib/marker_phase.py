@@ -118,35 +118,11 @@ def _fit_one(dx, dy, values, weights, degree, reject_sigma, min_pixels):
     return float(coef[0]), sigma, int(keep.sum()), int(len(values) - keep.sum()), rms, coef[1:3].copy()
 
 
-def fit_projector_points(q_cam, u_map, v_map, *, valid_u=None, valid_v=None, weight_u=None, weight_v=None,
-                         radius_px=10.0, inner_px=0.0, degree: int = 2, reject_sigma: float = 4.0,
-                         min_pixels: int = 12, exclude=None) -> ProjectorPointFit:
-    """Fit the projector pixel of every camera feature.
-
-    ARGUMENTS
-    - q_cam: (N, 2) camera pixels (x right, y down; pixel centres at integers).
-    - u_map, v_map: (H, W) decoded projector column / row coordinate of every camera pixel (px,
-      float64; NaN where invalid). Either may be None (that coordinate is then NaN).
-    - valid_u, valid_v: optional (H, W) bool masks (default: finite values).
-    - weight_u, weight_v: optional (H, W) inverse-variance weights (use the squared modulation B^2
-      of the finest fringe set); default equal weights.
-    - radius_px: scalar or (N,) outer radius of each window, camera px.
-    - inner_px: scalar or (N,) inner radius excluded (the feature's own dark circle), camera px.
-    - degree: 1 (affine) or 2 (quadratic) local model.
-    - reject_sigma: outlier pixels beyond this many robust sigmas are dropped and the fit repeated.
-    - min_pixels: fewer usable pixels than this and the feature fails (reason recorded).
-    - exclude: optional (H, W) bool mask of pixels never to use (e.g. other features' circles).
-
-    RETURNS a :class:`ProjectorPointFit`.
-    """
-    q_cam = np.asarray(q_cam, dtype=np.float64)
-    if q_cam.ndim != 2 or q_cam.shape[1] != 2:
-        raise MarkerPhaseError(f"q_cam: expected shape (N, 2), got {q_cam.shape}")
-    if degree not in N_TERMS:
-        raise MarkerPhaseError(f"degree: expected 1 or 2, got {degree!r}")
+def _prepared_maps(items, exclude) -> dict:
+    """{name: (map, usable (H, W) bool, weight (H, W))} of the coordinate maps given, checked."""
     maps = {}
     shape = None
-    for name, m, valid, weight in (("u", u_map, valid_u, weight_u), ("v", v_map, valid_v, weight_v)):
+    for name, m, valid, weight in items:
         if m is None:
             continue
         m = np.asarray(m, dtype=np.float64)
@@ -174,7 +150,68 @@ def fit_projector_points(q_cam, u_map, v_map, *, valid_u=None, valid_v=None, wei
         maps[name] = (m, ok, w)
     if not maps:
         raise MarkerPhaseError("neither u_map nor v_map given")
-    H, W = shape
+    return maps
+
+
+def _fit_feature(x, y, r, inner, maps, degree, reject_sigma, min_pixels):
+    """The fits of one feature at camera pixel (x, y), window radii ``r`` / ``inner``: yields
+    (coordinate index j, (value, sigma, n used, n rejected, rms, gradient (2,) per camera px) or
+    a failure message)."""
+    H, W = next(iter(maps.values()))[0].shape
+    x0, x1 = max(int(np.floor(x - r)), 0), min(int(np.ceil(x + r)), W - 1)
+    y0, y1 = max(int(np.floor(y - r)), 0), min(int(np.ceil(y + r)), H - 1)
+    if x0 > x1 or y0 > y1:
+        yield 0, f"window around ({x:.1f}, {y:.1f}) lies outside the {W}x{H} image"
+        return
+    yy, xx = np.mgrid[y0:y1 + 1, x0:x1 + 1]
+    dx = xx - x
+    dy = yy - y
+    d2 = dx * dx + dy * dy
+    ring = (d2 <= r * r) & (d2 >= inner ** 2)
+    for j, name in enumerate(("u", "v")):
+        if name not in maps:
+            continue
+        m, ok, w = maps[name]
+        sel = ring & ok[y0:y1 + 1, x0:x1 + 1]
+        wv = w[y0:y1 + 1, x0:x1 + 1][sel]
+        if wv.size == 0:
+            yield j, f"{name}_p: no valid decoded pixel within {r:.1f} px of ({x:.1f}, {y:.1f})"
+            continue
+        wv = wv / wv.mean()
+        out = _fit_one(dx[sel] / r, dy[sel] / r, m[y0:y1 + 1, x0:x1 + 1][sel], wv, degree, reject_sigma, min_pixels)
+        if isinstance(out, str):
+            yield j, f"{name}_p: {out} within {r:.1f} px of ({x:.1f}, {y:.1f})"
+            continue
+        yield j, out[:5] + (out[5] / r,)
+
+
+def fit_projector_points(q_cam, u_map, v_map, *, valid_u=None, valid_v=None, weight_u=None, weight_v=None,
+                         radius_px=10.0, inner_px=0.0, degree: int = 2, reject_sigma: float = 4.0,
+                         min_pixels: int = 12, exclude=None) -> ProjectorPointFit:
+    """Fit the projector pixel of every camera feature.
+
+    ARGUMENTS
+    - q_cam: (N, 2) camera pixels (x right, y down; pixel centres at integers).
+    - u_map, v_map: (H, W) decoded projector column / row coordinate of every camera pixel (px,
+      float64; NaN where invalid). Either may be None (that coordinate is then NaN).
+    - valid_u, valid_v: optional (H, W) bool masks (default: finite values).
+    - weight_u, weight_v: optional (H, W) inverse-variance weights (use the squared modulation B^2
+      of the finest fringe set); default equal weights.
+    - radius_px: scalar or (N,) outer radius of each window, camera px.
+    - inner_px: scalar or (N,) inner radius excluded (the feature's own dark circle), camera px.
+    - degree: 1 (affine) or 2 (quadratic) local model.
+    - reject_sigma: outlier pixels beyond this many robust sigmas are dropped and the fit repeated.
+    - min_pixels: fewer usable pixels than this and the feature fails (reason recorded).
+    - exclude: optional (H, W) bool mask of pixels never to use (e.g. other features' circles).
+
+    RETURNS a :class:`ProjectorPointFit`.
+    """
+    q_cam = np.asarray(q_cam, dtype=np.float64)
+    if q_cam.ndim != 2 or q_cam.shape[1] != 2:
+        raise MarkerPhaseError(f"q_cam: expected shape (N, 2), got {q_cam.shape}")
+    if degree not in N_TERMS:
+        raise MarkerPhaseError(f"degree: expected 1 or 2, got {degree!r}")
+    maps = _prepared_maps((("u", u_map, valid_u, weight_u), ("v", v_map, valid_v, weight_v)), exclude)
     n = len(q_cam)
     radius = np.broadcast_to(np.asarray(radius_px, dtype=np.float64), (n,))
     inner = np.broadcast_to(np.asarray(inner_px, dtype=np.float64), (n,))
@@ -192,34 +229,11 @@ def fit_projector_points(q_cam, u_map, v_map, *, valid_u=None, valid_v=None, wei
         if not (np.isfinite(x) and np.isfinite(y)):
             reasons[i] = "camera point is not finite"
             continue
-        r = radius[i]
-        x0, x1 = max(int(np.floor(x - r)), 0), min(int(np.ceil(x + r)), W - 1)
-        y0, y1 = max(int(np.floor(y - r)), 0), min(int(np.ceil(y + r)), H - 1)
-        if x0 > x1 or y0 > y1:
-            reasons[i] = f"window around ({x:.1f}, {y:.1f}) lies outside the {W}x{H} image"
-            continue
-        yy, xx = np.mgrid[y0:y1 + 1, x0:x1 + 1]
-        dx = xx - x
-        dy = yy - y
-        d2 = dx * dx + dy * dy
-        ring = (d2 <= r * r) & (d2 >= inner[i] ** 2)
-        for j, name in enumerate(("u", "v")):
-            if name not in maps:
-                continue
-            m, ok, w = maps[name]
-            sel = ring & ok[y0:y1 + 1, x0:x1 + 1]
-            wv = w[y0:y1 + 1, x0:x1 + 1][sel]
-            if wv.size == 0:
-                reasons[i] = f"{name}_p: no valid decoded pixel within {r:.1f} px of ({x:.1f}, {y:.1f})"
-                continue
-            wv = wv / wv.mean()
-            out = _fit_one(dx[sel] / r, dy[sel] / r, m[y0:y1 + 1, x0:x1 + 1][sel], wv, degree,
-                           reject_sigma, min_pixels)
+        for j, out in _fit_feature(x, y, radius[i], inner[i], maps, degree, reject_sigma, min_pixels):
             if isinstance(out, str):
-                reasons[i] = f"{name}_p: {out} within {r:.1f} px of ({x:.1f}, {y:.1f})"
+                reasons[i] = out
                 continue
-            q_prj[i, j], sigma[i, j], n_pix[i, j], n_rej[i, j], rms[i, j], g = out
-            grad[i, j] = g / r
+            q_prj[i, j], sigma[i, j], n_pix[i, j], n_rej[i, j], rms[i, j], grad[i, j] = out
     cols = [j for j, name in enumerate(("u", "v")) if name in maps]
     ok_all = np.all(np.isfinite(q_prj[:, cols]), axis=1)
     return ProjectorPointFit(q_prj, sigma, n_pix, n_rej, rms, ok_all, reasons, grad)

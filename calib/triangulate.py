@@ -14,6 +14,12 @@ Two methods, both float64 and vectorised over pixels:
 
 Points are returned in the world frame (mm); invalid inputs give NaN rows and a False mask.
 
+From a phase map: :func:`points_from_phase` (every pixel with a valid absolute phase -> a world
+point, by either method), :func:`sphere_from_phase` (those points -> a least-squares sphere, the
+paper's Fig. 3 measure) and :func:`cross_reconstruction` (every pair of calibration and phase map).
+This is the one phase -> points -> sphere path of the toolkit (``calib reconstruct``, the report's
+ball matrix and the twin ball's pose all use it).
+
 SYNOPSIS
 
     >>> import numpy as np
@@ -31,6 +37,10 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import TriangulationError
+
+METHODS = ("distortion-aware", "linear")
+"""Triangulation methods: ours (:func:`triangulate`) and the paper's (:func:`triangulate_linear`)."""
+_ALIASES = {"ours": "distortion-aware", "distortion": "distortion-aware"}
 
 
 def _check(q_cam, coord):
@@ -67,8 +77,8 @@ def triangulate(system, q_cam, coord, orientation: str = "v", *, iterations: int
     q, c = _check(q_cam, coord)
     cam, prj = system.camera, system.projector
     rays, ok = cam.unproject(q)  # camera frame (x, y, 1)
-    R_pc = prj.R @ cam.R.T
-    t_pc = prj.t - R_pc @ cam.t
+    R_prj_cam = prj.R @ cam.R.T
+    t_prj_cam = prj.t - R_prj_cam @ cam.t
     # start: projector's other coordinate at its principal point
     other = np.full(len(q), prj.cy if orientation == "v" else prj.cx)
     lam = np.full(len(q), np.nan)
@@ -80,12 +90,12 @@ def triangulate(system, q_cam, coord, orientation: str = "v", *, iterations: int
         ra, oka = prj.unproject(a)
         rb, okb = prj.unproject(b)
         n = np.cross(ra, rb)                      # plane normal, projector frame
-        n_cam = n @ R_pc                          # R_pc^T n, camera frame
+        n_cam = n @ R_prj_cam                          # R_prj_cam^T n, camera frame
         denom = np.sum(n_cam * rays, axis=1)
         with np.errstate(divide="ignore", invalid="ignore"):
-            lam = -(n @ t_pc) / denom
+            lam = -(n @ t_prj_cam) / denom
         X_cam = rays * lam[:, None]
-        p = prj.project_device(X_cam @ R_pc.T + t_pc)
+        p = prj.project_device(X_cam @ R_prj_cam.T + t_prj_cam)
         new_other = p[:, 1] if orientation == "v" else p[:, 0]
         step = np.abs(new_other - other)
         other = np.where(np.isfinite(new_other), new_other, other)
@@ -97,6 +107,78 @@ def triangulate(system, q_cam, coord, orientation: str = "v", *, iterations: int
     X = (X_cam - cam.t) @ cam.R  # camera -> world: R^T (x - t)
     X[~ok] = np.nan
     return X, ok
+
+
+def _method(method: str):
+    name = _ALIASES.get(method, method)
+    if name not in METHODS:
+        raise TriangulationError(f"method: expected one of {METHODS}, got {method!r}")
+    return triangulate if name == "distortion-aware" else triangulate_linear
+
+
+def points_from_phase(system, phase, frequency: float, orientation: str = "v", method: str = "distortion-aware"):
+    """World points of every camera pixel with a valid absolute phase.
+
+    ARGUMENTS
+    - system: calib.SystemModel; phase: (H, W) absolute phase (rad) of fringes with ``frequency``
+      periods across the projector, NaN (or inf) where invalid, the camera's image size.
+    - orientation: "v" (fringes along projector columns: u_p) or "h" (rows: v_p).
+    - method: "distortion-aware" (:func:`triangulate`) or "linear" (:func:`triangulate_linear`).
+    RETURNED VALUE: (points_world (N, 3) mm, q_cam (N, 2) px, ok (N,)) over the N valid pixels,
+    row-major; points are NaN where not ok.
+    """
+    from unwrap.patterns import projector_coordinate
+
+    fn = _method(method)
+    phase = np.asarray(phase, dtype=np.float64)
+    if phase.shape != (system.camera.height, system.camera.width):
+        raise TriangulationError(f"phase map {phase.shape[1]}x{phase.shape[0]} (W x H) does not match the camera "
+                                 f"image {system.camera.width}x{system.camera.height}")
+    if orientation not in ("v", "h"):
+        raise TriangulationError(f"orientation: expected 'v' or 'h', got {orientation!r}")
+    valid = np.isfinite(phase)
+    v, u = np.nonzero(valid)
+    q_cam = np.stack([u, v], axis=1).astype(np.float64)
+    extent = system.projector.width if orientation == "v" else system.projector.height
+    coord = projector_coordinate(phase[valid], frequency, extent)
+    points, ok = fn(system, q_cam, coord, orientation)
+    return points, q_cam, ok
+
+
+def sphere_from_phase(system, phase, frequency: float, orientation: str = "v", method: str = "linear",
+                      min_points: int = 100) -> dict:
+    """Reconstruct a phase map of a ball (:func:`points_from_phase`) and fit a sphere
+    (:func:`fit_sphere`). Refused below ``min_points`` valid pixels or reconstructed points.
+
+    RETURNED VALUE: ``{"rms_um", "radius_mm", "centre_mm" (world, list), "points"}``: the RMS of
+    the fit residuals (um), the sphere, and the number of points fitted.
+    """
+    n_valid = int(np.isfinite(np.asarray(phase, dtype=np.float64)).sum())
+    if n_valid < min_points:
+        raise TriangulationError(f"only {n_valid} valid phase pixels: no sphere to fit (need {min_points})")
+    points, _, ok = points_from_phase(system, phase, frequency, orientation, method)
+    if ok.sum() < min_points:
+        raise TriangulationError(f"only {int(ok.sum())} of {n_valid} valid pixels triangulate (need {min_points}): "
+                                 "wrong calibration or frequency?")
+    centre, radius, residuals = fit_sphere(points[ok])
+    return {"rms_um": float(1000 * np.sqrt(np.mean(residuals ** 2))), "radius_mm": float(radius),
+            "centre_mm": centre.tolist(), "points": int(ok.sum())}
+
+
+def cross_reconstruction(systems: dict, phases: dict, frequency: float, orientation: str = "v") -> list[dict]:
+    """The paper's Fig. 3 as a computation: :func:`sphere_from_phase` for every (phase map,
+    calibration) pair and both methods. ``systems`` {label: SystemModel}, ``phases`` {label: (H, W)}.
+
+    RETURNED VALUE: rows ``{"phase", "calibration", "method", "rms_um", "radius_mm", "centre_mm",
+    "points"}``, phases outermost, then calibrations, then methods ("linear", "distortion-aware").
+    """
+    rows = []
+    for pk, phase in phases.items():
+        for ck, system in systems.items():
+            for method in ("linear", "distortion-aware"):
+                rows.append({"phase": pk, "calibration": ck, "method": method,
+                             **sphere_from_phase(system, phase, frequency, orientation, method)})
+    return rows
 
 
 def fit_sphere(points):

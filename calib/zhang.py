@@ -11,8 +11,17 @@ fronto-parallel, too few views) is refused with a message saying so.
 SYNOPSIS
 
     >>> import numpy as np
+    >>> from calib import default_system
+    >>> from calib.board import Board
+    >>> from calib.simulate import simulate_observations
     >>> from calib.zhang import init_device
-    >>> # seed = init_device(points_board_list, q_list, size=(640, 480))   # doctest: +SKIP
+    >>> s = default_system()
+    >>> obs, _ = simulate_observations(s, Board("checkerboard", 5, 7, 20.0), 6, 0.0, np.random.default_rng(0))
+    >>> seen = [v.seen("camera") for v in obs.views]
+    >>> seed = init_device([v.points_board[m] for v, m in zip(obs.views, seen)],
+    ...                    [v.q["camera"][m] for v, m in zip(obs.views, seen)], s.camera.size)
+    >>> bool(abs(seed.K[0, 0] / s.camera.fx - 1) < 1e-3), bool(seed.rms_px < 1e-3)
+    (True, True)
 """
 from __future__ import annotations
 

@@ -28,8 +28,8 @@ import argparse
 import logging
 import sys
 
-from .commands import (demo, plan_fringes, reconstruct, render, render_board, report, run, twin,
-                       unwrap)
+from .commands import (demo, export, plan_fringes, reconstruct, render, render_board, report, run,
+                       twin, unwrap)
 
 #: (sub-command, module), in the order ``calib --help`` lists them.
 COMMANDS = [
@@ -42,6 +42,7 @@ COMMANDS = [
     ("plan-fringes", plan_fringes),
     ("render", render),
     ("render-board", render_board),
+    ("export", export),
 ]
 
 #: Loggers whose progress the command line shows.

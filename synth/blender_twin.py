@@ -4,10 +4,11 @@ itself. Used by the parity tests and the benchmark.
 One Blender scene builder serves the whole toolkit: the twin's exported scene script
 (``twin_mapping.blender_export``, body ``twin_mapping/blender_template.py``: camera, projector as
 a textured zero-radius SPOT light per BLENDER-NOTES, Cycles on the CPU with 1 point-sampled
-path per pixel, direct light only, view transform Raw, dither 0). ``blender_parity_driver.py``
-runs that script and adds only what parity needs: the Lambertian surfaces, the pattern image
-on the spot light, the sample count, 16-bit linear PNG output and, optionally, the camera's
-depth of field. Skew and distortion are not representable in Blender: give an ideal system
+path per pixel, direct light only, view transform Raw, dither 0), and one driver runs it
+(``twin_mapping/blender_driver.py`` through :func:`twin_mapping.blender_run.run_in_blender`);
+its ``render`` job adds only what parity needs: the Lambertian surfaces, the pattern image on
+the spot light, the sample count, 16-bit linear PNG output and, optionally, the camera's depth
+of field. Skew and distortion are not representable in Blender: give an ideal system
 (``synth.ideal_system``); anything else is refused.
 
 Radiometry: the spot is a point source of P/(4 pi) W/sr, so a Lambertian surface of albedo rho
@@ -18,25 +19,14 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 import tempfile
-import time
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
+from twin_mapping.blender_run import blender_available, run_in_blender  # noqa: F401  (kept name)
+
 from .errors import SynthError
-
-
-def blender_available(python: str | None = None) -> bool:
-    """True when ``python -c 'import bpy'`` works."""
-    try:
-        r = subprocess.run([python or sys.executable, "-c", "import bpy"], capture_output=True, timeout=120)
-    except (OSError, subprocess.TimeoutExpired):
-        return False
-    return r.returncode == 0
 
 
 def blender_twin(system) -> dict:
@@ -60,10 +50,13 @@ def blender_twin(system) -> dict:
 
 def render_in_blender(system, meshes, patterns: np.ndarray, *, exposure: float, reference_distance_mm: float,
                       threads: int = 2, samples: int = 1, camera_dof: dict | None = None,
-                      python: str | None = None, workdir=None, timeout: float = 600) -> dict:
+                      python: str | None = None, workdir=None, timeout: float = 600, subsurface: dict | None = None,
+                      bounces: int = 0) -> dict:
     """Render ``patterns`` (K, H_p, W_p) in [0, 1] with Cycles in a subprocess.
 
     ``meshes``: list of ``(vertices_world (V,3) mm, faces (F,3), albedo, smooth)``.
+    ``subsurface``: None or ``{"weight", "radius_mm", "method"}`` for every mesh (Cycles' subsurface
+    scattering; needs ``bounces`` > 0 and ``samples`` > 1).
     ``camera_dof``: None (pinhole) or ``{"focus_mm": camera depth in focus, "aperture_mm":
     aperture diameter}`` (thin lens, circular aperture; needs ``samples`` > 1 to converge).
     RETURNED VALUE: {"images": (K,H,W) float64 linear values in [0, 1] (16-bit PNG / 65535),
@@ -79,16 +72,10 @@ def render_in_blender(system, meshes, patterns: np.ndarray, *, exposure: float, 
     cfg = {"power_w": 4 * math.pi ** 2 * exposure * (reference_distance_mm / 1000.0) ** 2,
            "threads": int(threads), "samples": int(samples), "camera_dof": camera_dof,
            "projector_size": list(system.projector.size), "patterns": str(tmp / "patterns.npy"), "out": str(tmp),
+           "bounces": int(bounces),
            "objects": [{"vertices": np.asarray(V).tolist(), "faces": np.asarray(F).tolist(), "albedo": float(a),
-                        "smooth": bool(s)} for V, F, a, s in meshes]}
-    (tmp / "config.json").write_text(json.dumps(cfg))
-    driver = resources.files("synth").joinpath("blender_parity_driver.py")
-    t0 = time.perf_counter()
-    r = subprocess.run([python or sys.executable, str(driver), str(script), str(tmp / "config.json")],
-                       capture_output=True, text=True, timeout=timeout)
-    wall = time.perf_counter() - t0
-    if r.returncode != 0:
-        raise RuntimeError(f"Blender render failed (exit {r.returncode}):\n{r.stderr[-3000:]}")
+                        "smooth": bool(s), "subsurface": subsurface} for V, F, a, s in meshes]}
+    wall = run_in_blender("render", script, cfg, tmp, python=python, timeout=timeout)
     imgs = np.stack([cv2.imread(str(tmp / f"{k:03d}.png"), cv2.IMREAD_UNCHANGED).astype(np.float64) / 65535.0
                      for k in range(len(patterns))])
     times = json.loads((tmp / "times.json").read_text())["times"]

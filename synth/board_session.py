@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .boards import BoardSpec
+from .boards import BoardTexture
 from .effects import Effects, Noise
 from .errors import SynthError
 from .objects import Board
@@ -53,8 +53,9 @@ def _toml_value(v) -> str:
     return repr(v)
 
 
-def capture_toml(board: BoardSpec, steps, frequencies, camera_size, projector_size, extra=None) -> str:
-    tables = {"board": board.capture_toml_table(),
+def capture_toml(board, steps, frequencies, camera_size, projector_size, extra=None) -> str:
+    """The text of capture.toml (DESIGN.md) for ``board`` (``calib.board.Board``) and the pattern."""
+    tables = {"board": board.to_dict(),
               "pattern": {"steps": list(steps), "frequencies": list(frequencies)},
               "camera": {"size": list(camera_size)}, "projector": {"size": list(projector_size)}}
     if extra:
@@ -88,11 +89,12 @@ def pose_jitter(n_poses: int, rotation_deg: float, translation_mm: float, seed: 
 
 
 def render_board_session(out_dir, system=None, *, steps: int = 12, frequencies=(1, 8, 48), n_poses: int = 9,
-                         bits: int = 8, seed: int = 0, noise: Noise | None = Noise(), board: BoardSpec = BoardSpec(),
+                         bits: int = 8, seed: int = 0, noise: Noise | None = Noise(), board=None,
                          effects: Effects | None = None, truth_h5: bool = False, jitter=None,
                          progress=None) -> dict:
     """Render the session into ``out_dir`` (capture.toml, pose_XX/*.png, truth.json); returns
-    the truth dictionary. ``noise`` None renders noise-free; its seed is offset per pose.
+    the truth dictionary. ``board``: a :class:`synth.boards.BoardTexture` or a ``calib.board.Board``
+    (default: the paper's board). ``noise`` None renders noise-free; its seed is offset per pose.
     ``jitter`` ``(rotation_deg, translation_mm)`` perturbs every board pose at random
     (``pose_jitter``, drawn from ``seed``): a repeated session with the board placed again.
     One progress line per pose goes to the ``synth`` logger (or to ``progress``, a callable)."""
@@ -108,34 +110,36 @@ def render_board_session(out_dir, system=None, *, steps: int = 12, frequencies=(
     out_dir.mkdir(parents=True, exist_ok=True)
     poses, visible, timings = [], [], []
     Rc, tc = system.camera.R, system.camera.t
-    pts = board.points_board()
+    texture = board if isinstance(board, BoardTexture) else BoardTexture() if board is None else BoardTexture(board)
+    pts = texture.board.points_board()
     perturb = pose_jitter(n_poses, *jitter, seed) if jitter is not None else None
     for i, (rx, ry) in enumerate(session_tilts(n_poses, seed)):
         t0 = time.perf_counter()
-        R_wb = rotation_xyz_deg([rx, ry, 0.0])
-        t_wb = np.zeros(3)
+        R_world_board = rotation_xyz_deg([rx, ry, 0.0])
+        t_world_board = np.zeros(3)
         if perturb is not None:
-            R_wb, t_wb = perturb[i][0] @ R_wb, perturb[i][1].copy()
+            R_world_board, t_world_board = perturb[i][0] @ R_world_board, perturb[i][1].copy()
         eff = replace(base, noise=replace(noise, seed=int(noise.seed) + 1000 * int(seed) + i) if noise else None)
-        scene = Scene(system, [Board("board", R_wb, t_wb, board)], patterns, eff, name=f"pose_{i:02d}")
+        scene = Scene(system, [Board("board", R_world_board, t_world_board, texture)], patterns, eff,
+                      name=f"pose_{i:02d}")
         result = render(scene)
         pose_dir = out_dir / f"pose_{i:02d}"
         write_pngs(result, pose_dir)
         if truth_h5:
             write_truth_h5(result, scene, pose_dir / "truth.h5")
-        R_cb = Rc @ R_wb
-        poses.append({"R": R_cb.tolist(), "t": (Rc @ t_wb + tc).tolist(), "tilt_deg": [rx, ry, 0.0]})
-        q = system.camera.project(pts @ R_wb.T + t_wb)
+        R_cam_board = Rc @ R_world_board
+        poses.append({"R": R_cam_board.tolist(), "t": (Rc @ t_world_board + tc).tolist(), "tilt_deg": [rx, ry, 0.0]})
+        q = system.camera.project(pts @ R_world_board.T + t_world_board)
         W, H = system.camera.size
         visible.append(int(np.sum((q[:, 0] >= 0) & (q[:, 0] <= W - 1) & (q[:, 1] >= 0) & (q[:, 1] <= H - 1))))
         timings.append(time.perf_counter() - t0)
         (progress or log.info)(f"pose {i + 1}/{n_poses}: tilt ({rx:+.1f}, {ry:+.1f}) deg, {len(patterns)} images, "
                                  f"{visible[-1]}/{len(pts)} board points in view, {timings[-1]:.1f} s")
     (out_dir / "capture.toml").write_text(capture_toml(
-        board, [int(steps)] * len(freqs), freqs, system.camera.size, system.projector.size,
+        texture.board, [int(steps)] * len(freqs), freqs, system.camera.size, system.projector.size,
         {"bits": int(bits), "seed": int(seed), "noise": noise is not None, "software": "sltwin synth"}))
     truth = system_to_dict(system)
-    truth.update({"board_poses": poses, "board": board.capture_toml_table(),
+    truth.update({"board_poses": poses, "board": texture.board.to_dict(),
                   "board_points_in_view": visible, "pattern": {"steps": int(steps), "frequencies": freqs},
                   "effects": base.to_dict(), "noise": None if noise is None else vars(noise) if hasattr(noise, "__dict__") else str(noise),
                   "seed": int(seed), "jitter": None if jitter is None else [float(j) for j in jitter],

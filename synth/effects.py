@@ -8,12 +8,12 @@ Radiometry (linear camera value before gain, 1.0 = full scale):
 between the surface normal and the direction to the projector (Lambertian; 1 when shading is
 "none"), ``d_p`` the distance to the projector centre (the inverse-square term is 1 when
 ``falloff`` is false), ``d_ref`` the reference distance (default: projector centre to world
-origin). Then: camera defocus, Poisson-Gaussian noise (electrons), gain, saturation at full
+origin). Then: global illumination (optional, synth.global_illumination), camera defocus, Poisson-Gaussian noise (electrons), gain, saturation at full
 scale, quantisation to ``bits``.
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 from .errors import SynthError
 
@@ -41,6 +41,30 @@ class Noise:
 
 
 @dataclass(frozen=True)
+class GlobalIllumination:
+    """Subsurface scattering and interreflections (synth.global_illumination): a fraction
+    ``subsurface`` of the direct light leaves the object after a Gaussian spread of
+    ``scatter_mm`` over its surface; a fraction ``interreflection`` comes back from the surrounding
+    surfaces after a spread of ``interreflection_mm``. ``per_object``: ((fraction, scatter_mm), ...)
+    per scene object (its material), overriding the first two."""
+
+    subsurface: float = 0.0
+    scatter_mm: float = 2.0
+    interreflection: float = 0.0
+    interreflection_mm: float = 40.0
+    per_object: tuple = ()
+
+    def materials(self, n_objects: int) -> list:
+        """(fraction, scatter_mm) of each of ``n_objects`` objects."""
+        return [self.per_object[i] if i < len(self.per_object) else (self.subsurface, self.scatter_mm)
+                for i in range(n_objects)]
+
+    @property
+    def active(self) -> bool:
+        return self.interreflection > 0 or self.subsurface > 0 or any(s > 0 for s, _ in self.per_object)
+
+
+@dataclass(frozen=True)
 class Effects:
     exposure: float = 0.8
     shading: str = "lambert"          # "lambert" | "none"
@@ -56,6 +80,7 @@ class Effects:
     gain: float = 1.0
     saturation: float = 1.0
     noise: Noise | None = None
+    global_illumination: GlobalIllumination | None = None
     bits: int = 8
     vignetting: float = 0.0           # strength: factor 1 - s * (1 - cos^4 theta)
     fringe_sampling: str = "analytic"  # "analytic" | "bilinear" | "nearest"
@@ -108,6 +133,25 @@ def _sub(d, cls, key):
     return out
 
 
+def _global_illumination(d) -> GlobalIllumination | None:
+    from .global_illumination import validate_materials
+
+    if d is None or d is False:
+        return None
+    d = dict(d) if isinstance(d, dict) else d
+    if not isinstance(d, dict):
+        raise SynthError(f"effects.global_illumination: expected a table, got {d!r}")
+    per = validate_materials(d.pop("per_object", []))
+    out = _sub(d, GlobalIllumination, "global_illumination") or GlobalIllumination()
+    for k in ("subsurface", "interreflection"):
+        if getattr(out, k) > 1:
+            raise SynthError(f"effects.global_illumination.{k}: expected a fraction in [0, 1], got {getattr(out, k)}")
+    for k in ("scatter_mm", "interreflection_mm"):
+        if getattr(out, k) <= 0:
+            raise SynthError(f"effects.global_illumination.{k}: expected > 0, got {getattr(out, k)}")
+    return replace(out, per_object=per)
+
+
 def effects_from_table(d: dict | None) -> Effects:
     """``[effects]`` table -> Effects; unknown keys and bad values raise SynthError naming them."""
     d = dict(d or {})
@@ -133,6 +177,8 @@ def effects_from_table(d: dict | None) -> Effects:
             kw[k] = _sub(v, Defocus, k)
         elif k == "noise":
             kw[k] = _sub(v, Noise, k)
+        elif k == "global_illumination":
+            kw[k] = _global_illumination(v)
         elif k == "bits":
             if v not in (8, 10, 12, 16):
                 raise SynthError(f"effects.bits: expected 8, 10, 12 or 16, got {v!r}")

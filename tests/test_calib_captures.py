@@ -50,11 +50,10 @@ def truth_detector(folder, camera_noise_px=0.0):
 def session(tmp_path_factory):
     """Three poses of the paper's session rendered in the ideal-pinhole twin, with sensor noise."""
     from calib import default_system
-    from calib.system import SystemModel
     from synth.board_session import render_board_session
 
     s = default_system()
-    twin = SystemModel(s.camera.without_skew_and_distortion(), s.projector.without_skew_and_distortion(), {})
+    twin = s.ideal({})
     out = tmp_path_factory.mktemp("captures")
     render_board_session(out, twin, n_poses=3, steps=12, frequencies=(1, 8, 48))
     return out

@@ -300,8 +300,7 @@ def _transfer_draws(draws, transfer, n_views=9):
     the projector pixels are read at the detected camera pixels (0.02 px detector error, 0.002 px
     phase error), as on the rendered sessions."""
     s = default_system()
-    from calib.system import SystemModel
-    twin = SystemModel(s.camera.without_skew_and_distortion(), s.projector.without_skew_and_distortion(), {})
+    twin = s.ideal({})
     board = Board("circles", 9, 11, 20.0, 5.0, 2.0, [[4, 5], [4, 6], [4, 7], [3, 5], [2, 5]])
     keys = [f"{d}.{p}" for d in ("camera", "projector") for p in ("fx", "fy", "cx", "cy")]
     Rpc = twin.projector.R @ twin.camera.R.T

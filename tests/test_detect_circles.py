@@ -1,10 +1,12 @@
 """Circle-grid detection on rendered boards (synth): identities, sub-pixel centres against the true
 projections, the perspective bias and its correction, and the hard cases (partial, mirrored,
 turned, no board, low contrast, saturation, polarity)."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
-from calib.board import Board
+from calib.board import Board, paper_board
 from calib.detect import BoardDetection, DetectionError, circle_image_centre, detect_board, perspective_bias
 from bench.detect_accuracy import centre_errors, close_system, render_white
 from calib.detect.blobs import fit_ellipse_direct
@@ -14,14 +16,12 @@ from calib.system import default_system
 @pytest.fixture(scope="session")
 def renders(tmp_path_factory):
     """Small renders shared by the tests of this module (cached on disk for the session)."""
-    from synth import BoardSpec
-
     cache = tmp_path_factory.mktemp("detect_renders")
-    paper, big = BoardSpec(), BoardSpec(small_diameter_mm=8.0, large_diameter_mm=14.0)
+    paper, big = paper_board(), paper_board(small_diameter_mm=8.0, large_diameter_mm=14.0)
     twin, close = default_system(), close_system()
     jobs = {"twin_10_20_noisy": (twin, paper, (10, 20), 1), "twin_0_0": (twin, paper, (0, 0), None),
             "close_big_40": (close, big, (40, 0), None),
-            "close_no_markers": (close, BoardSpec(large_markers=()), (10, 20), 2)}
+            "close_no_markers": (close, paper_board(large_markers=()), (10, 20), 2)}
     out = {}
     for name, (system, spec, tilt, noise) in jobs.items():
         path = cache / f"{name}.npz"
@@ -39,13 +39,9 @@ def _truth(system, board, ids, R_wb):
     return system.camera.project(board.points_board(ids) @ R_wb.T)
 
 
-def _board(spec):
-    return Board.from_dict(spec.capture_toml_table())
-
-
 def test_paper_twin_circles_identified_with_sub_0_1_px_centres(renders):
     img, R, system, spec = renders["twin_10_20_noisy"]
-    board = _board(spec)
+    board = spec
     det = detect_board(img, board)
     assert isinstance(det, BoardDetection)
     assert np.all(np.diff(det.ids) > 0) and det.ids.dtype == np.int64
@@ -92,7 +88,7 @@ def test_perspective_bias_correction_removes_the_bias_on_a_close_tilted_board(re
 
 def test_partial_board_keeps_identities_and_drops_cut_circles(renders):
     img, R, system, spec = renders["twin_0_0"]
-    board = _board(spec)
+    board = spec
     col4 = _truth(system, board, [4 * board.cols + 3], R)[0, 0]
     x0 = int(round(col4))          # cuts through the circles of column 3
     det = detect_board(img[:, x0:], board)
@@ -106,7 +102,7 @@ def test_partial_board_keeps_identities_and_drops_cut_circles(renders):
 
 def test_board_turned_180_deg_in_the_image_keeps_its_identities(renders):
     img, R, system, spec = renders["twin_10_20_noisy"]
-    board = _board(spec)
+    board = spec
     H, W = img.shape
     det = detect_board(np.ascontiguousarray(img[::-1, ::-1]), board)
     truth = _truth(system, board, det.ids, R)
@@ -118,13 +114,13 @@ def test_board_turned_180_deg_in_the_image_keeps_its_identities(renders):
 def test_mirror_flipped_image_is_refused(renders):
     img, _, _, spec = renders["twin_10_20_noisy"]
     with pytest.raises(DetectionError, match="MIRROR|mirror"):
-        detect_board(np.ascontiguousarray(img[:, ::-1]), _board(spec))
+        detect_board(np.ascontiguousarray(img[:, ::-1]), spec)
 
 
 def test_light_on_dark_board_and_low_contrast(renders):
     img, R, system, spec = renders["twin_10_20_noisy"]
-    board = _board(spec)
-    inv = Board.from_dict({**spec.capture_toml_table(), "polarity": "light-on-dark"})
+    board = spec
+    inv = replace(spec, polarity="light-on-dark")
     det = detect_board(255 - img, inv)
     assert len(det) >= 75
     det16 = detect_board(img.astype(np.uint16) * 257, board)      # 16-bit input, same answer
@@ -140,7 +136,7 @@ def test_light_on_dark_board_and_low_contrast(renders):
 
 def test_saturated_patch_loses_only_the_circles_under_it(renders):
     img, R, system, spec = renders["twin_10_20_noisy"]
-    board = _board(spec)
+    board = spec
     sat = img.copy()
     sat[300:420, 60:260] = 255
     det = detect_board(sat, board)
@@ -152,7 +148,7 @@ def test_saturated_patch_loses_only_the_circles_under_it(renders):
 
 def test_no_board_and_bad_inputs_are_refused_with_clear_messages(renders):
     img, _, _, spec = renders["twin_0_0"]
-    board = _board(spec)
+    board = spec
     rng = np.random.default_rng(0)
     noise = np.clip(128 + rng.normal(0, 10, (480, 640)), 0, 255).astype(np.uint8)
     with pytest.raises(DetectionError, match="640x480 px"):
@@ -171,7 +167,7 @@ def test_no_board_and_bad_inputs_are_refused_with_clear_messages(renders):
     with pytest.raises(DetectionError, match="Board"):
         detect_board(img, {"kind": "circles"})
     # a board with a different marker layout is not read as this one
-    other = Board.from_dict({**spec.capture_toml_table(), "large_markers": [[1, 1], [1, 2], [2, 1], [6, 8]]})
+    other = replace(spec, large_markers=((1, 1), (1, 2), (2, 1), (6, 8)))
     with pytest.raises(DetectionError):
         detect_board(img, other)
 
@@ -198,7 +194,7 @@ def test_docstring_examples_run():
 
 def test_board_half_out_of_view_identified_when_the_markers_tell_else_refused(renders):
     img, R, system, spec = renders["twin_10_20_noisy"]
-    board = _board(spec)
+    board = spec
     det = detect_board(np.ascontiguousarray(img[:, 320:]), board)      # right half: all markers, 37 circles
     truth = _truth(system, board, det.ids, R) - [320, 0]
     assert len(det) >= 30 and np.linalg.norm(det.q - truth, axis=1).max() < 0.1

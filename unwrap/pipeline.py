@@ -14,7 +14,6 @@ plus ``prior`` (float64 physics prior), ``modulation`` (float64 B of the highest
 from __future__ import annotations
 
 import logging
-import math
 from dataclasses import dataclass
 from pathlib import Path
 

@@ -156,14 +156,9 @@ def _local_homographies(ids_rc, xy_board, q, H_global):
     return Hs
 
 
-def detect_circles(f: np.ndarray, board, *, min_points: int = 6, centre_method: str = "edge",
-                   correct_bias: bool = True) -> BoardDetection:
-    """Circle-grid detection on a float grey image ``f`` (H, W); see the module docstring."""
-    H_img, W_img = f.shape
-    where = f"circle board {board.rows}x{board.cols} in a {size_text(f)} image"
-    notes = []
-    blobs = find_blobs(f, board.polarity == "dark-on-light", method=centre_method)
-    notes += blobs.notes
+def _grid_circles(blobs, min_points: int, where: str):
+    """The complete circle candidates that lie on one grown lattice: (blob indices (M,), lattice
+    cells (M, 2) counted from 0). DetectionError when too few are found."""
     whole = ~blobs.cut
     if whole.sum() < max(min_points, 5):
         raise DetectionError(f"{where}: found {int(whole.sum())} complete circle candidates "
@@ -178,9 +173,56 @@ def detect_circles(f: np.ndarray, board, *, min_points: int = 6, centre_method: 
     if assigned.sum() < max(min_points, 5):
         raise DetectionError(f"{where}: only {int(assigned.sum())} candidates lie on a common grid "
                              f"(need at least {max(min_points, 5)})")
-    idx = sub[assigned]
     cells = cells[assigned]
-    cells = cells - cells.min(axis=0)
+    return sub[assigned], cells - cells.min(axis=0)
+
+
+def _second_pass(board, blobs, ids, idx, Hg, image_size, notes):
+    """Circles the lattice growth missed, found where the board homography ``Hg`` predicts them;
+    circles cut by the image edge are dropped. Returns (ids, blob indices); ``notes`` says what
+    was added, dropped and outside the image."""
+    W_img, H_img = image_size
+    missing = np.setdiff1d(np.arange(board.n_points), ids)
+    if not missing.size:
+        return ids, idx
+    pred = apply_homography(Hg, board.points_board(missing)[:, :2])
+    tree = cKDTree(blobs.xy)
+    d, k = tree.query(pred)
+    spacing = np.median(np.linalg.norm(np.diff(apply_homography(
+        Hg, np.array([[0, 0], [board.spacing_mm, 0], [0, board.spacing_mm]])), axis=0), axis=1))
+    near = d < 0.25 * spacing
+    used = set(idx.tolist())
+    add_ids, add_idx, cut_ids = [], [], []
+    for m, ok, kk in zip(missing, near, k):
+        if not ok or kk in used:
+            continue
+        if blobs.cut[kk]:
+            cut_ids.append(int(m))
+        else:
+            add_ids.append(int(m))
+            add_idx.append(int(kk))
+            used.add(int(kk))
+    if add_ids:
+        ids = np.r_[ids, add_ids]
+        idx = np.r_[idx, add_idx]
+        notes.append(f"{len(add_ids)} circles added from the board homography (off the grown lattice)")
+    if cut_ids:
+        notes.append(f"dropped {len(cut_ids)} circles cut by the image edge or the unlit region: ids {cut_ids}")
+    outside = [int(m) for m, p in zip(missing, pred) if not (0 <= p[0] <= W_img - 1 and 0 <= p[1] <= H_img - 1)]
+    if outside:
+        notes.append(f"{len(outside)} circles outside the image (partial board)")
+    return ids, idx
+
+
+def detect_circles(f: np.ndarray, board, *, min_points: int = 6, centre_method: str = "edge",
+                   correct_bias: bool = True) -> BoardDetection:
+    """Circle-grid detection on a float grey image ``f`` (H, W); see the module docstring."""
+    H_img, W_img = f.shape
+    where = f"circle board {board.rows}x{board.cols} in a {size_text(f)} image"
+    notes = []
+    blobs = find_blobs(f, board.polarity == "dark-on-light", method=centre_method)
+    notes += blobs.notes
+    idx, cells = _grid_circles(blobs, min_points, where)
     large_all = _classify_large(blobs, board)
     is_large = large_all[idx]
     if board.large_markers and not is_large.any():
@@ -199,38 +241,7 @@ def detect_circles(f: np.ndarray, board, *, min_points: int = 6, centre_method: 
     notes.append(f"identification: {how}")
     ids = rc[:, 0] * board.cols + rc[:, 1]
     pts = board.points_board(ids)[:, :2]
-    Hg = homography(pts, blobs.xy[idx])
-    # second pass: circles the growth missed, and circles cut by the image edge
-    all_ids = np.arange(board.n_points)
-    missing = np.setdiff1d(all_ids, ids)
-    if missing.size:
-        pred = apply_homography(Hg, board.points_board(missing)[:, :2])
-        tree = cKDTree(blobs.xy)
-        d, k = tree.query(pred)
-        spacing = np.median(np.linalg.norm(np.diff(apply_homography(
-            Hg, np.array([[0, 0], [board.spacing_mm, 0], [0, board.spacing_mm]])), axis=0), axis=1))
-        near = d < 0.25 * spacing
-        used = set(idx.tolist())
-        add_ids, add_idx, cut_ids = [], [], []
-        for m, ok, kk in zip(missing, near, k):
-            if not ok or kk in used:
-                continue
-            if blobs.cut[kk]:
-                cut_ids.append(int(m))
-            else:
-                add_ids.append(int(m))
-                add_idx.append(int(kk))
-                used.add(int(kk))
-        if add_ids:
-            ids = np.r_[ids, add_ids]
-            idx = np.r_[idx, add_idx]
-            notes.append(f"{len(add_ids)} circles added from the board homography (off the grown lattice)")
-        if cut_ids:
-            notes.append(f"dropped {len(cut_ids)} circles cut by the image edge or the unlit region: ids {cut_ids}")
-        outside = [int(m) for m, p in zip(missing, pred)
-                   if not (0 <= p[0] <= W_img - 1 and 0 <= p[1] <= H_img - 1)]
-        if outside:
-            notes.append(f"{len(outside)} circles outside the image (partial board)")
+    ids, idx = _second_pass(board, blobs, ids, idx, homography(pts, blobs.xy[idx]), (W_img, H_img), notes)
     order = np.argsort(ids)
     ids, idx = ids[order], idx[order]
     if len(ids) < min_points:
