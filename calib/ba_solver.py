@@ -324,147 +324,153 @@ def solve(problem: BAProblem) -> BAResult:
         return _solve(problem)
 
 
-def _solve(problem: BAProblem) -> BAResult:
-    cfg = problem.config
-    t_start = time.perf_counter()
-    log = []
-    S = problem.n_slots
-    P = problem.n_points
-    n_free = int(problem.free.sum())
-    devices = sorted(set(problem.point_device))
-    state = problem.start
-    ev = problem.evaluate(state)
-    evaluations = 1
-    if not ev.valid:
-        raise BundleAdjustmentError("the starting point gives non-finite residuals or puts board points "
-                                    "behind a device (a bad seed)")
-    dead = [problem.global_names[j] for j, c in zip(problem.global_free_index, np.abs(ev.Jg).sum(axis=0))
-            if c == 0]
-    if dead:
-        raise BundleAdjustmentError(f"parameters not constrained by any observation: {dead[:8]}")
-    inlier = np.ones(P, bool)
-    e = problem.point_norms(ev.r)
-    dev_w, rob_w = _weights(problem, e, inlier, devices)
-    lam, iterations, rounds, newton, prev_gn = 0.0, 0, 1, False, None
-    profile = cfg.reweight_devices and len(devices) > 1 and cfg.loss == "linear"
-    converged = False
-    while True:
-        weights = dev_w * rob_w * inlier
+class _Run:
+    """The state of one solve: parameters, evaluation, weights, inliers, damping, counters."""
+
+    def __init__(self, problem: BAProblem):
+        self.problem, self.cfg, self.log = problem, problem.config, []
+        self.devices = sorted(set(problem.point_device))
+        self.n_free = int(problem.free.sum())
+        self.state = problem.start
+        self.ev = problem.evaluate(self.state)
+        if not self.ev.valid:
+            raise BundleAdjustmentError("the starting point gives non-finite residuals or puts board points "
+                                        "behind a device (a bad seed)")
+        dead = [problem.global_names[j] for j, c in zip(problem.global_free_index, np.abs(self.ev.Jg).sum(axis=0))
+                if c == 0]
+        if dead:
+            raise BundleAdjustmentError(f"parameters not constrained by any observation: {dead[:8]}")
+        self.inlier = np.ones(problem.n_points, bool)
+        self.profile = self.cfg.reweight_devices and len(self.devices) > 1 and self.cfg.loss == "linear"
+        self.lam, self.iterations, self.evaluations, self.rounds = 0.0, 0, 1, 1
+        self.newton, self.prev_gn, self.converged = False, None, False
+        self.reweight()
+
+    def reweight(self):
+        self.dev_w, self.rob_w = _weights(self.problem, self.problem.point_norms(self.ev.r), self.inlier,
+                                          self.devices)
+
+    def outlier_round(self) -> bool:
+        if not _outlier_round(self.problem, self.ev, self.inlier, self.devices, self.rounds, self.log):
+            return False
+        self.rounds += 1
+        self.reweight()
+        self.prev_gn = None
+        return True
+
+    def linearise(self):
+        """Normal equations and the undamped model step at the current state and weights."""
+        problem = self.problem
+        weights = self.dev_w * self.rob_w * self.inlier
         sw = np.sqrt(problem.point_rows(weights))
         row_scale = (sw * problem.inv_sigma_rows)[:, None]
-        objective = _Objective(problem, ev, sw, inlier, devices, profile)
-        ne = NormalEquations(ev.Jg * row_scale, ev.Jv * row_scale, ev.r * sw, S, objective.row_groups)
-        iterations += 1
-        cost = ne.cost
-        dof = max(2 * int(inlier.sum()) - n_free, 1)
-        # the undamped model (Newton's where switched on, else Gauss-Newton's) judges convergence
+        objective = _Objective(problem, self.ev, sw, self.inlier, self.devices, self.profile)
+        ne = NormalEquations(self.ev.Jg * row_scale, self.ev.Jv * row_scale, self.ev.r * sw, problem.n_slots,
+                             objective.row_groups)
+        self.iterations += 1
         gn = _solve_or_none(ne, 0.0, low_rank=objective.low_rank)
-        if gn is not None and cfg.newton and not newton:
+        if gn is not None and self.cfg.newton and not self.newton:
             # Gauss-Newton converging linearly near the optimum (its predicted decrease falling by
             # less than NEWTON_RATE a step): the residuals' curvature matters, add the 2nd order
-            newton = prev_gn is not None and gn.predicted < NEWTON_NEAR * cost and \
-                gn.predicted > NEWTON_RATE * prev_gn
-            prev_gn = gn.predicted
-        newton_step = _solve_or_none(ne, 0.0, problem.second_order(state, ev, weights), objective.low_rank) \
-            if newton else None
-        model = newton_step or gn
-        predicted = model.predicted if model is not None else np.inf
-        small = predicted <= max(cfg.tolerance ** 2 * cost / dof, ROUNDING * cost)
-        near = predicted <= OUTLIER_TOLERANCE ** 2 * cost / dof
-        if (near or small) and _outlier_round(problem, ev, inlier, devices, rounds, log):
-            rounds += 1
-            dev_w, rob_w = _weights(problem, problem.point_norms(ev.r), inlier, devices)
-            prev_gn = None
-            continue
-        if small:
-            converged = True
-            if model is not None and model.predicted > 0:
-                # the last (tiny) step of the converged model: free precision, checked only
-                # against an increase beyond rounding
-                trial = state.moved(problem, model.dg, model.dv)
-                ev_t = problem.evaluate(trial)
-                evaluations += 1
-                if objective.change(ev_t) <= ROUNDING * cost:
-                    state, ev = trial, ev_t
-            break
-        if iterations >= cfg.max_iterations:
-            log.append(f"stopped after {iterations} iterations without converging")
-            break
-        steps = [("newton", newton_step)] if newton_step is not None else []
-        steps += [("gauss-newton", gn if lam == 0.0 else _solve_or_none(ne, lam))]
-        accepted = (None, None, 0.0, 0)
-        for tries in range(MAX_REJECTED_STEPS):
+            self.newton = self.prev_gn is not None and gn.predicted < NEWTON_NEAR * ne.cost and \
+                gn.predicted > NEWTON_RATE * self.prev_gn
+            self.prev_gn = gn.predicted
+        newton = _solve_or_none(ne, 0.0, problem.second_order(self.state, self.ev, weights), objective.low_rank) \
+            if self.newton else None
+        return ne, objective, gn, newton
+
+    def take_step(self, ne, objective, gn, newton, predicted: float) -> bool:
+        """Try the model steps, then damped Gauss-Newton ones; move to the first that lowers the
+        objective. False where none does."""
+        steps = [("newton", newton)] if newton is not None else []
+        steps += [("gauss-newton", gn if self.lam == 0.0 else _solve_or_none(ne, self.lam))]
+        for _ in range(MAX_REJECTED_STEPS):
             for kind, step in steps:
                 if step is None:
                     continue
-                accepted = _try_step(problem, state, step, objective)
-                evaluations += accepted[3]
-                if accepted[0] is not None:
-                    break
-            if accepted[0] is not None or lam > LAM_MAX or predicted <= STALL * cost:
-                break               # (a step this small fails by rounding: damping cannot help)
-            lam = LAM_FIRST if lam == 0.0 else 10 * lam   # no step lowered the cost: damp Gauss-Newton
-            steps = [("gauss-newton", _solve_or_none(ne, lam))]
-        if accepted[0] is None:
-            if gn is None:
-                raise BundleAdjustmentError("the normal matrix is singular: some parameters are not determined "
-                                            "by the observations (degenerate views?)")
-            log.append(f"no step lowers the cost further (rounding); stopped at cost {cost:.12g}")
-            if _outlier_round(problem, ev, inlier, devices, rounds, log):
-                rounds += 1
-                dev_w, rob_w = _weights(problem, problem.point_norms(ev.r), inlier, devices)
-                continue
-            converged = True
-            break
-        state, ev, change = accepted[:3]
+                trial, ev, change, n_eval = _try_step(self.problem, self.state, step, objective)
+                self.evaluations += n_eval
+                if trial is not None:
+                    self._accept(kind, step, trial, ev, change, ne.cost)
+                    return True
+            if self.lam > LAM_MAX or predicted <= STALL * ne.cost:
+                return False               # (a step this small fails by rounding: damping cannot help)
+            self.lam = LAM_FIRST if self.lam == 0.0 else 10 * self.lam
+            steps = [("gauss-newton", _solve_or_none(ne, self.lam))]
+        return False
+
+    def _accept(self, kind, step, trial, ev, change, cost):
+        self.state, self.ev = trial, ev
         if kind == "gauss-newton":
             rho = -change / max(step.predicted, 1e-300)
-            if lam == 0.0 and abs(rho - 1) > NEWTON_SWITCH and step.predicted < NEWTON_NEAR * cost and cfg.newton:
-                newton = True              # near the optimum the Gauss-Newton model misjudges the cost
-            if lam > 0.0:
-                prev_gn = None
-            lam = 0.0 if lam <= LAM_FIRST else lam / 10
-        dev_w, rob_w = _weights(problem, problem.point_norms(ev.r), inlier, devices)
-        if cfg.progress:
-            cfg.progress(f"  iteration {iterations} ({kind}): objective change {change:.6g}")
-    cost = float(np.sum((ev.r * np.sqrt(problem.point_rows(dev_w * rob_w * inlier))) ** 2))
-    log.append(f"{iterations} linearisations ({evaluations} evaluations, {rounds - 1} outlier rejection round(s)), cost "
-               f"{cost:.12g}, converged={converged}")
-    if (~inlier).sum() > 0.2 * P:
-        raise BundleAdjustmentError(f"{int((~inlier).sum())} of {P} points rejected as outliers: the "
-                                    "observations do not fit one model (wrong board, wrong pairing?)")
-    # covariance from the undamped factorisation at the solution
-    m_rows = 2 * int(inlier.sum())
-    dof = m_rows - n_free
-    if dof <= 0:
-        raise BundleAdjustmentError(f"{m_rows} residuals for {n_free} parameters: too few "
-                                    "observations to estimate the model (add views or fix parameters)")
-    sigma2 = cost / dof
+            if self.lam == 0.0 and abs(rho - 1) > NEWTON_SWITCH and step.predicted < NEWTON_NEAR * cost \
+                    and self.cfg.newton:
+                self.newton = True         # near the optimum the Gauss-Newton model misjudges the cost
+            if self.lam > 0.0:
+                self.prev_gn = None
+            self.lam = 0.0 if self.lam <= LAM_FIRST else self.lam / 10
+        self.reweight()
+        if self.cfg.progress:
+            self.cfg.progress(f"  iteration {self.iterations} ({kind}): objective change {change:.6g}")
+
+    def iterate(self):
+        """Linearise, judge convergence and outliers, step; until converged or out of iterations.
+        Returns the last normal equations (their factorisation gives the covariance)."""
+        cfg = self.cfg
+        while True:
+            ne, objective, gn, newton = self.linearise()
+            dof = max(2 * int(self.inlier.sum()) - self.n_free, 1)
+            model = newton or gn            # the undamped model judges convergence
+            predicted = model.predicted if model is not None else np.inf
+            small = predicted <= max(cfg.tolerance ** 2 * ne.cost / dof, ROUNDING * ne.cost)
+            near = predicted <= OUTLIER_TOLERANCE ** 2 * ne.cost / dof
+            if (near or small) and self.outlier_round():
+                continue
+            if small:
+                self.converged = True
+                if model is not None and model.predicted > 0:
+                    # the last (tiny) step of the converged model: free precision, checked only
+                    # against an increase beyond rounding
+                    trial = self.state.moved(self.problem, model.dg, model.dv)
+                    ev = self.problem.evaluate(trial)
+                    self.evaluations += 1
+                    if objective.change(ev) <= ROUNDING * ne.cost:
+                        self.state, self.ev = trial, ev
+                return ne
+            if self.iterations >= cfg.max_iterations:
+                self.log.append(f"stopped after {self.iterations} iterations without converging")
+                return ne
+            if not self.take_step(ne, objective, gn, newton, predicted):
+                if gn is None:
+                    raise BundleAdjustmentError("the normal matrix is singular: some parameters are not "
+                                                "determined by the observations (degenerate views?)")
+                self.log.append(f"no step lowers the cost further (rounding); stopped at cost {ne.cost:.12g}")
+                if self.outlier_round():
+                    continue
+                self.converged = True
+                return ne
+
+
+def _covariance(problem: BAProblem, ne: NormalEquations, sigma2: float):
+    """(covariance of the free globals, of each pose (S, 6, 6), conditioning), scaled by ``sigma2``;
+    a (numerically) singular matrix is refused naming what the views do not determine."""
+    refusal = (f"the views do not determine {{}} (degenerate geometry, or a model with more terms than the "
+               "views constrain: fix them or use fewer)")
     try:
         cov_g, cov_v = ne.covariance()
         conditioning = ne.conditioning()
     except (SingularNormalEquations, np.linalg.LinAlgError):
-        raise BundleAdjustmentError(f"the normal matrix is singular: the views do not determine "
-                                    f"{_undetermined(problem, ne)} (degenerate geometry, or a model with more "
-                                    "terms than the views constrain: fix them or use fewer)") from None
+        raise BundleAdjustmentError("the normal matrix is singular: " +
+                                    refusal.format(_undetermined(problem, ne))) from None
     if conditioning["normal_matrix_rcond"] < 1e-15:
         raise BundleAdjustmentError(f"the normal matrix is numerically singular (rcond "
-                                    f"{conditioning['normal_matrix_rcond']:.2e}): the views do not determine "
-                                    f"{_undetermined(problem, ne)} (degenerate geometry, or a model with more "
-                                    "terms than the views constrain: fix them or use fewer)")
-    cov_g, cov_v = sigma2 * cov_g, sigma2 * cov_v
-    cov_names = [problem.global_names[j] for j in problem.global_free_index]
-    std = {n: float(np.sqrt(max(cov_g[k, k], 0.0))) for k, n in enumerate(cov_names)}
-    pose_std = np.sqrt(np.maximum(np.einsum("sii->si", cov_v), 0.0))
-    for s, pn in enumerate(problem.pose_names):
-        for a, name in enumerate(("w0", "w1", "w2", "t0", "t1", "t2")):
-            std[f"{pn}.{name}"] = float(pose_std[s, a])
-    free_names = [n for n, f in zip(problem.names, problem.free) if f]
-    values = state.g[problem.global_free_index]
-    flagged = poorly_determined(cov_names, values, cov_g, getattr(problem.obs, "sizes", None))
-    for f in flagged:
-        log.append(f"poorly determined: {f['name']} = {f['value']:.6g} +- {f['std']:.3g} ({'; '.join(f['reasons'])})")
+                                    f"{conditioning['normal_matrix_rcond']:.2e}): " +
+                                    refusal.format(_undetermined(problem, ne)))
+    return sigma2 * cov_g, sigma2 * cov_v, conditioning
 
+
+def _statistics(problem: BAProblem, ev, inlier, devices):
+    """(residual statistics per device and per view, rejected points) in pixels."""
     res_px = ev.r_px
     stats = {d: _stats(res_px, (problem.point_device == d) & inlier) for d in devices}
     if ev.r_transfer_px is not None:
@@ -483,11 +489,44 @@ def _solve(problem: BAProblem) -> BAResult:
     rejected = [{"device": str(problem.point_device[k]), "view": int(problem.point_view[k]),
                  "id": int(problem.point_id[k]), "residual_px": float(np.linalg.norm(res_px[k]))}
                 for k in np.flatnonzero(~inlier)]
-    device_sigma = {d: float(np.sqrt(1.0 / dev_w[problem.point_device == d][0])) *
-                    float(np.median(problem.point_sigma[problem.point_device == d])) for d in devices}
-    t_solve = time.perf_counter() - t_start
-    return BAResult(problem.rig_state(state), problem.names, problem.theta(state), std, cov_g, free_names,
-                    sigma2, device_sigma, res_px, problem.point_device, problem.point_view, problem.point_id,
-                    inlier, stats, rejected, iterations, converged, cost,
-                    {"build_s": problem.build_seconds, "solve_s": t_solve, "evaluations": evaluations},
-                    conditioning, cfg.mode, log, cov_names, flagged, problem.backend)
+    return stats, rejected
+
+
+def _solve(problem: BAProblem) -> BAResult:
+    t_start = time.perf_counter()
+    run = _Run(problem)
+    ne = run.iterate()
+    inlier, log, P = run.inlier, run.log, problem.n_points
+    cost = float(np.sum((run.ev.r * np.sqrt(problem.point_rows(run.dev_w * run.rob_w * inlier))) ** 2))
+    log.append(f"{run.iterations} linearisations ({run.evaluations} evaluations, {run.rounds - 1} outlier "
+               f"rejection round(s)), cost {cost:.12g}, converged={run.converged}")
+    if (~inlier).sum() > 0.2 * P:
+        raise BundleAdjustmentError(f"{int((~inlier).sum())} of {P} points rejected as outliers: the "
+                                    "observations do not fit one model (wrong board, wrong pairing?)")
+    m_rows = 2 * int(inlier.sum())
+    dof = m_rows - run.n_free
+    if dof <= 0:
+        raise BundleAdjustmentError(f"{m_rows} residuals for {run.n_free} parameters: too few "
+                                    "observations to estimate the model (add views or fix parameters)")
+    sigma2 = cost / dof
+    cov_g, cov_v, conditioning = _covariance(problem, ne, sigma2)
+    cov_names = [problem.global_names[j] for j in problem.global_free_index]
+    std = {n: float(np.sqrt(max(cov_g[k, k], 0.0))) for k, n in enumerate(cov_names)}
+    pose_std = np.sqrt(np.maximum(np.einsum("sii->si", cov_v), 0.0))
+    for s, pn in enumerate(problem.pose_names):
+        for a, name in enumerate(("w0", "w1", "w2", "t0", "t1", "t2")):
+            std[f"{pn}.{name}"] = float(pose_std[s, a])
+    flagged = poorly_determined(cov_names, run.state.g[problem.global_free_index], cov_g,
+                                getattr(problem.obs, "sizes", None))
+    for f in flagged:
+        log.append(f"poorly determined: {f['name']} = {f['value']:.6g} +- {f['std']:.3g} ({'; '.join(f['reasons'])})")
+    stats, rejected = _statistics(problem, run.ev, inlier, run.devices)
+    device_sigma = {d: float(np.sqrt(1.0 / run.dev_w[problem.point_device == d][0])) *
+                    float(np.median(problem.point_sigma[problem.point_device == d])) for d in run.devices}
+    free_names = [n for n, f in zip(problem.names, problem.free) if f]
+    return BAResult(problem.rig_state(run.state), problem.names, problem.theta(run.state), std, cov_g, free_names,
+                    sigma2, device_sigma, run.ev.r_px, problem.point_device, problem.point_view, problem.point_id,
+                    inlier, stats, rejected, run.iterations, run.converged, cost,
+                    {"build_s": problem.build_seconds, "solve_s": time.perf_counter() - t_start,
+                     "evaluations": run.evaluations},
+                    conditioning, problem.config.mode, log, cov_names, flagged, problem.backend)

@@ -427,18 +427,8 @@ class BAProblem:
 POSE_PARAMS = ("w0", "w1", "w2", "t0", "t1", "t2")
 
 
-def build_problem(obs, start: RigState, config: BAConfig) -> BAProblem:
-    """Lay out the adjustment of ``obs`` (``calib.observations.Observations``).
-
-    ``start`` gives intrinsics and poses (see ``RigState``); the layout follows ``config``. The
-    residual kernels are compiled once per model structure and cached (``calib.ba_kernel``).
-    """
-    from .ba_kernel import KernelSpec, point_kernel
-
-    t0 = time.perf_counter()
-    devices = [d for d in ("camera", "projector") if obs.count(d) > 0]
-    if config.mode == "joint" and devices != ["camera", "projector"]:
-        raise BundleAdjustmentError(f"joint mode needs camera and projector observations; have {devices}")
+def _global_layout(devices, start: RigState, config: BAConfig):
+    """Global parameters: (names, values, free, {device: intrinsic indices}, rig index, warp index)."""
     names, values, free = [], [], []
 
     def add(name, value, is_free):
@@ -467,12 +457,12 @@ def build_problem(obs, start: RigState, config: BAConfig) -> BAProblem:
     warp_index = None
     if config.board_warp:
         warp_index = np.array([add(f"board_warp.c{a}", start.warp[j], True) for j, a in enumerate("xy")])
-    global_free = np.array(free)
-    free_pos = np.cumsum(global_free) - 1          # position of a free global among the free ones
+    return names, values, np.array(free), intr, rig_index, warp_index
 
-    # pose blocks and points, grouped by (pose block, device)
-    slot_of, pose_names = {}, []
-    blocks = []                                   # (device, view, board point indices, pose name)
+
+def _point_layout(obs, devices, start: RigState, config: BAConfig) -> dict:
+    """Pose blocks and observed points, grouped by (view, device); each point's padded position."""
+    slot_of, pose_names, blocks = {}, [], []      # blocks: (device, view, board point indices, pose)
     for i, v in enumerate(obs.views):
         for d in devices:
             pts = np.flatnonzero(v.seen(d))
@@ -486,47 +476,69 @@ def build_problem(obs, start: RigState, config: BAConfig) -> BAProblem:
                 slot_of[pn] = len(pose_names)
                 pose_names.append(pn)
             blocks.append((d, i, pts, pn))
-    S = len(pose_names)
-    R0 = np.array([start.poses[pn][0] for pn in pose_names], float).reshape(S, 3, 3)
-    t0_ = np.array([start.poses[pn][1] for pn in pose_names], float).reshape(S, 3)
-    counts = np.zeros(S, int)
-    pdev, pview, pid, psig, ppad, pslot, pX, pq, pts_of = [], [], [], [], [], [], [], [], []
-    k0 = 0
+    if not blocks:
+        raise BundleAdjustmentError("no observed point to adjust")
+    counts = np.zeros(len(pose_names), int)
+    cols = {k: [] for k in ("device", "view", "id", "sigma", "position", "slot", "X", "q")}
+    first, k0 = {}, 0                             # (device, view) -> (board point indices, first point)
     for d, i, pts, pn in blocks:
-        s = slot_of[pn]
-        v = obs.views[i]
-        n = len(pts)
-        pdev += [d] * n
-        pview.append(np.full(n, i))
-        pid.append(v.ids[pts])
-        psig.append(v.sigma[d][pts])
-        ppad.append(counts[s] + np.arange(n))     # position in the block
-        pslot.append(np.full(n, s))
-        pX.append(v.points_board[pts])
-        pq.append(v.q[d][pts])
-        pts_of.append((d, i, pts, k0))
+        s, v, n = slot_of[pn], obs.views[i], len(pts)
+        for key, value in (("device", [d] * n), ("view", np.full(n, i)), ("id", v.ids[pts]),
+                           ("sigma", v.sigma[d][pts]), ("position", counts[s] + np.arange(n)),
+                           ("slot", np.full(n, s)), ("X", v.points_board[pts]), ("q", v.q[d][pts])):
+            cols[key].append(value)
+        first[(d, i)] = (pts, k0)
         counts[s] += n
         k0 += n
-    P_max = int(counts.max()) if S else 0
-    if k0 == 0:
-        raise BundleAdjustmentError("no observed point to adjust")
-    point_device = np.array(pdev)
-    point_slot = np.concatenate(pslot)
-    point_pad = point_slot * P_max + np.concatenate(ppad)
-    X = np.concatenate(pX)
+    out = {k: np.concatenate(c) for k, c in cols.items()}
+    out.update(pose_names=pose_names, first=first, P_max=int(counts.max()))
+    out["pad"] = out["slot"] * out["P_max"] + out["position"]
     allX = np.concatenate([v.points_board for v in obs.views])
     half = np.maximum((allX[:, :2].max(0) - allX[:, :2].min(0)) / 2, 1e-9)
     mid = (allX[:, :2].max(0) + allX[:, :2].min(0)) / 2
-    xn = (X[:, :2] - mid) / half
-    basis = 1 - xn ** 2
-    q_obs = np.concatenate(pq)
+    out["warp_basis"] = 1 - ((out["X"][:, :2] - mid) / half) ** 2
+    return out
 
+
+def _transfer_links(obs, first: dict):
+    """(projector points, their camera points, A (T, 2, 2)) of the camera error transfer, or None."""
+    prj_k, cam_k, As = [], [], []
+    for (d, i), (pts, k) in first.items():
+        v = obs.views[i]
+        if d != "projector" or v.dprj_dcam is None or ("camera", i) not in first:
+            continue
+        c_pts, c_k0 = first[("camera", i)]
+        A = v.dprj_dcam[pts]
+        cols = np.minimum(np.searchsorted(c_pts, pts), len(c_pts) - 1)   # c_pts is sorted
+        linked = (c_pts[cols] == pts) & np.all(np.isfinite(A), axis=(1, 2))
+        prj_k.append(k + np.flatnonzero(linked))
+        cam_k.append(c_k0 + cols[linked])
+        As.append(A[linked])
+    if not prj_k or not sum(len(a) for a in prj_k):
+        return None
+    return np.concatenate(prj_k), np.concatenate(cam_k), np.concatenate(As)
+
+
+def build_problem(obs, start: RigState, config: BAConfig) -> BAProblem:
+    """Lay out the adjustment of ``obs`` (``calib.observations.Observations``).
+
+    ``start`` gives intrinsics and poses (see ``RigState``); the layout follows ``config``. The
+    residual kernels are compiled once per model structure and cached (``calib.ba_kernel``).
+    """
+    from .ba_kernel import KernelSpec, point_kernel
+
+    t0 = time.perf_counter()
+    devices = [d for d in ("camera", "projector") if obs.count(d) > 0]
+    if config.mode == "joint" and devices != ["camera", "projector"]:
+        raise BundleAdjustmentError(f"joint mode needs camera and projector observations; have {devices}")
+    names, values, global_free, intr, rig_index, warp_index = _global_layout(devices, start, config)
+    free_pos = np.cumsum(global_free) - 1          # position of a free global among the free ones
+    pts = _point_layout(obs, devices, start, config)
     groups = []
     for d in devices:
         chain = 2 if (config.mode == "joint" and d == "projector") else 1
         spec = KernelSpec(config.device(d).n_distortion, chain)
-        kernel = point_kernel(spec, config.backend)
-        idx = np.flatnonzero(point_device == d)
+        idx = np.flatnonzero(pts["device"] == d)
         jmap = np.full(spec.n_local, -1, dtype=np.int64)
         a, _ = spec.local_blocks["pose1"]
         jmap[a:a + 6] = -2 - np.arange(6)
@@ -535,32 +547,18 @@ def build_problem(obs, start: RigState, config: BAConfig) -> BAProblem:
             if gidx is not None:
                 a, b = spec.local_blocks[block]
                 jmap[a:b] = np.where(global_free[gidx], free_pos[gidx], -1)
-        groups.append(_PointGroup(d, kernel, idx, point_slot[idx], point_pad[idx], X[idx], basis[idx],
-                                  q_obs[idx], intr[d], jmap))
-
-    transfer = None
-    if config.mode == "joint" and config.camera_error_transfer:
-        first = {(d, i): (pts, k) for d, i, pts, k in pts_of}
-        prj_k, cam_k, As = [], [], []
-        for (d, i), (pts, k) in first.items():
-            v = obs.views[i]
-            if d != "projector" or v.dprj_dcam is None or ("camera", i) not in first:
-                continue
-            c_pts, c_k0 = first[("camera", i)]
-            A = v.dprj_dcam[pts]
-            cols = np.minimum(np.searchsorted(c_pts, pts), len(c_pts) - 1)   # c_pts is sorted
-            linked = (c_pts[cols] == pts) & np.all(np.isfinite(A), axis=(1, 2))
-            prj_k.append(k + np.flatnonzero(linked))
-            cam_k.append(c_k0 + cols[linked])
-            As.append(A[linked])
-        if prj_k and sum(len(a) for a in prj_k):
-            transfer = (np.concatenate(prj_k), np.concatenate(cam_k), np.concatenate(As))
-    problem = BAProblem(config, obs, names, global_free, pose_names,
-                        ParamState(np.array(values), start.poses["prj_cam"][0].copy() if rig_index is not None
-                                   else None, R0, t0_),
-                        groups, P_max, k0, np.concatenate(psig), point_device, np.concatenate(pview),
-                        np.concatenate(pid), point_pad, rig_index, warp_index, 0.0,
-                        "+".join(sorted({g.kernel.backend for g in groups})),
+        groups.append(_PointGroup(d, point_kernel(spec, config.backend), idx, pts["slot"][idx], pts["pad"][idx],
+                                  pts["X"][idx], pts["warp_basis"][idx], pts["q"][idx], intr[d], jmap))
+    transfer = _transfer_links(obs, pts["first"]) if config.mode == "joint" and config.camera_error_transfer \
+        else None
+    pose_names = pts["pose_names"]
+    S = len(pose_names)
+    start_state = ParamState(np.array(values), start.poses["prj_cam"][0].copy() if rig_index is not None else None,
+                             np.array([start.poses[pn][0] for pn in pose_names], float).reshape(S, 3, 3),
+                             np.array([start.poses[pn][1] for pn in pose_names], float).reshape(S, 3))
+    problem = BAProblem(config, obs, names, global_free, pose_names, start_state, groups, pts["P_max"],
+                        len(pts["device"]), pts["sigma"], pts["device"], pts["view"], pts["id"], pts["pad"],
+                        rig_index, warp_index, 0.0, "+".join(sorted({g.kernel.backend for g in groups})),
                         *(transfer or (None, None, None)))
     problem.build_seconds = time.perf_counter() - t0
     return problem
