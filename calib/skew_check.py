@@ -2,12 +2,12 @@
 
 ``calib run`` holds each device's skew ``K[0, 1]`` at 0 by default (mrcal's models have none).
 When the true devices do have a skew, that model cannot fit the data: the misfit lands in the
-other parameters, and with the camera error transfer (the projector residual is taken given the
-camera's pixels, whose phase-fit sigma is ~0.001 px) a projector's skew is pushed into the
-camera's residuals and principal point. Measured on ``calib render-board`` of the built-in system
-(camera skew -0.233 px, projector -0.951 px), seed 0: with skew fixed the camera's residual RMS
-is 0.072 px against a detection error of 0.017 px and camera cy lies 3.4 sigma from the truth;
-with skew estimated the RMS is 0.017 px and cy is within 0.4 sigma (docs/calib.md).
+other parameters, the principal points first (through the shared board poses and the camera error
+transfer). Measured on ``calib render-board`` of the built-in system (camera skew -0.233 px,
+projector -0.951 px), seed 0: with skew fixed the projector's residual given the camera's pixels
+is 0.022 px against a phase-fit error of 0.0013 px, camera cy lies 3.5 sigma and projector cx 9.1
+sigma from the truth; with skew estimated the residuals are at the measurement errors and every
+intrinsic is within 0.9 sigma (docs/calib.md).
 
 :func:`check_skew` refits the solved problem with every device's skew free, starting from the
 solution (a few more iterations), and reports each skew with its sigma and how far the
