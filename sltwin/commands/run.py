@@ -68,6 +68,9 @@ def add_arguments(p):
                         "model how a camera error moves the projector pixel read there, where the "
                         "observations carry dprj_dcam)")
     p.add_argument("--skew-tol", type=float, default=0.01, help="px; see calib.io.mrcal_model")
+    p.add_argument("--no-skew-check", action="store_true",
+                   help="skip the refit with skew free that tells whether a zero-skew model fits the data "
+                        "(calib.skew_check; run when skew is not estimated; a needed skew is a warning)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
 
 
@@ -135,7 +138,7 @@ def run(args) -> int:
     config = ba_config(args)
     extra = {"board_warp": {"auto": "auto", "on": True, "off": False}[args.board_warp],
              "resample": "none" if args.uncertainty == "model" else args.uncertainty, "draws": args.draws,
-             "skew_tol_px": args.skew_tol}
+             "skew_tol_px": args.skew_tol, "skew_check": not args.no_skew_check}
     if args.captures is not None:
         result = calibrate_captures(args.captures, args.output, config, capture_toml=args.capture_toml,
                                     method=args.method, strict=args.strict, degree=args.phase_fit_degree, **extra)
