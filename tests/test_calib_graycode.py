@@ -84,3 +84,31 @@ def test_gray_code_session_runs_through_calib_run_from_images(gray_session, tmp_
         K, K_true = np.array(cal[dev]["K"]), np.array(truth[dev]["K"])
         for name, (r, c) in (("fx", (0, 0)), ("fy", (1, 1)), ("cx", (0, 2)), ("cy", (1, 2))):
             assert abs(K[r, c] - K_true[r, c]) < 4 * sigma[dev][name], (dev, name, K[r, c], K_true[r, c])
+
+
+def test_procam_calibration_folders_of_the_same_frames_give_the_same_calibration(gray_session, tmp_path):
+    """The same rendered frames arranged as kamino410/procam-calibration stores them (capture_N/
+    graycode_NN.png in OpenCV's order, the projector size in a capture.toml kept aside) calibrate
+    to the same system as the DESIGN.md Gray-code layout."""
+    import shutil
+
+    from unwrap.graycode_capture import gray_bits, gray_frame_stem
+
+    folder = tmp_path / "procam"
+    nv, nh = gray_bits(912, 1), gray_bits(1140, 1)
+    for i in range(4):
+        src, dst = gray_session / f"pose_{i:02d}", folder / f"capture_{i}"
+        dst.mkdir(parents=True)
+        order = [gray_frame_stem(o, b, inv) for o, n in (("v", nv), ("h", nh)) for b in range(n) for inv in (False, True)]
+        for k, stem in enumerate(order + ["white", "black"]):
+            shutil.copy(src / f"{stem}.png", dst / f"graycode_{k:02d}.png")
+    board = (gray_session / "capture.toml").read_text().split("[pattern]")[0]
+    toml = tmp_path / "procam.toml"
+    toml.write_text('[capture]\npreset = "procam-graycode"\n\n' + board.replace("# Rendered", "# from") +
+                    "[pattern]\nblock_px = 1\n\n[camera]\nsize = [640, 480]\n\n[projector]\nsize = [912, 1140]\n")
+    assert main(["run", str(folder), "--capture-toml", str(toml), "-o", str(tmp_path / "a"), "-q"]) == 0
+    assert main(["run", str(gray_session), "-o", str(tmp_path / "b"), "-q"]) == 0
+    a, b = (json.loads((tmp_path / x / "calibration.json").read_text()) for x in "ab")
+    assert a["captures"]["poses_used"] == [f"capture_{i}" for i in range(4)]
+    for dev in ("camera", "projector"):
+        np.testing.assert_allclose(a[dev]["K"], b[dev]["K"], rtol=1e-9)

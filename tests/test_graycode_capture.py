@@ -130,3 +130,12 @@ def test_kamino_preset_keeps_its_former_name_and_says_what_it_reads(tmp_path):
     from unwrap.capture import PRESET_ALIASES
 
     assert PRESET_ALIASES == {"kamino": "kamino-phaseshift"}
+
+
+def test_exporting_a_gray_only_capture_as_phase_data_is_refused_by_name(tmp_path):
+    from synth.errors import SynthError
+    from synth.capture_export import export_capture
+
+    root = _write_design(tmp_path / "s")
+    with pytest.raises(SynthError, match="Gray code only"):
+        export_capture(root, tmp_path / "real.h5")
