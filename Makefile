@@ -1,5 +1,6 @@
 # make demo : install what is missing, then run the main job on the built-in default system
 # make test : install what is missing (bpy and chromium included), then run the whole test suite
+# make bench: every benchmark in its quick mode (python -m bench; each alone: python -m bench.NAME)
 VENV   := .venv
 PY     := $(VENV)/bin/python
 OUT    ?= out/demo

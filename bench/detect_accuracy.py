@@ -31,7 +31,7 @@ def close_system(distance_mm: float = 400.0, f_px: float = 1000.0):
 
 
 def render_white(system, spec, tilt_deg, noise_seed=None):
-    """(H, W) uint8 white frame of board ``spec`` (synth.BoardSpec) tilted by (rx, ry) degrees
+    """(H, W) uint8 white frame of board ``spec`` (``synth.BoardTexture`` or ``calib.board.Board``) tilted by (rx, ry) degrees
     about the world origin, and the board -> world rotation."""
     from synth import Board, Effects, Noise, PatternSpec, Scene, render
     from synth.poses import rotation_xyz_deg
@@ -44,12 +44,12 @@ def render_white(system, spec, tilt_deg, noise_seed=None):
 
 
 def centre_errors(image, system, spec, R_wb, *, centre_method="moments", correct_bias=True):
-    """(errors (N, 2) px detected - true, detection) for one rendered image."""
-    from calib.board import Board
+    """(errors (N, 2) px detected - true, detection) for one rendered image of board ``spec``
+    (``synth.BoardTexture`` or ``calib.board.Board``)."""
     from calib.detect.circles import detect_circles
     from calib.detect.result import image_as_float
 
-    board = Board.from_dict(spec.capture_toml_table())
+    board = getattr(spec, "board", spec)
     det = detect_circles(image_as_float(image), board, centre_method=centre_method, correct_bias=correct_bias)
     true = system.camera.project(board.points_board(det.ids) @ R_wb.T)
     return det.q - true, det
@@ -61,11 +61,11 @@ def _stats(e):
 
 
 def setups():
+    from calib.board import paper_board
     from calib.system import default_system
-    from synth import BoardSpec
 
-    paper = BoardSpec()
-    big = BoardSpec(small_diameter_mm=8.0, large_diameter_mm=14.0)
+    paper = paper_board()
+    big = paper_board(small_diameter_mm=8.0, large_diameter_mm=14.0)
     return [("paper twin (f 2592 px, 850 mm), paper board", default_system(), paper),
             ("close (f 1000 px, 400 mm), paper board", close_system(), paper),
             ("close (f 1000 px, 400 mm), 8/14 mm circles", close_system(), big)]

@@ -152,7 +152,10 @@ def main(argv=None):
     ap.add_argument("--config", default=str(REPO / "synth" / "data" / "export_train.toml"))
     ap.add_argument("--samples", type=int, default=8)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--quick", action="store_true", help="2 samples (make bench): a smoke run, not for quoting")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.samples = 2
     torch.set_num_threads(args.threads)
     print(f"load average at start (1/5/15 min): {_load()}  (2 cores, shared with other engineers' jobs)")
     work = Path(tempfile.mkdtemp(prefix="bench_export_"))

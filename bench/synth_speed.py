@@ -1,5 +1,6 @@
 """Speed of the synth renderer at 640x480 (the paper's camera) against Blender Cycles in the
-same run: ``python -m bench.synth_speed [--no-blender] [--threads 2] [--repeats 3]``.
+same run: ``python -m bench.synth_speed [--no-blender] [--threads 2] [--repeats 3] [--quick]``
+(``--quick``: one repeat, plane and ball only, no Cycles).
 
 Rows: the paper's 72-image stack (v/h, 12 steps, f = 1, 8, 48) on a plane, on the ball, on a
 ~100k-triangle mesh (bunny, 69k, on a blobs relief, 30k) with shadows + projector and camera
@@ -49,7 +50,7 @@ import torch
 DOF_SAMPLES = 64  # the Blender DOF reference check (tests/test_synth_reference.py) converges at 32 at 160x120
 
 
-def _scenes():
+def _scenes(quick: bool = False):
     from calib import default_system
     from synth import Mesh, Plane, Scene, Sphere, blobs_heights, heightfield_mesh, load_mesh, phase_sequence
     from synth.effects import Defocus, Effects, Noise
@@ -58,6 +59,8 @@ def _scenes():
     seq = phase_sequence(("v", "h"), (1, 8, 48), 12)
     yield "plane", Scene(system, [Plane("plane", np.eye(3), [0, 0, 0])], seq)
     yield "ball", Scene(system, [Sphere("ball", np.eye(3), [0, 0, 0])], seq)
+    if quick:
+        return
     mesh_path = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "meshes" / "stanford-bunny.obj"
     objs = []
     if mesh_path.exists():
@@ -108,14 +111,14 @@ def _time_ours(scene, repeats):
     for _ in range(repeats):
         _RAY_CACHE.clear()
         t0 = time.perf_counter()
-        g = compute_geometry(scene, log=_Quiet())
+        g = compute_geometry(scene)
         keep("geometry cold", time.perf_counter() - t0)
         for k, v in g.timings.items():
             keep(f"geometry: {k}", v)
         t0 = time.perf_counter()
-        compute_geometry(scene, log=_Quiet())
+        compute_geometry(scene)
         keep("geometry new pose", time.perf_counter() - t0)
-        res = render(scene, geometry=g, log=_Quiet())
+        res = render(scene, geometry=g)
         for k, v in res.timings.items():
             keep(k, v)
     return best, len(res.names), res.plan
@@ -151,7 +154,10 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--no-blender", action="store_true")
+    ap.add_argument("--quick", action="store_true", help="one repeat, plane and ball only, no Cycles")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.repeats, args.no_blender = 1, True
     torch.set_num_threads(args.threads)
     blender = None
     if not args.no_blender:
@@ -164,7 +170,7 @@ def main(argv=None) -> int:
 
     print(f"one-time per process, loading the compiled kernels: {_kernel_load_seconds():.2f} s", flush=True)
     rows = []
-    for name, scene in _scenes():
+    for name, scene in _scenes(quick=args.quick):
         # the same frame as Cycles: the twin system; the real one (with lens distortion) beside it
         twin = Scene(_twin_system(scene.system), scene.objects, scene.patterns, scene.effects)
         # ours and Cycles alternate, so that both see the same spells of load on a shared machine
@@ -242,11 +248,6 @@ def _kernel_load_seconds() -> float:
         pass
     add_noise(torch.zeros(4), Noise(), torch.Generator().manual_seed(0))
     return time.perf_counter() - t0
-
-
-class _Quiet:
-    def info(self, *a):
-        pass
 
 
 if __name__ == "__main__":

@@ -98,21 +98,15 @@ def _table(title, cases, best, nbytes, floor_names):
         print(f"| {name} | {t:.2f} | {nbytes / t / 1e6:.2f} | {ratios} |")
 
 
-def part1(repeat, rounds, scratch_compile=False):
-    rng = np.random.default_rng(0)
-    freqs = (1, 8, 48)
-    stacks = _stacks(freqs, 12, 2.0, rng, B=90.0)
-    nbytes = sum(s.nbytes for s in stacks)
-    threads = 1
-    jit_s = None
-    fast = fast_available()
-    if fast:
-        import numba
-        threads = numba.config.NUMBA_NUM_THREADS
-        t = time.perf_counter()
-        mf_unwrap_stacks(stacks, freqs, width=W_P, fast=True)  # compile or load the cache
-        jit_s = time.perf_counter() - t
+SUM = "floor: numpy step-axis sum into uint16 (the target's floor)"
+MAX = "floor: numpy step-axis max (uint8)"
+FLAT = "floor: numpy sum of the bytes viewed as uint64 (fastest read)"
+COPY = "floor: numpy copy of the frames (read + write)"
 
+
+def _part1_cases(stacks, freqs, repeat, threads, fast):
+    """(name, callable, repetitions) of part 1: the numpy floors, the fused kernel (when numba
+    is there) and the reference; and the reference itself (a callable)."""
     def reference(acc="float64"):
         phases = [wrapped_phase(s, accumulate=acc).phase for s in stacks]
         return mf_unwrap(phases, freqs, width=W_P)
@@ -130,11 +124,6 @@ def part1(repeat, rounds, scratch_compile=False):
         finally:
             _set_threads(threads)
 
-    SUM = "floor: numpy step-axis sum into uint16 (the target's floor)"
-    MAX = "floor: numpy step-axis max (uint8)"
-    FLAT = "floor: numpy sum of the bytes viewed as uint64 (fastest read)"
-    COPY = "floor: numpy copy of the frames (read + write)"
-    FUSED = f"**fused kernel, {threads} threads, fresh outputs**"
     short = repeat if repeat < 3 else max(1, repeat // 3)
     cases = [
         (SUM, lambda: [s.sum(axis=0, dtype=np.uint16) for s in stacks], repeat),
@@ -144,7 +133,7 @@ def part1(repeat, rounds, scratch_compile=False):
     ]
     if fast:
         cases += [
-            (FUSED, lambda: mf_unwrap_stacks(stacks, freqs, width=W_P, fast=True), 3 * repeat),
+            (_fused_name(threads), lambda: mf_unwrap_stacks(stacks, freqs, width=W_P, fast=True), 3 * repeat),
             (f"fused kernel, {threads} threads, outputs reused (out=)", fused_reuse, 3 * repeat),
             ("fused kernel, 1 thread, fresh outputs", fused_one_thread, repeat),
         ]
@@ -154,10 +143,50 @@ def part1(repeat, rounds, scratch_compile=False):
         ("  of which wrapped_phase x3", lambda: [wrapped_phase(s) for s in stacks], short),
         ("  of which mf_unwrap (1, 8, 48)", lambda: mf_unwrap(phases, freqs, width=W_P), short),
     ]
+    return cases, reference
+
+
+def _fused_name(threads):
+    return f"**fused kernel, {threads} threads, fresh outputs**"
+
+
+def _agreement(stacks, freqs, reference, jit_s, scratch_compile):
+    """Print the JIT cost and the fused kernel's agreement with the reference."""
+    print(f"\nJIT: first call in this process {jit_s:.2f} s (loading numba's on-disk cache, or "
+          "compiling when no earlier run did; not in the times above).")
+    if scratch_compile:
+        c = _compile_from_scratch_s()
+        print(f"JIT from scratch (fresh process, empty cache): "
+              f"{'failed' if c is None else f'{c:.1f} s'}.")
+    ref = reference()
+    r = mf_unwrap_stacks(stacks, freqs, width=W_P, fast=True).result
+    same_valid = bool(np.array_equal(r.valid, ref.valid))
+    dphi = float(np.nanmax(np.abs(r.phase - ref.phase)))
+    ties = int(np.sum(r.order != ref.order))
+    print(f"Agreement with the reference: valid identical: {same_valid}; max |phase "
+          f"difference| {dphi:.1e} rad; k differs at {ties} of {r.order.size} pixels (only "
+          "possible at ties on the wrapped phase's +-pi cut; see docs/unwrap.md).")
+
+
+def part1(repeat, rounds, scratch_compile=False):
+    rng = np.random.default_rng(0)
+    freqs = (1, 8, 48)
+    stacks = _stacks(freqs, 12, 2.0, rng, B=90.0)
+    nbytes = sum(s.nbytes for s in stacks)
+    threads = 1
+    jit_s = None
+    fast = fast_available()
+    if fast:
+        import numba
+        threads = numba.config.NUMBA_NUM_THREADS
+        t = time.perf_counter()
+        mf_unwrap_stacks(stacks, freqs, width=W_P, fast=True)  # compile or load the cache
+        jit_s = time.perf_counter() - t
+    cases, reference = _part1_cases(stacks, freqs, repeat, threads, fast)
     # cold: reading 64 MB (twice the 32 MB L3 of the benchmark machine) evicts the frames first
     evict = np.ones((64 << 20) // 8, np.uint64)
     flush = lambda: evict.sum()  # noqa: E731
-    cold_names = [SUM, MAX, COPY] + ([FUSED] if fast else []) + [cases[-4][0]]
+    cold_names = [SUM, MAX, COPY] + ([_fused_name(threads)] if fast else []) + [cases[-4][0]]
     best = {name: math.inf for name, _, _ in cases}
     cold = {name: math.inf for name in cold_names}
     for _ in range(rounds):
@@ -172,20 +201,7 @@ def part1(repeat, rounds, scratch_compile=False):
     _table(f"\n## The same with the last-level cache flushed before each call (cold: frames "
            f"come from DRAM)\n", cold_names, cold, nbytes, {"sum floor": SUM, "max floor": MAX})
     if fast:
-        print(f"\nJIT: first call in this process {jit_s:.2f} s (loading numba's on-disk cache, or "
-              "compiling when no earlier run did; not in the times above).")
-        if scratch_compile:
-            c = _compile_from_scratch_s()
-            print(f"JIT from scratch (fresh process, empty cache): "
-                  f"{'failed' if c is None else f'{c:.1f} s'}.")
-        ref = reference()
-        r = mf_unwrap_stacks(stacks, freqs, width=W_P, fast=True).result
-        same_valid = bool(np.array_equal(r.valid, ref.valid))
-        dphi = float(np.nanmax(np.abs(r.phase - ref.phase)))
-        ties = int(np.sum(r.order != ref.order))
-        print(f"Agreement with the reference: valid identical: {same_valid}; max |phase "
-              f"difference| {dphi:.1e} rad; k differs at {ties} of {r.order.size} pixels (only "
-              "possible at ties on the wrapped phase's +-pi cut; see docs/unwrap.md).")
+        _agreement(stacks, freqs, reference, jit_s, scratch_compile)
     return best, cold
 
 

@@ -16,6 +16,8 @@ SYNOPSIS
     (12, 3)
     >>> b.points_board()[0].tolist()
     [-15.0, -10.0, 0.0]
+    >>> paper_board().to_dict()["large_markers"][0]
+    [4, 5]
 """
 from __future__ import annotations
 
@@ -27,6 +29,9 @@ from .errors import BoardError
 
 KINDS = ("circles", "checkerboard", "charuco")
 POLARITIES = ("dark-on-light", "light-on-dark")
+
+#: The large orientation circles of the paper's board, in DESIGN.md's marker layout (row, col).
+PAPER_LARGE_MARKERS = ((4, 5), (4, 6), (4, 7), (3, 5), (2, 5))
 
 
 def _rot90_cells(cells: set, rows: int, cols: int, k: int) -> set:
@@ -166,3 +171,13 @@ class Board:
         if self.kind == "charuco":
             d["aruco_dictionary"] = self.aruco_dictionary
         return d
+
+
+def paper_board(**changes) -> Board:
+    """The paper's calibration board (supplementary section 2): 9 x 11 circles at 20 mm pitch,
+    2 mm circles and 5 mm orientation circles in DESIGN.md's marker layout, dark on light.
+    ``changes`` replace any of these (e.g. ``large_markers=()``)."""
+    kw = dict(kind="circles", rows=9, cols=11, spacing_mm=20.0, large_diameter_mm=5.0, small_diameter_mm=2.0,
+              large_markers=PAPER_LARGE_MARKERS, polarity="dark-on-light")
+    kw.update(changes)
+    return Board(**kw)

@@ -6,13 +6,20 @@
 DESIGN.md convention, world = the board at the first view (as the paper's tables), together with
 the adjustment's uncertainties and residuals.
 
-SYNOPSIS
+SYNOPSIS (the paper's own observations: ``from_bouguet("CamCalibResult_real.mat",
+"PrjCalibResult_real.mat")``; here simulated, noise-free, so the truth comes back)
 
-    >>> from calib.calibrate import run_calibration               # doctest: +SKIP
-    >>> from calib.observations import from_bouguet                # doctest: +SKIP
-    >>> obs = from_bouguet("CamCalibResult_real.mat", "PrjCalibResult_real.mat")  # doctest: +SKIP
-    >>> cal = run_calibration(obs)                                 # doctest: +SKIP
-    >>> cal.system.projector.fy                                    # doctest: +SKIP
+    >>> import numpy as np
+    >>> from calib import default_system
+    >>> from calib.board import Board
+    >>> from calib.bundle_adjustment import BAConfig
+    >>> from calib.calibrate import run_calibration
+    >>> from calib.simulate import simulate_observations
+    >>> s = default_system().ideal()          # no skew: the default model holds it at 0
+    >>> obs, _ = simulate_observations(s, Board("checkerboard", 5, 7, 20.0), 6, 0.0, np.random.default_rng(0))
+    >>> cal = run_calibration(obs, BAConfig(outlier_threshold=None))
+    >>> round(cal.system.projector.fy / s.projector.fy, 6)
+    1.0
 """
 from __future__ import annotations
 
@@ -42,6 +49,9 @@ class Calibration:
     - seeds: {device: DeviceSeed}; timings: {"init_s", "build_s", "solve_s", "total_s"}.
     - baseline_scatter_mm: spread (std, mm) of the projector centre in the camera frame over the
       per-view seed compositions (what a rig built from independent per-device poses suffers).
+    - config: the :class:`calib.bundle_adjustment.BAConfig` it was solved with.
+    - uncertainty: None, or what :mod:`calib.uncertainty` added (the error model's standard
+      deviations, resampled spreads, warnings), set by :func:`calib.pipeline.calibrate_observations`.
     """
 
     system: SystemModel
@@ -49,6 +59,8 @@ class Calibration:
     seeds: dict
     timings: dict
     baseline_scatter_mm: float | None
+    config: BAConfig | None = None
+    uncertainty: object = None
 
 
 def _average_rotation(Rs):
@@ -154,7 +166,7 @@ def run_calibration(obs: Observations, config: BAConfig | None = None) -> Calibr
         say(f"seeding {d}: Zhang closed form on {len(views)} view(s)")
         seeds[d] = init_device([v.points_board[v.seen(d)] for v in views],
                                [v.q[d][v.seen(d)] for v in views], obs.sizes[d],
-                               n_distortion=config.device(d).n_distortion, label=d)
+                               n_distortion=config.device(d).n_distortion, refine=False, label=d)
         say(f"  {d} seed: fx {seeds[d].K[0, 0]:.2f} fy {seeds[d].K[1, 1]:.2f} cx {seeds[d].K[0, 2]:.2f}"
                      f" cy {seeds[d].K[1, 2]:.2f}, RMS {seeds[d].rms_px:.4f} px")
     t_init = time.perf_counter() - t0
@@ -167,7 +179,7 @@ def run_calibration(obs: Observations, config: BAConfig | None = None) -> Calibr
     system = system_from_result(obs, res)
     timings = {"init_s": t_init, "build_s": problem.build_seconds, "solve_s": res.timings["solve_s"],
                "total_s": time.perf_counter() - t0}
-    return Calibration(system, res, seeds, timings, scatter)
+    return Calibration(system, res, seeds, timings, scatter, config)
 
 
 __all__ = ["Calibration", "run_calibration", "start_state", "system_from_result", "rotvec_from_matrix"]

@@ -5,6 +5,18 @@ results of the DP-TPU repository (github.com/nomineee/DP-TPU, MIT licence, files
 ``data/calib/CamCalibResult_real.mat`` and ``PrjCalibResult_real.mat``), board pose 1 as world,
 with the device datasheet facts (Basler acA640-750um: 4.8 um pixels; TI DLP4500: 912 x 1140
 DMD of 10.8 x 6.8 mm). The numbers are shipped in ``calib/data/default_system.json``.
+
+SYNOPSIS
+
+    >>> from calib.system import SystemModel, default_system
+    >>> s = default_system()
+    >>> s.camera.size, s.projector.size
+    ((640, 480), (912, 1140))
+    >>> twin = s.ideal()                       # what a Blender twin represents
+    >>> twin.projector.skew, twin.projector.distortion.any()
+    (0.0, False)
+    >>> SystemModel.from_dict(s.to_dict()).camera.fx == s.camera.fx
+    True
 """
 from __future__ import annotations
 

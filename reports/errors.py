@@ -1,6 +1,7 @@
-"""Exception type of reports."""
+"""Exception type of reports: ``ReportError``, its one error root (a ``ValueError``; also a
+``calib.errors.CalibError``, as it always was, for callers that catch calib's errors)."""
 from calib.errors import CalibError
 
 
-class ReportError(CalibError, ValueError):
+class ReportError(CalibError):
     """Inputs of a report are missing, mismatched or unreadable."""

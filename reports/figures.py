@@ -50,7 +50,7 @@ def residual_vectors(views, residuals: dict, device_sizes: dict, title: str) -> 
         if kind not in residuals:
             ax.set_visible(False)
             continue
-        q = np.concatenate([v.pixels[kind] for v in views])
+        q = np.concatenate([v.q[kind] for v in views])
         r = residuals[kind]
         ok = np.all(np.isfinite(q), axis=1)
         q = q[ok][: len(r)]

@@ -1,77 +1,23 @@
-"""The paper's Fig. 3 as a computation: reconstruct a sphere from every (calibration, phase) pair
-and fit a sphere; the RMS of the fit residuals (um) fills a matrix.
-
-Paper's published values (Liu et al., Fig. 3; dp-tpu README): real phase + real calibration
-58.541 um, real phase + twin calibration 61.999 um, twin phase + real calibration 32.125 um,
-twin phase + twin calibration 28.256 um (linear triangulation with K[R|T] of pose 1, no
-distortion, least-squares sphere fit).
-
-Two methods per cell: the paper's linear triangulation, and ours (distortion-aware), both from
-``calib.triangulate``.
+"""The paper's Fig. 3 laid out: the sphere-fit RMS of the reconstructed ball for every
+(calibration, phase) pair, computed by :func:`calib.triangulate.cross_reconstruction` (the
+paper's linear triangulation and our distortion-aware one), beside the paper's published values
+(:data:`twin_mapping.paper_tables.FIG3_SPHERE_RMS_UM`: real phase + real calibration 58.541 um,
+real + twin 61.999 um, twin + real 32.125 um, twin + twin 28.256 um; its linear method).
 """
 from __future__ import annotations
 
-from pathlib import Path
+from calib.triangulate import cross_reconstruction as _cross_reconstruction
+from calib.triangulate import sphere_from_phase
+from twin_mapping.paper_tables import FIG3_SPHERE_RMS_UM
+from unwrap.phase_io import read_phase as load_phase  # noqa: F401  (kept name: the one phase reader)
 
-import numpy as np
-
-from .errors import ReportError
-
-PAPER_FIG3_UM = {("real", "real"): 58.541, ("real", "twin"): 61.999, ("twin", "real"): 32.125, ("twin", "twin"): 28.256}
-"""(phase, calibration) -> sphere-fit RMS in um as published in the paper's Fig. 3."""
-
-
-def load_phase(path, key: str | None = None) -> np.ndarray:
-    """Absolute phase map (H, W) float64 from .mat (dp-tpu: ``phase3`` / ``phase``), .npy, or our HDF5
-    (``v/phase``); 0, NaN and inf mark invalid pixels (returned as NaN)."""
-    path = Path(path)
-    if not path.exists():
-        raise ReportError(f"{path}: no such phase file")
-    suffix = path.suffix.lower()
-    if suffix == ".mat":
-        import scipy.io
-        m = {k: v for k, v in scipy.io.loadmat(str(path)).items() if not k.startswith("__")}
-        if key is None:
-            arrays = [k for k, v in m.items() if isinstance(v, np.ndarray) and v.ndim == 2]
-            if len(arrays) != 1:
-                raise ReportError(f"{path}: expected one 2-D phase array, found {arrays}; name it with a key")
-            key = arrays[0]
-        phase = np.asarray(m[key], dtype=np.float64)
-    elif suffix == ".npy":
-        phase = np.load(path).astype(np.float64)
-    elif suffix in (".h5", ".hdf5"):
-        import h5py
-        with h5py.File(path, "r") as f:
-            k = key or "v/phase"
-            if k not in f:
-                raise ReportError(f"{path}: no dataset {k!r}")
-            phase = np.asarray(f[k], dtype=np.float64)
-    else:
-        raise ReportError(f"{path}: unknown phase format (expected .mat, .npy, .h5)")
-    if phase.ndim != 2:
-        raise ReportError(f"{path}: phase must be 2-D, got shape {phase.shape}")
-    phase[~np.isfinite(phase) | (phase == 0)] = np.nan
-    return phase
+PAPER_FIG3_UM = FIG3_SPHERE_RMS_UM
+"""(phase, calibration) -> sphere-fit RMS in um as published in the paper's Fig. 3 (kept name)."""
 
 
-def sphere_rms_um(system, phase: np.ndarray, frequency: float, method: str = "linear") -> dict:
-    """Reconstruct the valid pixels of a vertical-fringe phase map and fit a sphere."""
-    from calib.triangulate import fit_sphere, triangulate, triangulate_linear
-
-    if phase.shape != (system.camera.height, system.camera.width):
-        raise ReportError(f"phase map {phase.shape[::-1]} (W, H) does not match the camera image "
-                          f"{system.camera.size}")
-    valid = np.isfinite(phase)
-    if valid.sum() < 100:
-        raise ReportError(f"only {valid.sum()} valid phase pixels: no sphere to fit")
-    v, u = np.nonzero(valid)
-    q = np.stack([u, v], axis=1).astype(np.float64)
-    u_p = phase[valid] * system.projector.width / (2 * np.pi * frequency)
-    fn = triangulate_linear if method == "linear" else triangulate
-    X, ok = fn(system, q, u_p)
-    centre, radius, residuals = fit_sphere(X[ok])
-    return {"rms_um": float(1000 * np.sqrt(np.mean(residuals ** 2))), "radius_mm": float(radius),
-            "centre_mm": centre.tolist(), "points": int(ok.sum())}
+def sphere_rms_um(system, phase, frequency: float, method: str = "linear") -> dict:
+    """Kept name: :func:`calib.triangulate.sphere_from_phase` of a vertical-fringe phase map."""
+    return sphere_from_phase(system, phase, frequency, "v", method)
 
 
 def paper_key(label: str) -> str:
@@ -80,18 +26,14 @@ def paper_key(label: str) -> str:
 
 
 def cross_reconstruction(systems: dict, phases: dict, frequency: float) -> list[dict]:
-    """Rows ``{phase, calibration, method, rms_um, paper_um, ratio, ...}`` over every pair.
-
-    Labels starting with "real" / "twin" are matched to the paper's Fig. 3 cell (linear method
-    only: the paper's); ``ratio`` = ours / paper."""
-    rows = []
-    for pk, phase in phases.items():
-        for ck, system in systems.items():
-            for method in ("linear", "distortion-aware"):
-                r = sphere_rms_um(system, phase, frequency, "linear" if method == "linear" else "ours")
-                paper = PAPER_FIG3_UM.get((paper_key(pk), paper_key(ck))) if method == "linear" else None
-                rows.append({"phase": pk, "calibration": ck, "method": method, **r, "paper_um": paper,
-                             "ratio": r["rms_um"] / paper if paper else None})
+    """Rows ``{phase, calibration, method, rms_um, paper_um, ratio, ...}`` over every pair
+    (:func:`calib.triangulate.cross_reconstruction`), with the paper's Fig. 3 value beside each
+    linear-method cell whose labels start with "real" / "twin"; ``ratio`` = ours / paper."""
+    rows = _cross_reconstruction(systems, phases, frequency)
+    for r in rows:
+        paper = PAPER_FIG3_UM.get((paper_key(r["phase"]), paper_key(r["calibration"]))) \
+            if r["method"] == "linear" else None
+        r.update(paper_um=paper, ratio=r["rms_um"] / paper if paper else None)
     return rows
 
 

@@ -11,11 +11,12 @@ from pathlib import Path
 
 import numpy as np
 
+from calib.board_pose import cross_reprojection
+
 from .compare import parameter_rows, rig_rows
 from .errors import ReportError
 from .html import to_html, to_markdown
 from .inputs import CalibrationRecord, check_comparable, load_calibration_record
-from .reprojection import cross_reprojection
 
 
 def _versions() -> dict:
@@ -53,11 +54,10 @@ def _calibration_section(real, twin, rows):
 
 
 def _paper_section(real, twin):
+    from twin_mapping.paper import compare_with_table_s3
+    from twin_mapping.paper_tables import TABLE_S4
     from twin_mapping.table import is_papers_system
     from twin_mapping.twin import to_twin
-    from twin_mapping.paper import compare_with_table_s3
-
-    from .paper_tables import TABLE_S4
 
     if not is_papers_system(real.system):
         return None
@@ -157,7 +157,7 @@ def write_twin_report(real_paths, twin_paths, out_dir, *, title="Twin-equivalenc
     ``phases``: optional ``{"real": path, "twin": path}`` absolute phase maps of the same sphere
     (vertical fringes, ``frequency`` periods): adds the paper's Fig. 3 cross-reconstruction matrix.
     ``render_twin_ball``: also render the twin ball phase at the real ball's fitted pose
-    (``reports.twin_ball``, phase label "twin (synth)"); default (None): when a real phase is given
+    (:mod:`synth.twin_ball`, phase label "twin (synth)"); default (None): when a real phase is given
     without a twin phase. ``twin_render_system``: the system that renders it (default: the real
     calibration without skew and distortion, what the Blender twin represents; "real": with them);
     ``twin_ball_options``: keyword arguments of ``render_twin_ball_phase``. The rendered phase is
@@ -179,12 +179,12 @@ def write_twin_report(real_paths, twin_paths, out_dir, *, title="Twin-equivalenc
         maps = {k: load_phase(v) for k, v in phases.items()}
         extra_rows, ball_blocks = [], []
         if render_twin_ball:
-            from .twin_ball import render_twin_ball_phase, write_twin_ball_phase
+            from synth.twin_ball import render_twin_ball_phase, write_twin_ball_phase
+
             from .twin_ball_section import TWIN_RENDER_LABEL, floor_rows, twin_ball_blocks
-            from synth import ideal_system
 
             render_system = (real.system if twin_render_system == "real" else twin_render_system
-                             if twin_render_system is not None else ideal_system(real.system))
+                             if twin_render_system is not None else real.system.ideal())
             phase, ball_info = render_twin_ball_phase(real.system, render_system, maps["real"], frequency,
                                                       progress=progress, **(twin_ball_options or {}))
             maps[TWIN_RENDER_LABEL] = phase

@@ -26,8 +26,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 LAYERS = ("unwrap", "calib", "twin_mapping", "synth", "reports", "sltwin", "bench")
 """Packages from the bottom layer to the top one."""
-DRIVERS = ("twin_mapping/blender_template.py", "twin_mapping/blender_driver.py",
-           "twin_mapping/blender_check_driver.py", "synth/blender_parity_driver.py")
+DRIVERS = ("twin_mapping/blender_template.py", "twin_mapping/blender_driver.py")
 """Files that run inside Blender's Python (never imported by the toolkit)."""
 
 

@@ -2,21 +2,42 @@
 
 Public surface:
 
-- scenes: ``Scene``, ``load_scene``, ``scene_from_dict``, ``ideal_system``; objects ``Plane``,
-  ``Board``, ``Sphere``, ``Mesh``; ``BoardSpec``; meshes ``load_mesh``, ``steps_mesh``,
-  ``heightfield_mesh``, ``blobs_heights``; patterns ``PatternSpec``, ``phase_sequence``,
-  ``gray_sequence``; ``Effects``, ``Defocus``, ``Noise``.
-- rendering: ``render`` -> ``RenderResult``; ``compute_geometry`` (the reusable geometry stage).
+- scenes: ``Scene``, ``load_scene``, ``scene_from_dict``, ``ideal_system``,
+  ``DEFAULT_BALL_RADIUS_MM``; objects ``Plane``, ``Board``, ``Sphere``, ``Mesh``; boards as
+  printed: ``BoardTexture`` (a ``calib.board.Board`` with its margin and albedo; the board type
+  itself lives in calib), ``BoardSpec`` (one from flat keys); meshes ``load_mesh``,
+  ``steps_mesh``, ``heightfield_mesh``, ``blobs_heights``; patterns ``PatternSpec``,
+  ``phase_sequence``, ``gray_sequence``; ``Effects``, ``effects_from_table``, ``Defocus``,
+  ``Noise``.
+- rendering: ``render`` -> ``RenderResult``; ``compute_geometry`` -> ``Geometry`` (the reusable
+  geometry stage).
 - output: ``write_render`` (PNG + HDF5 ground truth), ``render_board_session`` (a calibration
   session in the capture layout).
-- ``SynthError``.
+- experiments: ``render_twin_ball_phase`` (the twin ball of the paper's Fig. 3 at the real
+  ball's pose).
+- ``SynthError`` (a ValueError).
+
+The render plan goes to the `synth` logger at DEBUG, progress at INFO.
 """
-from .boards import BoardSpec  # noqa: F401
-from .effects import Defocus, Effects, Noise, effects_from_table  # noqa: F401
-from .errors import SynthError  # noqa: F401
-from .geometry import Geometry, compute_geometry  # noqa: F401
-from .meshes import blobs_heights, heightfield_mesh, load_mesh, steps_mesh  # noqa: F401
-from .objects import Board, Mesh, Plane, Sphere  # noqa: F401
-from .render import RenderResult, render  # noqa: F401
-from .scene import DEFAULT_BALL_RADIUS_MM, Scene, ideal_system, load_scene, scene_from_dict  # noqa: F401
-from .sequence import PatternSpec, gray_sequence, phase_sequence  # noqa: F401
+from .board_session import render_board_session
+from .boards import BoardSpec, BoardTexture
+from .effects import Defocus, Effects, Noise, effects_from_table
+from .errors import SynthError
+from .geometry import Geometry, compute_geometry
+from .meshes import blobs_heights, heightfield_mesh, load_mesh, steps_mesh
+from .objects import Board, Mesh, Plane, Sphere
+from .output import write_render
+from .render import RenderResult, render
+from .scene import DEFAULT_BALL_RADIUS_MM, Scene, ideal_system, load_scene, scene_from_dict
+from .sequence import PatternSpec, gray_sequence, phase_sequence
+from .twin_ball import render_twin_ball_phase
+
+__all__ = [
+    "Scene", "load_scene", "scene_from_dict", "ideal_system", "DEFAULT_BALL_RADIUS_MM",
+    "Plane", "Board", "Sphere", "Mesh", "BoardTexture", "BoardSpec",
+    "load_mesh", "steps_mesh", "heightfield_mesh", "blobs_heights",
+    "PatternSpec", "phase_sequence", "gray_sequence", "Effects", "effects_from_table", "Defocus", "Noise",
+    "render", "RenderResult", "compute_geometry", "Geometry",
+    "write_render", "render_board_session", "render_twin_ball_phase",
+    "SynthError",
+]

@@ -4,10 +4,11 @@ itself. Used by the parity tests and the benchmark.
 One Blender scene builder serves the whole toolkit: the twin's exported scene script
 (``twin_mapping.blender_export``, body ``twin_mapping/blender_template.py``: camera, projector as
 a textured zero-radius SPOT light per BLENDER-NOTES, Cycles on the CPU with 1 point-sampled
-path per pixel, direct light only, view transform Raw, dither 0). ``blender_parity_driver.py``
-runs that script and adds only what parity needs: the Lambertian surfaces, the pattern image
-on the spot light, the sample count, 16-bit linear PNG output and, optionally, the camera's
-depth of field. Skew and distortion are not representable in Blender: give an ideal system
+path per pixel, direct light only, view transform Raw, dither 0), and one driver runs it
+(``twin_mapping/blender_driver.py`` through :func:`twin_mapping.blender_run.run_in_blender`);
+its ``render`` job adds only what parity needs: the Lambertian surfaces, the pattern image on
+the spot light, the sample count, 16-bit linear PNG output and, optionally, the camera's depth
+of field. Skew and distortion are not representable in Blender: give an ideal system
 (``synth.ideal_system``); anything else is refused.
 
 Radiometry: the spot is a point source of P/(4 pi) W/sr, so a Lambertian surface of albedo rho
@@ -18,25 +19,14 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 import tempfile
-import time
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
+from twin_mapping.blender_run import blender_available, run_in_blender  # noqa: F401  (kept name)
+
 from .errors import SynthError
-
-
-def blender_available(python: str | None = None) -> bool:
-    """True when ``python -c 'import bpy'`` works."""
-    try:
-        r = subprocess.run([python or sys.executable, "-c", "import bpy"], capture_output=True, timeout=120)
-    except (OSError, subprocess.TimeoutExpired):
-        return False
-    return r.returncode == 0
 
 
 def blender_twin(system) -> dict:
@@ -85,14 +75,7 @@ def render_in_blender(system, meshes, patterns: np.ndarray, *, exposure: float, 
            "bounces": int(bounces),
            "objects": [{"vertices": np.asarray(V).tolist(), "faces": np.asarray(F).tolist(), "albedo": float(a),
                         "smooth": bool(s), "subsurface": subsurface} for V, F, a, s in meshes]}
-    (tmp / "config.json").write_text(json.dumps(cfg))
-    driver = resources.files("synth").joinpath("blender_parity_driver.py")
-    t0 = time.perf_counter()
-    r = subprocess.run([python or sys.executable, str(driver), str(script), str(tmp / "config.json")],
-                       capture_output=True, text=True, timeout=timeout)
-    wall = time.perf_counter() - t0
-    if r.returncode != 0:
-        raise RuntimeError(f"Blender render failed (exit {r.returncode}):\n{r.stderr[-3000:]}")
+    wall = run_in_blender("render", script, cfg, tmp, python=python, timeout=timeout)
     imgs = np.stack([cv2.imread(str(tmp / f"{k:03d}.png"), cv2.IMREAD_UNCHANGED).astype(np.float64) / 65535.0
                      for k in range(len(patterns))])
     times = json.loads((tmp / "times.json").read_text())["times"]

@@ -2,6 +2,10 @@
 the 9x11 circle board (20 mm pitch, 5 / 2 mm circles) at 9 poses tilted within +-10 deg about x
 and +-20 deg about y, horizontal and vertical fringes with 12 steps at frequencies 1, 8 and 48,
 plus a white frame, written in the capture layout of DESIGN.md with ``truth.json`` beside it.
+``pattern="graycode"`` renders a Gray-code calibration session instead (OpenCV's GrayCodePattern:
+column and row bits with their inverses, a white and a black frame; ``capture.toml`` with
+``[pattern] kind = "graycode"``, the layout of :mod:`unwrap.graycode_capture`), as labs that
+calibrate with Moreno & Taubin's method capture it.
 
 The world frame is the board at its reference (untilted) pose, so pose 0 has ``R = R_cam``,
 ``t = t_cam`` and the board centre stays at the world origin for every pose.
@@ -16,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .boards import BoardSpec
+from .boards import BoardTexture
 from .effects import Effects, Noise
 from .errors import SynthError
 from .objects import Board
@@ -24,7 +28,7 @@ from .output import write_pngs, write_truth_h5
 from .poses import rotation_xyz_deg
 from .render import render
 from .scene import Scene
-from .sequence import PatternSpec, phase_sequence
+from .sequence import PatternSpec, gray_sequence, phase_sequence
 
 #: (rx, ry) tilts in degrees: the 3 x 3 grid of the paper's (0 +- 10, 0 +- 20, 0).
 log = logging.getLogger(__name__)
@@ -53,9 +57,11 @@ def _toml_value(v) -> str:
     return repr(v)
 
 
-def capture_toml(board: BoardSpec, steps, frequencies, camera_size, projector_size, extra=None) -> str:
-    tables = {"board": board.capture_toml_table(),
-              "pattern": {"steps": list(steps), "frequencies": list(frequencies)},
+def capture_toml(board, steps, frequencies, camera_size, projector_size, extra=None, pattern=None) -> str:
+    """The text of capture.toml (DESIGN.md) for ``board`` (``calib.board.Board``) and the pattern
+    (``pattern``: the ``[pattern]`` table instead of steps and frequencies, e.g. a Gray-code one)."""
+    tables = {"board": board.to_dict(),
+              "pattern": pattern or {"steps": list(steps), "frequencies": list(frequencies)},
               "camera": {"size": list(camera_size)}, "projector": {"size": list(projector_size)}}
     if extra:
         tables["render"] = extra
@@ -87,12 +93,28 @@ def pose_jitter(n_poses: int, rotation_deg: float, translation_mm: float, seed: 
     return out
 
 
+def session_patterns(system, pattern: str, steps, frequencies, gray_block_px: int = 1) -> tuple[list, dict | None]:
+    """(PatternSpecs, the ``[pattern]`` table or None) of a session: ``"phase-shift"`` (a white
+    frame + fringes) or ``"graycode"`` (white, black, column and row Gray code with inverses)."""
+    if pattern == "graycode":
+        specs = [PatternSpec("white", "white"), PatternSpec("black", "black")]
+        for o in ("v", "h"):
+            specs += gray_sequence(o, system.projector.size, inverse=True, block=int(gray_block_px))
+        return specs, {"kind": "graycode", "block_px": int(gray_block_px), "inverse": True}
+    if pattern != "phase-shift":
+        raise SynthError(f"pattern: expected 'phase-shift' or 'graycode', got {pattern!r}")
+    return [PatternSpec("white", "white")] + phase_sequence(("v", "h"), frequencies, int(steps)), None
+
+
 def render_board_session(out_dir, system=None, *, steps: int = 12, frequencies=(1, 8, 48), n_poses: int = 9,
-                         bits: int = 8, seed: int = 0, noise: Noise | None = Noise(), board: BoardSpec = BoardSpec(),
+                         bits: int = 8, seed: int = 0, noise: Noise | None = Noise(), board=None,
                          effects: Effects | None = None, truth_h5: bool = False, jitter=None,
-                         progress=None) -> dict:
+                         pattern: str = "phase-shift", gray_block_px: int = 1, progress=None) -> dict:
     """Render the session into ``out_dir`` (capture.toml, pose_XX/*.png, truth.json); returns
-    the truth dictionary. ``noise`` None renders noise-free; its seed is offset per pose.
+    the truth dictionary. ``board``: a :class:`synth.boards.BoardTexture` or a ``calib.board.Board``
+    (default: the paper's board). ``noise`` None renders noise-free; its seed is offset per pose.
+    ``pattern``: ``"phase-shift"`` (steps, frequencies) or ``"graycode"`` (Gray code in blocks of
+    ``gray_block_px`` projector pixels; :func:`session_patterns`).
     ``jitter`` ``(rotation_deg, translation_mm)`` perturbs every board pose at random
     (``pose_jitter``, drawn from ``seed``): a repeated session with the board placed again.
     One progress line per pose goes to the ``synth`` logger (or to ``progress``, a callable)."""
@@ -101,42 +123,50 @@ def render_board_session(out_dir, system=None, *, steps: int = 12, frequencies=(
 
     system = system or default_system()
     freqs = [int(f) if float(f).is_integer() else float(f) for f in frequencies]
-    patterns = [PatternSpec("white", "white")] + phase_sequence(("v", "h"), freqs, int(steps))
+    patterns, pattern_table = session_patterns(system, pattern, steps, freqs, gray_block_px)
     base = effects or Effects()
     base = replace(base, bits=int(bits))
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     poses, visible, timings = [], [], []
     Rc, tc = system.camera.R, system.camera.t
-    pts = board.points_board()
+    texture = board if isinstance(board, BoardTexture) else BoardTexture() if board is None else BoardTexture(board)
+    pts = texture.board.points_board()
     perturb = pose_jitter(n_poses, *jitter, seed) if jitter is not None else None
     for i, (rx, ry) in enumerate(session_tilts(n_poses, seed)):
         t0 = time.perf_counter()
-        R_wb = rotation_xyz_deg([rx, ry, 0.0])
-        t_wb = np.zeros(3)
+        R_world_board = rotation_xyz_deg([rx, ry, 0.0])
+        t_world_board = np.zeros(3)
         if perturb is not None:
-            R_wb, t_wb = perturb[i][0] @ R_wb, perturb[i][1].copy()
+            R_world_board, t_world_board = perturb[i][0] @ R_world_board, perturb[i][1].copy()
         eff = replace(base, noise=replace(noise, seed=int(noise.seed) + 1000 * int(seed) + i) if noise else None)
-        scene = Scene(system, [Board("board", R_wb, t_wb, board)], patterns, eff, name=f"pose_{i:02d}")
+        scene = Scene(system, [Board("board", R_world_board, t_world_board, texture)], patterns, eff,
+                      name=f"pose_{i:02d}")
         result = render(scene)
         pose_dir = out_dir / f"pose_{i:02d}"
         write_pngs(result, pose_dir)
         if truth_h5:
             write_truth_h5(result, scene, pose_dir / "truth.h5")
-        R_cb = Rc @ R_wb
-        poses.append({"R": R_cb.tolist(), "t": (Rc @ t_wb + tc).tolist(), "tilt_deg": [rx, ry, 0.0]})
-        q = system.camera.project(pts @ R_wb.T + t_wb)
+        R_cam_board = Rc @ R_world_board
+        poses.append({"R": R_cam_board.tolist(), "t": (Rc @ t_world_board + tc).tolist(), "tilt_deg": [rx, ry, 0.0]})
+        q = system.camera.project(pts @ R_world_board.T + t_world_board)
         W, H = system.camera.size
         visible.append(int(np.sum((q[:, 0] >= 0) & (q[:, 0] <= W - 1) & (q[:, 1] >= 0) & (q[:, 1] <= H - 1))))
         timings.append(time.perf_counter() - t0)
         (progress or log.info)(f"pose {i + 1}/{n_poses}: tilt ({rx:+.1f}, {ry:+.1f}) deg, {len(patterns)} images, "
                                  f"{visible[-1]}/{len(pts)} board points in view, {timings[-1]:.1f} s")
+    skewed = {d: dev.skew for d, dev in system.devices().items() if dev.skew != 0}
+    if skewed:
+        (progress or log.info)("the rendered system has skew (" + ", ".join(f"{d} {s:+.4g} px" for d, s in skewed.items())
+                               + "): a calibration whose model contains the truth estimates it (calib run --skew)")
     (out_dir / "capture.toml").write_text(capture_toml(
-        board, [int(steps)] * len(freqs), freqs, system.camera.size, system.projector.size,
-        {"bits": int(bits), "seed": int(seed), "noise": noise is not None, "software": "sltwin synth"}))
+        texture.board, [int(steps)] * len(freqs), freqs, system.camera.size, system.projector.size,
+        {"bits": int(bits), "seed": int(seed), "noise": noise is not None, "software": "sltwin synth"},
+        pattern_table))
     truth = system_to_dict(system)
-    truth.update({"board_poses": poses, "board": board.capture_toml_table(),
-                  "board_points_in_view": visible, "pattern": {"steps": int(steps), "frequencies": freqs},
+    truth.update({"board_poses": poses, "board": texture.board.to_dict(),
+                  "board_points_in_view": visible,
+                  "pattern": pattern_table or {"steps": int(steps), "frequencies": freqs},
                   "effects": base.to_dict(), "noise": None if noise is None else vars(noise) if hasattr(noise, "__dict__") else str(noise),
                   "seed": int(seed), "jitter": None if jitter is None else [float(j) for j in jitter],
                   "render_seconds": timings})

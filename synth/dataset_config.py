@@ -62,11 +62,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .errors import SynthError
-
-
-class ExportConfigError(SynthError):
-    """An invalid export config (the message names the key)."""
+from .errors import ExportConfigError, SynthError  # noqa: F401  (ExportConfigError re-exported)
 
 
 PROCEDURAL = ("sphere", "blobs", "heightfield", "steps", "plane")
@@ -335,13 +331,3 @@ def load_config(path) -> ExportConfig:
         raise ExportConfigError(f"export config {path}: invalid TOML ({exc})") from None
     return config_from_dict(d, path.parent, text)
 
-
-def check_meshes(cfg: ExportConfig) -> None:
-    """Read every configured mesh once (cached), naming a missing or unreadable one."""
-    from .dataset_scenes import cached_mesh
-
-    for m in cfg.meshes:
-        try:
-            cached_mesh(m)
-        except SynthError as exc:
-            raise ExportConfigError(f"scene.meshes: {exc}") from None

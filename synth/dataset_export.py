@@ -24,8 +24,9 @@ import numpy as np
 
 from unwrap.dataset_schema import SCHEMA, SCHEMA_VERSION
 
-from .dataset_config import ExportConfig, check_meshes, load_config
+from .dataset_config import ExportConfig, load_config
 from .dataset_sample import make_sample, params_json
+from .dataset_scenes import check_meshes
 from .dataset_writer import ShardWriter, fingerprint_of, shard_from_environment, shard_path, shard_range
 from .progress import Progress
 

@@ -15,8 +15,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from .dataset_config import ExportConfig, Range
+from .dataset_config import ExportConfig, ExportConfigError, Range
 from .effects import Defocus, Effects, GlobalIllumination, Noise
+from .errors import SynthError
 from .meshes import blobs_heights, heightfield_mesh, load_mesh, steps_mesh
 from .objects import Mesh, Plane, Sphere
 from .scene import Scene
@@ -31,6 +32,15 @@ def cached_mesh(path: str):
     V.setflags(write=False)
     F.setflags(write=False)
     return V, F, float((V.max(0) - V.min(0)).max())
+
+
+def check_meshes(cfg: ExportConfig) -> None:
+    """Read every configured mesh once (cached), naming a missing or unreadable one."""
+    for m in cfg.meshes:
+        try:
+            cached_mesh(m)
+        except SynthError as exc:
+            raise ExportConfigError(f"scene.meshes: {exc}") from None
 
 
 def random_rotation(rng) -> np.ndarray:

@@ -37,16 +37,12 @@ import numpy as np
 
 from unwrap.dataset_schema import SCHEMA, DatasetSchemaError, check_schema, read_attrs
 
-from .errors import SynthError
+from .errors import ExportError, SynthError  # noqa: F401  (ExportError re-exported)
 
 LOG = logging.getLogger("synth")
 
 #: datasets written as values (not chunk copies) at assembly: small per-sample records
 _SMALL = ("sample_index", "params", "label_check")
-
-
-class ExportError(SynthError):
-    """The export cannot go on (output not writable, disk full, foreign or missing shards)."""
 
 
 # -- shard ranges --------------------------------------------------------------------------------

@@ -187,6 +187,73 @@ class _Clock:
         return _C()
 
 
+def _cast_shadows(scene, shadows, C_p, dir_p, dist_p, xy_prj, candidates, log) -> torch.Tensor:
+    """(M,) bool: surface points (of the M hit pixels) whose path to the projector centre ``C_p``
+    another surface blocks; only ``candidates`` (in the projector's field, facing it) are traced.
+    ``shadows`` None follows ``effects.shadows`` and skips the pass when no object can shadow."""
+    prj = scene.system.projector
+    want = {"on": True, "off": False}.get(scene.effects.shadows) if shadows is None else shadows
+    needed, why = needs_shadow_pass(scene.objects)
+    shadow = torch.zeros(candidates.numel(), dtype=torch.bool)
+    if want is False:
+        log.info("cast shadows: skipped (turned off)")
+        return shadow
+    if not needed and want is None:
+        log.info("cast shadows: skipped (%s)", why)
+        return shadow
+    cand = torch.nonzero(candidates).squeeze(1)
+    if cand.numel():
+        prays = Rays(C_p, -dir_p[cand], xy_prj[cand], torch.tensor(prj.R), torch.tensor(prj.t),
+                     1.0 / max(prj.fx, prj.fy), "projector")
+        t_block = torch.full((cand.numel(),), float("inf"), dtype=F64)
+        for o in scene.objects:  # distances only: no normals or object-frame points
+            t_block = torch.minimum(t_block, o.distance(prays))
+        d = dist_p[cand]
+        shadow[cand] = t_block < d * (1 - 1e-6)
+    log.info("cast shadows: computed (%s): %d shadowed pixel(s)", why, int(shadow.sum()))
+    return shadow
+
+
+def _shading(scene, obj, local, t, cos_c, cos_p, dist_p, ray_xy, lit):
+    """Albedo, radiance scale (exposure x albedo x Lambert x falloff x vignetting, 0 where not lit)
+    and ambient term of the M hit pixels, each (M,) float64. ``cos_c``: |cos| between the camera
+    ray and the normal (sets the pixel's footprint on the surface, for the albedo's anti-aliasing);
+    ``ray_xy``: the normalised camera coordinates of the rays (vignetting)."""
+    eff, cam, prj = scene.effects, scene.system.camera, scene.system.projector
+    albedo = torch.zeros(t.numel(), dtype=F64)
+    footprint = t / max(cam.fx, cam.fy) / torch.sqrt(cos_c.clamp(min=0.05))
+    for i, o in enumerate(scene.objects):
+        m = obj == i
+        if bool(m.any()):
+            albedo[m] = o.albedo(local[m], footprint[m])
+    shade = cos_p.clamp(min=0) if eff.shading == "lambert" else torch.ones_like(cos_p)
+    if eff.falloff:
+        d_ref = eff.reference_distance_mm or float(np.linalg.norm(prj.center_world))
+        shade = shade * (d_ref / dist_p.clamp(min=1e-9)) ** 2
+    vign = torch.ones(t.numel(), dtype=F64)
+    if eff.vignetting > 0:
+        rx = torch.nan_to_num(ray_xy, nan=0.0)
+        cos4 = 1.0 / (1.0 + (rx ** 2).sum(1)) ** 2
+        vign = 1.0 - eff.vignetting * (1.0 - cos4)
+    radiance_scale = torch.where(lit, eff.exposure * albedo * shade * vign, torch.zeros_like(albedo))
+    ambient_term = eff.exposure * eff.ambient * albedo * vign
+    return albedo, radiance_scale, ambient_term
+
+
+def _defocus_sigmas(scene, in_field, z_prj, depth, hi, N):
+    """Per-pixel Gaussian blur sigmas (N, 2) of the projector (px) and (N,) of the camera (px),
+    each None when its defocus is off; ``hi`` maps the M hit pixels into the N image pixels."""
+    eff, cam, prj = scene.effects, scene.system.camera, scene.system.projector
+    sigma_prj = sigma_cam = None
+    if eff.projector_defocus is not None:
+        z = torch.where(in_field, z_prj, torch.full_like(z_prj, eff.projector_defocus.focus_mm))
+        sigma_prj = _scatter(torch.stack([defocus_sigma(eff.projector_defocus, prj.fx, z),
+                                          defocus_sigma(eff.projector_defocus, prj.fy, z)], 1), hi, N, 0.0)
+    if eff.camera_defocus is not None:
+        sigma_cam = _scatter(defocus_sigma(eff.camera_defocus, max(cam.fx, cam.fy), depth), hi, N, 0.0)
+    return sigma_prj, sigma_cam
+
+
 def compute_geometry(scene, *, shadows: bool | None = None, log=None) -> Geometry:
     """Run the geometry stage of ``scene`` (see the module docstring). ``shadows`` overrides
     the scene's choice (None: follow ``effects.shadows``). ``log``: where the stage decisions go
@@ -234,57 +301,17 @@ def compute_geometry(scene, *, shadows: bool | None = None, log=None) -> Geometr
     facing = cos_p > 0
 
     with clock("shadows"):
-        want = {"on": True, "off": False}.get(eff.shadows) if shadows is None else shadows
-        needed, why = needs_shadow_pass(scene.objects)
-        shadow = torch.zeros(hi.numel(), dtype=torch.bool)
-        if want is False:
-            log.info("cast shadows: skipped (turned off)")
-        elif not needed and want is None:
-            log.info("cast shadows: skipped (%s)", why)
-        else:
-            cand = torch.nonzero(in_field & facing).squeeze(1)
-            if cand.numel():
-                prays = Rays(C_p, -dir_p[cand], xy_prj[cand], torch.tensor(prj.R), torch.tensor(prj.t),
-                             1.0 / max(prj.fx, prj.fy), "projector")
-                t_block = torch.full((cand.numel(),), float("inf"), dtype=F64)
-                for o in scene.objects:  # distances only: no normals or object-frame points
-                    t_block = torch.minimum(t_block, o.distance(prays))
-                d = dist_p[cand]
-                shadow[cand] = t_block < d * (1 - 1e-6)
-            log.info("cast shadows: computed (%s): %d shadowed pixel(s)", why, int(shadow.sum()))
+        shadow = _cast_shadows(scene, shadows, C_p, dir_p, dist_p, xy_prj, in_field & facing, log)
     lit = in_field & facing & ~shadow
 
     with clock("shading"):
-        albedo = torch.zeros(hi.numel(), dtype=F64)
-        cos_c = (n_world * dirs).sum(1).abs()
-        footprint = t / max(cam.fx, cam.fy) / torch.sqrt(cos_c.clamp(min=0.05))
-        for i, o in enumerate(scene.objects):
-            m = obj == i
-            if bool(m.any()):
-                albedo[m] = o.albedo(local[m], footprint[m])
-        shade = cos_p.clamp(min=0) if eff.shading == "lambert" else torch.ones_like(cos_p)
-        if eff.falloff:
-            d_ref = eff.reference_distance_mm or float(np.linalg.norm(prj.center_world))
-            shade = shade * (d_ref / dist_p.clamp(min=1e-9)) ** 2
-        vign = torch.ones(hi.numel(), dtype=F64)
-        if eff.vignetting > 0:
-            rx = torch.nan_to_num(rays.xy[hi], nan=0.0)
-            cos4 = 1.0 / (1.0 + (rx ** 2).sum(1)) ** 2
-            vign = 1.0 - eff.vignetting * (1.0 - cos4)
-        radiance_scale = torch.where(lit, eff.exposure * albedo * shade * vign, torch.zeros_like(albedo))
-        ambient_term = eff.exposure * eff.ambient * albedo * vign
+        albedo, radiance_scale, ambient_term = _shading(scene, obj, local, t, (n_world * dirs).sum(1).abs(),
+                                                        cos_p, dist_p, rays.xy[hi], lit)
     if eff.vignetting == 0:
         log.info("vignetting: skipped (strength 0)")
     if eff.ambient == 0:
         log.info("ambient light: skipped (0)")
-
-    sigma_prj = sigma_cam = None
-    if eff.projector_defocus is not None:
-        z = torch.where(in_field, z_prj, torch.full_like(z_prj, eff.projector_defocus.focus_mm))
-        sigma_prj = _scatter(torch.stack([defocus_sigma(eff.projector_defocus, prj.fx, z),
-                                          defocus_sigma(eff.projector_defocus, prj.fy, z)], 1), hi, N, 0.0)
-    if eff.camera_defocus is not None:
-        sigma_cam = _scatter(defocus_sigma(eff.camera_defocus, max(cam.fx, cam.fy), depth), hi, N, 0.0)
+    sigma_prj, sigma_cam = _defocus_sigmas(scene, in_field, z_prj, depth, hi, N)
     proj_ok = z_prj > 0
     u_p = torch.where(proj_ok, u_p, torch.full_like(u_p, nan))
     v_p = torch.where(proj_ok, v_p, torch.full_like(v_p, nan))

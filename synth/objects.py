@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from .boards import BoardSpec
+from .boards import BoardTexture
 from .errors import SynthError
 from .raycast import nearest_hits, numba_engine_available, triangle_areas
 
@@ -111,11 +111,13 @@ class Plane(SceneObject):
 
 
 class Board(Plane):
-    """A printed calibration board (board frame of DESIGN.md) on a finite plane."""
+    """A printed calibration board (board frame of DESIGN.md) on a finite plane. ``spec``: a
+    :class:`synth.boards.BoardTexture`, or a ``calib.board.Board`` printed with the default texture."""
 
     kind = "board"
 
-    def __init__(self, name, R, t, spec: BoardSpec):
+    def __init__(self, name, R, t, spec):
+        spec = spec if isinstance(spec, BoardTexture) else BoardTexture(spec)
         super().__init__(name, R, t, spec.albedo_light, spec.size_mm)
         self.spec = spec
 
@@ -123,7 +125,7 @@ class Board(Plane):
         return self.spec.albedo(local[:, :2], footprint_mm)
 
     def describe(self):
-        return {**super().describe(), "board": self.spec.capture_toml_table()}
+        return {**super().describe(), "board": self.spec.board.to_dict()}
 
 
 class Sphere(SceneObject):

@@ -7,9 +7,9 @@ HDF5 layout (``truth.h5``), shaped like the camera image (H, W), chunked and gzi
   ``normals_cam`` (H,W,3), ``u_p`` / ``v_p`` (float64 px, NaN: not projectable), ``albedo``,
   ``object_id`` (int16, -1: none);
 - ``masks/object``, ``masks/shadow``, ``masks/outside_projector``, ``masks/lit`` (bool);
-- per orientation ``v`` / ``h`` (DESIGN.md): ``phase`` (absolute phase of the highest frequency,
-  rad, NaN where invalid), ``order`` (int32, -1 where invalid), ``valid``; and per frequency
-  ``phase_f008``, ``order_f008``;
+- per orientation ``v`` / ``h`` (DESIGN.md, written by :func:`unwrap.phase_io.write_phase_group`):
+  ``phase`` (absolute phase of the highest frequency, rad, NaN where invalid), ``order`` (int32,
+  -1 where invalid), ``valid``; and per frequency ``phase_f008``, ``order_f008``;
 - attributes: ``system`` (calibration.json text), ``scene`` (scene TOML text), ``effects``,
   ``objects``, ``patterns``, ``render_plan`` (JSON), ``bits``, ``software``.
 """
@@ -51,6 +51,7 @@ def write_truth_h5(result, scene, path) -> Path:
     import h5py
 
     from calib.io.calibration_json import system_to_dict
+    from unwrap.phase_io import write_phase_group
 
     g = result.geometry
     W, H = g.size
@@ -79,15 +80,13 @@ def write_truth_h5(result, scene, path) -> Path:
         put("masks/lit", img(g.lit))
         for o, per_f in result.truth(scene.system.projector.size, scene.patterns).items():
             top = max(per_f)
-            for fr, (phase, order, valid) in per_f.items():
-                put(f"{o}/phase_{frequency_tag(fr)}", phase)
-                put(f"{o}/order_{frequency_tag(fr)}", order)
-                if fr == top:
-                    put(f"{o}/phase", phase)
-                    put(f"{o}/order", order)
-                    put(f"{o}/valid", valid)
-                    f[o].attrs["frequency"] = fr
-            f[o].attrs["frequencies"] = list(per_f)
+            phase, order, valid = per_f[top]
+            extra = {}
+            for fr, (phase_f, order_f, _) in per_f.items():
+                extra[f"phase_{frequency_tag(fr)}"] = phase_f
+                extra[f"order_{frequency_tag(fr)}"] = order_f
+            write_phase_group(f, o, phase, order=order, valid=valid, frequency=top, extra=extra,
+                              attrs={"frequencies": list(per_f)}, chunks=(min(H, 64), min(W, 64)), **kw)
         f.attrs["system"] = json.dumps(system_to_dict(scene.system))
         f.attrs["scene"] = scene.source_text
         f.attrs["effects"] = json.dumps(scene.effects.to_dict())

@@ -3,6 +3,14 @@
 ``pose = {R = [[...]], t = [...]}`` or ``pose = {rotation_deg = [rx, ry, rz], t = [...]}``; the
 Euler angles are Blender's 'XYZ' order (rotate about x first): ``R = Rz @ Ry @ Rx``.
 A point of the object maps to the world as ``X_world = R @ X_obj + t``.
+
+SYNOPSIS
+
+    >>> import numpy as np
+    >>> from synth.poses import parse_pose
+    >>> R, t = parse_pose({"rotation_deg": [0, 0, 90], "t": [0, 0, 10]}, "pose")
+    >>> np.round(R @ [1.0, 0, 0] + t, 12).tolist()
+    [0.0, 1.0, 10.0]
 """
 from __future__ import annotations
 
@@ -11,18 +19,15 @@ import math
 import numpy as np
 
 from calib.rotation import validate_rotation
+from twin_mapping.euler import matrix_from_euler_xyz
 
 from .errors import SynthError
 
 
 def rotation_xyz_deg(angles_deg) -> np.ndarray:
-    """Blender 'XYZ' Euler angles (degrees) -> rotation matrix (3,3) ``Rz @ Ry @ Rx``."""
-    rx, ry, rz = (math.radians(float(a)) for a in angles_deg)
-    cx, sx, cy, sy, cz, sz = math.cos(rx), math.sin(rx), math.cos(ry), math.sin(ry), math.cos(rz), math.sin(rz)
-    Rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-    return Rz @ Ry @ Rx
+    """Blender 'XYZ' Euler angles (degrees) -> rotation matrix (3,3) ``Rz @ Ry @ Rx``
+    (:func:`twin_mapping.euler.matrix_from_euler_xyz` in degrees)."""
+    return matrix_from_euler_xyz([math.radians(float(a)) for a in angles_deg])
 
 
 def _vector(value, n: int, key: str) -> np.ndarray:

@@ -8,7 +8,7 @@ SYNOPSIS
     >>> scene = Scene(default_system(), [Plane("wall", np.eye(3), [0, 0, 0])],
     ...               phase_sequence(("v",), (8,), 4))
     >>> result = render(scene)
-    >>> result.images.shape, result.images.dtype
+    >>> tuple(result.images.shape), result.images.dtype
     ((4, 480, 640), torch.uint8)
 
 Only the stages a scene asks for are built, and a stage that cannot change this scene's image is
@@ -90,6 +90,99 @@ def _quantised_stack(geometry, lit, idx, C, rows, other, p_other, K, eff) -> tor
     return out
 
 
+def _optics_plan(eff, geometry, lit, plan):
+    """Which optical stages this render runs (their skips go to the plan): returns the projector
+    blur sigmas at the lit pixels (None: no blur), whether the camera blurs and whether global
+    illumination is applied."""
+    if not eff.projector_defocus:
+        plan.info("projector defocus: skipped (not asked for)")
+    elif lit.numel() == 0 or float(geometry.sigma_prj[lit].max()) < 1e-3:
+        plan.info("projector defocus: skipped (no lit pixel is out of focus)")
+    if eff.projector_gamma == 1.0:
+        plan.info("projector gamma: skipped (1.0)")
+    sig = geometry.sigma_prj[lit] if (geometry.sigma_prj is not None and lit.numel()) else None
+    if sig is not None and float(sig.max()) < 1e-3:
+        sig = None
+    if eff.camera_defocus is None:
+        plan.info("camera defocus: skipped (not asked for)")
+        cam_blur = False
+    elif geometry.sigma_cam is None or float(geometry.sigma_cam.max()) < 1e-3:
+        plan.info("camera defocus: skipped (every pixel in focus)")
+        cam_blur = False
+    else:
+        cam_blur = True
+    gi = eff.global_illumination
+    gi_on = gi is not None and gi.active and lit.numel() > 0
+    if gi is None:
+        plan.info("global illumination: skipped (not asked for)")
+    elif not gi_on:
+        plan.info("global illumination: skipped (%s)", "zero fractions" if not gi.active else "nothing lit")
+    if eff.noise is None:
+        plan.info("sensor noise: skipped (not asked for)")
+    return sig, cam_blur, gi_on
+
+
+def _linear_images(geometry, lit, idx, C, rows, other, p_other, K, eff, cam_blur, timings, t, *,
+                   gi=None, f_px=None, plan=None):
+    """The (K, H, W) float32 images before the sensor: basis rows over the whole image (ambient
+    where unlit), global illumination (``gi``; ``f_px`` the camera focal length, px) and camera
+    defocus on the rows, then the pattern combinations. ``t``: when the pattern stage started
+    (its time goes to ``timings``)."""
+    W, H = geometry.size
+    N = W * H
+    full = torch.zeros((rows.shape[0] + 1, N), dtype=torch.float32)
+    full[0] = geometry.ambient_term
+    full[1:, lit] = rows
+    images = torch.empty((K, N), dtype=torch.float32)
+    nl = None
+    if other:
+        nl = geometry.ambient_term.to(torch.float32).repeat(len(other), 1)
+        nl[:, lit] += (geometry.radiance_scale[lit] * p_other).to(torch.float32)
+    timings["patterns"] = time.perf_counter() - t
+    if gi is not None:
+        # linear too: applied to the basis rows (and the other patterns' images)
+        t = time.perf_counter()
+        full = apply_global_illumination(full, geometry, gi, f_px, log=plan)
+        if nl is not None:
+            nl = apply_global_illumination(nl, geometry, gi, f_px)
+        timings["global illumination"] = time.perf_counter() - t
+    if cam_blur:
+        # blur is linear and its per-pixel level weights too: blurring the R basis rows and
+        # combining them equals blurring the K images (R ~ K / 5 for fringe stacks)
+        t = time.perf_counter()
+        sigma = geometry.sigma_cam.reshape(H, W)
+        lv = eff.camera_defocus.levels
+        full = camera_defocus(full.reshape(-1, H, W), sigma, lv).reshape(-1, N)
+        if nl is not None:
+            nl = camera_defocus(nl.reshape(-1, H, W), sigma, lv).reshape(-1, N)
+        timings["camera defocus"] = time.perf_counter() - t
+    t = time.perf_counter()
+    if idx == list(range(K)):
+        torch.mm(C, full, out=images)
+    elif idx:
+        images[idx] = C @ full
+    if nl is not None:
+        images[other] = nl
+    timings["patterns"] += time.perf_counter() - t
+    return images.reshape(K, H, W)
+
+
+def _sensor(images, eff, quantised: bool, timings):
+    """Sensor noise, then gain, saturation and quantisation (or gain and clipping alone)."""
+    t = time.perf_counter()
+    if eff.noise is not None:
+        gen = torch.Generator().manual_seed(int(eff.noise.seed))
+        images = add_noise(images, eff.noise, gen)
+        timings["noise"] = time.perf_counter() - t
+    t = time.perf_counter()
+    if quantised:
+        images = quantise(images, eff.bits, eff.gain, eff.saturation)
+        timings["gain + quantisation"] = time.perf_counter() - t
+    elif eff.gain != 1.0 or eff.saturation != 1.0:
+        images = (images * eff.gain).clamp(0, eff.saturation)
+    return images
+
+
 def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry: Geometry | None = None,
            log=None) -> RenderResult:
     """Render every pattern of ``scene``. ``geometry`` reuses a previous geometry stage of the
@@ -109,34 +202,9 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
     lit = torch.nonzero(geometry.lit).squeeze(1)
 
     t = time.perf_counter()
-    if not eff.projector_defocus:
-        plan.info("projector defocus: skipped (not asked for)")
-    elif lit.numel() == 0 or float(geometry.sigma_prj[lit].max()) < 1e-3:
-        plan.info("projector defocus: skipped (no lit pixel is out of focus)")
-    if eff.projector_gamma == 1.0:
-        plan.info("projector gamma: skipped (1.0)")
-    sig = geometry.sigma_prj[lit] if (geometry.sigma_prj is not None and lit.numel()) else None
-    if sig is not None and float(sig.max()) < 1e-3:
-        sig = None
+    sig, cam_blur, gi_on = _optics_plan(eff, geometry, lit, plan)
     u, v = geometry.u_p[lit], geometry.v_p[lit]
     psize = scene.system.projector.size
-    N = W * H
-    if eff.camera_defocus is None:
-        plan.info("camera defocus: skipped (not asked for)")
-        cam_blur = False
-    elif geometry.sigma_cam is None or float(geometry.sigma_cam.max()) < 1e-3:
-        plan.info("camera defocus: skipped (every pixel in focus)")
-        cam_blur = False
-    else:
-        cam_blur = True
-    gi = eff.global_illumination
-    gi_on = gi is not None and gi.active and lit.numel() > 0
-    if gi is None:
-        plan.info("global illumination: skipped (not asked for)")
-    elif not gi_on:
-        plan.info("global illumination: skipped (%s)", "zero fractions" if not gi.active else "nothing lit")
-    if eff.noise is None:
-        plan.info("sensor noise: skipped (not asked for)")
     # images = ambient + scale * p. Linear patterns: one matrix product (K, R) @ (R, N) over basis
     # rows [ambient, scale, scale*a*cos Phi, scale*a*sin Phi, ...] built in float64 and cast to
     # float32 (see synth.sensor); no per-pattern temporaries.
@@ -157,54 +225,10 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
         images = images.reshape(K, H, W)
         linear = None
     else:
-        full = torch.zeros((rows.shape[0] + 1, N), dtype=torch.float32)
-        full[0] = geometry.ambient_term
-        full[1:, lit] = rows
-        images = torch.empty((K, N), dtype=torch.float32)
-        nl = None
-        if other:
-            nl = geometry.ambient_term.to(torch.float32).repeat(len(other), 1)
-            nl[:, lit] += (geometry.radiance_scale[lit] * p_other).to(torch.float32)
-        timings["patterns"] = time.perf_counter() - t
-        if gi_on:
-            # linear too: applied to the basis rows (and the other patterns' images)
-            t = time.perf_counter()
-            f_px = max(scene.system.camera.fx, scene.system.camera.fy)
-            full = apply_global_illumination(full, geometry, gi, f_px, log=plan)
-            if nl is not None:
-                nl = apply_global_illumination(nl, geometry, gi, f_px)
-            timings["global illumination"] = time.perf_counter() - t
-        if cam_blur:
-            # blur is linear and its per-pixel level weights too: blurring the R basis rows and
-            # combining them equals blurring the K images (R ~ K / 5 for fringe stacks)
-            t = time.perf_counter()
-            sigma = geometry.sigma_cam.reshape(H, W)
-            lv = eff.camera_defocus.levels
-            full = camera_defocus(full.reshape(-1, H, W), sigma, lv).reshape(-1, N)
-            if nl is not None:
-                nl = camera_defocus(nl.reshape(-1, H, W), sigma, lv).reshape(-1, N)
-            timings["camera defocus"] = time.perf_counter() - t
-        t = time.perf_counter()
-        if idx == list(range(K)):
-            torch.mm(C, full, out=images)
-        elif idx:
-            images[idx] = C @ full
-        if nl is not None:
-            images[other] = nl
-        images = images.reshape(K, H, W)
-        timings["patterns"] += time.perf_counter() - t
+        images = _linear_images(geometry, lit, idx, C, rows, other, p_other, K, eff, cam_blur, timings, t,
+                                gi=eff.global_illumination if gi_on else None,
+                                f_px=max(scene.system.camera.fx, scene.system.camera.fy), plan=plan)
         linear = images.clone() if keep_linear else None
-
-        t = time.perf_counter()
-        if eff.noise is not None:
-            gen = torch.Generator().manual_seed(int(eff.noise.seed))
-            images = add_noise(images, eff.noise, gen)
-            timings["noise"] = time.perf_counter() - t
-        t = time.perf_counter()
-        if quantised:
-            images = quantise(images, eff.bits, eff.gain, eff.saturation)
-            timings["gain + quantisation"] = time.perf_counter() - t
-        elif eff.gain != 1.0 or eff.saturation != 1.0:
-            images = (images * eff.gain).clamp(0, eff.saturation)
+        images = _sensor(images, eff, quantised, timings)
     timings["total"] = time.perf_counter() - t0
     return RenderResult(images, [p.name for p in scene.patterns], geometry, plan.lines, timings, eff.bits, linear)

@@ -28,7 +28,7 @@ TOML schema (every key optional unless marked; see docs/synth.md for the full re
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np

@@ -219,6 +219,6 @@ def test_default_configs_parse_and_keep_test_meshes_out_of_training():
     assert {"global_illumination", "projector_defocus", "camera_defocus", "noise"} <= set(train.effects)
     assert test.frequencies == (1.0, 15.0, 16.0, 31.0, 32.0, 47.0, 48.0, 63.0, 64.0, 79.0, 80.0, 95.0, 96.0)
     if MESHES.exists():
-        from synth.dataset_config import check_meshes
+        from synth.dataset_scenes import check_meshes
         check_meshes(train)
         check_meshes(test)

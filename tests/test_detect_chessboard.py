@@ -15,22 +15,20 @@ from tests.conftest import shared_data
 
 @pytest.fixture(scope="session")
 def checker_renders(tmp_path_factory):
-    from synth import BoardSpec
-
     cache = tmp_path_factory.mktemp("detect_checker")
     system = default_system()
     out = {}
     for name, (rows, cols, tilt) in {"odd_10_20": (5, 8, (10, 20)), "odd_turned": (5, 8, (-10, 0, 180)),
                                      "even_0_0": (6, 8, (0, -20))}.items():
-        spec = BoardSpec(kind="checkerboard", rows=rows, cols=cols, spacing_mm=15.0)
+        board = Board(kind="checkerboard", rows=rows, cols=cols, spacing_mm=15.0)
         path = cache / f"{name}.npz"
         if path.exists():
             d = np.load(path)
             img, R = d["img"], d["R"]
         else:
-            img, R = render_white(system, spec, tilt, noise_seed=1)
+            img, R = render_white(system, board, tilt, noise_seed=1)
             np.savez(path, img=img, R=R)
-        out[name] = (img, R, system, Board.from_dict(spec.capture_toml_table()))
+        out[name] = (img, R, system, board)
     return out
 
 

@@ -144,6 +144,7 @@ def test_fig3_real_phase_with_real_calibration_reproduces_with_the_papers_linear
 
 
 def test_phase_map_of_the_wrong_size_is_refused(tmp_path):
-    from reports.sphere_matrix import sphere_rms_um
-    with pytest.raises(ReportError, match="does not match the camera image"):
-        sphere_rms_um(default_system(), np.ones((100, 100)), 96.0)
+    from calib.errors import TriangulationError
+    from calib.triangulate import sphere_from_phase
+    with pytest.raises(TriangulationError, match="does not match the camera image"):
+        sphere_from_phase(default_system(), np.ones((100, 100)), 96.0)

@@ -1,28 +1,29 @@
-"""The twin ball of Fig. 3 rendered by synth at the pose of the real ball (reports.twin_ball)."""
+"""The twin ball of Fig. 3 rendered by synth at the pose of the real ball (synth.twin_ball)."""
 import numpy as np
 import pytest
 
 from calib.device import DeviceModel
 from calib.io import load_system
 from calib.system import SystemModel
+from calib.triangulate import sphere_from_phase
 from reports.errors import ReportError
-from reports.sphere_matrix import load_phase, sphere_rms_um
-from reports.twin_ball import fit_ball_pose, phase_noise_rad, render_twin_ball_phase
-from synth import ideal_system
+from synth.errors import SynthError
+from synth.twin_ball import fit_ball_pose, phase_noise_rad, render_twin_ball_phase
 from tests.conftest import shared_data
+from unwrap.phase_io import read_phase
 
 
 def _dp_tpu():
     d = shared_data("dp-tpu")
     real = load_system([d / "CamCalibResult_real.mat", d / "PrjCalibResult_real.mat"])
     twin_cal = load_system([d / "CamCalibResult_sim.mat", d / "PrjCalibResult_sim.mat"])
-    return d, real, twin_cal, load_phase(d / "standardball_phase_real.mat")
+    return d, real, twin_cal, read_phase(d / "standardball_phase_real.mat")
 
 
 @pytest.fixture(scope="module")
 def rendered():
     d, real, twin_cal, phase_real = _dp_tpu()
-    phase, info = render_twin_ball_phase(real, ideal_system(real), phase_real, 96.0, progress=False)
+    phase, info = render_twin_ball_phase(real, real.ideal(), phase_real, 96.0, progress=False)
     return real, twin_cal, phase_real, phase, info
 
 
@@ -76,12 +77,12 @@ def test_phase_noise_estimator_recovers_added_white_noise():
 
 def test_twin_phase_cells_fill_and_a_foreign_system_is_not_at_the_floor(rendered):
     real, twin_cal, _, phase, info = rendered
-    cells = {(name, m): sphere_rms_um(s, phase, 96.0, m)["rms_um"]
-             for name, s in (("real", real), ("twin", twin_cal)) for m in ("linear", "ours")}
+    cells = {(name, m): sphere_from_phase(s, phase, 96.0, method=m)["rms_um"]
+             for name, s in (("real", real), ("twin", twin_cal)) for m in ("linear", "distortion-aware")}
     assert len(cells) == 4 and all(np.isfinite(v) and v > 0 for v in cells.values())
     floor = info["floor"]["rendered"]["distortion_aware_um"]
     # real distortion applied to a render that has none: far from the floor (the floor can fail)
-    assert cells[("real", "ours")] > 3 * floor
+    assert cells[("real", "distortion-aware")] > 3 * floor
 
 
 @pytest.fixture(scope="module")
@@ -114,7 +115,7 @@ def test_report_without_a_twin_phase_renders_it_and_fills_the_matrix(cli_report)
             assert np.isfinite(cells[("real", cal, method)]["rms_um"])
             assert np.isfinite(cells[("twin (synth)", cal, method)]["rms_um"])
         assert cells[("twin (synth)", cal, "linear")]["paper_um"] is not None
-    written = load_phase(out / "twin_ball_phase.h5")
+    written = read_phase(out / "twin_ball_phase.h5")
     assert np.isfinite(written).sum() == summary["twin_ball"]["footprint"]["pixels"]
     assert "twin (synth)" in (out / "report.md").read_text()
 
@@ -134,21 +135,21 @@ def test_twin_with_another_camera_size_is_refused():
     _, real, _, phase_real = _dp_tpu()
     cam = real.camera
     small = SystemModel(DeviceModel(size=(320, 240), K=cam.K, R=cam.R, t=cam.t), real.projector)
-    with pytest.raises(ReportError, match="camera image sizes differ"):
+    with pytest.raises(SynthError, match="camera image sizes differ"):
         render_twin_ball_phase(real, small, phase_real, 96.0, progress=False)
 
 
 def test_bad_ball_inputs_are_refused_with_a_clear_message():
     _, real, _, phase_real = _dp_tpu()
-    with pytest.raises(ReportError, match="does not match the camera image"):
+    with pytest.raises(SynthError, match="does not match the camera image"):
         render_twin_ball_phase(real, real, phase_real[:, :320], 96.0, progress=False)
-    with pytest.raises(ReportError, match="must end at the real phase's frequency 96"):
+    with pytest.raises(SynthError, match="must end at the real phase's frequency 96"):
         render_twin_ball_phase(real, real, phase_real, 96.0, frequencies=(1, 8, 48), progress=False)
-    with pytest.raises(ReportError, match="only 3 valid pixels"):
+    with pytest.raises(SynthError, match="only 3 valid pixels"):
         few = np.full_like(phase_real, np.nan)
         few[240, 320:323] = 300.0
         fit_ball_pose(real, few, 96.0)
-    with pytest.raises(ReportError, match="noise must be"):
+    with pytest.raises(SynthError, match="noise must be"):
         render_twin_ball_phase(real, real, phase_real, 96.0, noise="loud", progress=False)
 
 

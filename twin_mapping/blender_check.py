@@ -7,12 +7,9 @@ this process: the toolkit does not depend on it.
 """
 from __future__ import annotations
 
-import importlib.util
 import json
-import subprocess
 import sys
 import tempfile
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -20,14 +17,11 @@ import numpy as np
 from calib.system import SystemModel
 
 from .blender_export import write_blender_script
-from .errors import TwinError
+from .blender_run import blender_available, run_in_blender
 from .twin import to_twin
 
-
-def bpy_available(python: str = sys.executable) -> bool:
-    if python == sys.executable:
-        return importlib.util.find_spec("bpy") is not None
-    return subprocess.run([python, "-c", "import bpy"], capture_output=True).returncode == 0
+bpy_available = blender_available
+"""Kept name of :func:`twin_mapping.blender_run.blender_available`."""
 
 
 def points_in_view(device, n: int, rng, depth_mm=(400.0, 1500.0)):
@@ -46,9 +40,6 @@ def check_twin_in_blender(system: SystemModel, workdir=None, *, n_points: int = 
     RETURNED VALUE: ``{"camera": {...}, "projector": {...}, "readback": {...}}`` where each device
     entry holds ``max_px``/``rms_px`` for the matrix route and ``max_px_world_to_camera_view``.
     """
-    if not bpy_available(python):
-        raise TwinError("Blender as a Python module (bpy) is not installed in this Python; "
-                        "`make test` installs it (pip install bpy==4.5.15)")
     twin = twin or to_twin(system)
     tmp = Path(workdir) if workdir else Path(tempfile.mkdtemp(prefix="sltwin-blender-"))
     tmp.mkdir(parents=True, exist_ok=True)
@@ -58,14 +49,8 @@ def check_twin_in_blender(system: SystemModel, workdir=None, *, n_points: int = 
     for kind, dev in system.devices().items():
         X, q = points_in_view(dev, n_points, rng)
         points[kind], expected[kind] = X.tolist(), q
-    (tmp / "points.json").write_text(json.dumps(points))
-    driver = resources.files("twin_mapping").joinpath("blender_check_driver.py")
-    cmd = [python, str(driver), str(script), str(tmp / "points.json"), str(tmp / "blender_out.json")]
-    if save_blend:
-        cmd.append(str(save_blend))
-    run = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
-    if run.returncode != 0:
-        raise TwinError(f"the Blender check failed:\n{run.stderr[-2000:]}")
+    run_in_blender("check", script, {"points": points, "out": str(tmp / "blender_out.json"),
+                                     "save_blend": str(save_blend) if save_blend else None}, tmp, python=python)
     out = json.loads((tmp / "blender_out.json").read_text())
     result = {"readback": out}
     for kind in ("camera", "projector"):

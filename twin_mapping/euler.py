@@ -17,6 +17,8 @@ SYNOPSIS
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 #: |cos(beta)| below which the X and Z rotations are treated as coupled (gimbal lock).
@@ -24,22 +26,23 @@ GIMBAL_COS_TOL = 1e-12
 
 
 def _rx(a):
-    c, s = np.cos(a), np.sin(a)
+    c, s = math.cos(a), math.sin(a)
     return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
 
 
 def _ry(a):
-    c, s = np.cos(a), np.sin(a)
+    c, s = math.cos(a), math.sin(a)
     return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
 
 
 def _rz(a):
-    c, s = np.cos(a), np.sin(a)
+    c, s = math.cos(a), math.sin(a)
     return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
 
 
 def matrix_from_euler_xyz(angles) -> np.ndarray:
-    """(alpha, beta, gamma) radians -> ``Rz(gamma) Ry(beta) Rx(alpha)`` (3,3)."""
+    """(alpha, beta, gamma) radians -> ``Rz(gamma) Ry(beta) Rx(alpha)`` (3,3). The one XYZ-Euler
+    builder of the toolkit (``synth.poses.rotation_xyz_deg`` takes degrees and calls it)."""
     a, b, g = (float(v) for v in np.asarray(angles, dtype=np.float64).reshape(3))
     return _rz(g) @ _ry(b) @ _rx(a)
 

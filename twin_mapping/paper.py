@@ -1,8 +1,7 @@
 """The paper's printed tables S2/S3 and eqs. S1-S3, and how our mapping compares with them.
 
-Printed values are from the supplementary information of Liu et al., "Digital-Twin-Driven
-Unambiguous Structured Light 3D Imaging with Physics-Aware Learning" (tables S2, S3; eqs. S1-S3),
-as transcribed in ``shared/reference/seed_tables.json``.
+The printed values themselves (tables S2, S3; eqs. S1-S3, with their source) are in
+:mod:`twin_mapping.paper_tables`, with every other number the toolkit takes from the paper.
 
 ``compare_with_table_s3`` classifies every printed value: it reproduces when our full-precision
 value, truncated toward zero or rounded to the printed decimals, gives the printed digits;
@@ -17,22 +16,7 @@ import numpy as np
 
 from calib.rotation import nearest_rotation, rotation_defects
 
-#: Table S3 as printed (degrees, mm), strings to keep the printed decimals.
-TABLE_S3 = {
-    "camera": {"rotation_euler_deg": ["4.4822", "7.8134", "-0.3567"],
-               "location_mm": ["10.1985", "-93.2745", "835.7891"]},
-    "projector": {"rotation_euler_deg": ["4.3868", "-1.0881", "-1.8107"],
-                  "location_mm": ["-20.8421", "-86.2501", "797.1710"]},
-}
-#: Eqs. S1-S3 as printed: focal lengths in mm, and the projector pixel pitch of eq. S2 (um).
-EQ_S1_S3 = {"camera": {"focal_length_mm": ["12.4423", "12.4449"]},
-            "projector": {"focal_length_mm": ["20.5089"], "pixel_pitch_um": ["11.84", "6.64"]}}
-#: Table S2 rotations as printed (rows).
-TABLE_S2_ROTATIONS = {
-    "camera": [[0.990, -0.006, -0.135], [-0.016, -0.996, -0.0774], [0.135, 0.079, -0.987]],
-    "projector": [[0.999, -0.031, 0.019], [-0.030, -0.996, -0.076], [0.021, 0.075, -0.996]],
-}
-
+from .paper_tables import EQ_S1_S3, TABLE_S2_ROTATIONS, TABLE_S3  # noqa: F401  (re-exported)
 
 def _decimals(printed: str) -> int:
     return len(printed.split(".")[1]) if "." in printed else 0

@@ -1,4 +1,16 @@
-"""System-level twin: both devices, ``twin.json`` read/write, and the inverse to a SystemModel."""
+"""System-level twin: both devices, ``twin.json`` read/write, and the inverse to a SystemModel.
+
+SYNOPSIS
+
+    >>> from calib import default_system
+    >>> from twin_mapping.twin import from_twin, to_twin
+    >>> s = default_system()
+    >>> twin = to_twin(s)
+    >>> [round(v, 4) for v in twin["camera"]["location_mm"]]
+    [109.1986, -93.2745, 835.7891]
+    >>> abs(from_twin(twin).projector.fy - s.projector.fy) < 1e-9
+    True
+"""
 from __future__ import annotations
 
 import json

@@ -1,32 +1,47 @@
-"""sltwin unwrap: fringe patterns, N-step phase, temporal phase unwrapping, physics-aware model.
+"""sltwin unwrap: fringe patterns, N-step phase, temporal phase unwrapping, reliability theory,
+phase maps on disk.
 
-Public surface: ``wrapped_phase`` (N-step least squares, numpy/torch), ``mf_unwrap``,
-``mw_unwrap``, ``nt_unwrap``, ``gray_unwrap``, ``complementary_gray_unwrap``,
-``gray_coarse_unwrap`` (each returns ``Unwrapped`` with phase, order, valid and the physics prior),
-``error_rate`` / ``plan_fringes`` (reliability theory), ``unwrap_capture`` / ``write_results``
-(capture folders), ``UnwrapError``.
+Public surface:
+
+- patterns and conventions: ``fringe_pattern``, ``fringe_intensity``, ``phase_shift``,
+  ``absolute_phase``, ``projector_coordinate``.
+- N-step phase: ``wrapped_phase`` (least squares, numpy/torch) -> ``WrappedPhase``;
+  ``equal_shifts``, ``least_squares_weights``, ``phase_noise_gain``.
+- temporal unwrapping, each returning ``Unwrapped`` (phase, order, valid, the physics prior):
+  ``mf_unwrap``, ``mw_unwrap``, ``nt_unwrap`` (``nt_lookup_table``), ``gray_unwrap``,
+  ``complementary_gray_unwrap``, ``gray_coarse_unwrap``, ``gray_code_unwrap`` (Gray code
+  alone; ``binarize``, ``gray_to_index``,
+  ``gray_code_bits``); ``base_phase``, ``refine`` (one hierarchical step).
+- the in-memory decoder: ``mf_unwrap_stacks`` (phase-shift stacks of every frequency -> absolute
+  phase, order, A and B; one fused pass for 8/16-bit frames).
+- reliability: ``error_rate``, ``phase_error_pdf``, ``phase_sigma``, ``plan_fringes``,
+  ``monte_carlo_error_rate``.
+- captures and files: ``unwrap_capture`` / ``write_results`` (capture folders -> ``unwrap.h5``),
+  ``read_phase`` / ``write_phase_file`` (the one phase-map reader and writer).
+- ``UnwrapError`` (a ValueError), ``UnreliableFringesWarning``.
+
+Progress goes to the `unwrap` logger.
 """
-from .errors import UnreliableFringesWarning, UnwrapError  # noqa: F401
-from .graycode import (binarize, complementary_gray_unwrap, gray_coarse_unwrap,  # noqa: F401
-                       gray_code_bits, gray_to_index, gray_unwrap)
-from .patterns import (absolute_phase, fringe_intensity, fringe_pattern,  # noqa: F401
-                       phase_shift, projector_coordinate)
-from .phase_shift import (WrappedPhase, equal_shifts, least_squares_weights,  # noqa: F401
-                          phase_noise_gain, wrapped_phase)
-from .plan import plan_fringes  # noqa: F401
-from .monte_carlo import monte_carlo_error_rate  # noqa: F401
-from .reliability import error_rate, phase_error_pdf, phase_sigma  # noqa: F401
-from .temporal import (Unwrapped, base_phase, mf_unwrap, mw_unwrap, nt_lookup_table,  # noqa: F401
-                       nt_unwrap, refine)
+from .errors import UnreliableFringesWarning, UnwrapError
+from .fused_mf import mf_unwrap_stacks
+from .graycode import (binarize, complementary_gray_unwrap, gray_coarse_unwrap, gray_code_bits, gray_code_unwrap,
+                       gray_to_index, gray_unwrap)
+from .monte_carlo import monte_carlo_error_rate
+from .patterns import absolute_phase, fringe_intensity, fringe_pattern, phase_shift, projector_coordinate
+from .phase_io import read_phase, write_phase_file
+from .phase_shift import WrappedPhase, equal_shifts, least_squares_weights, phase_noise_gain, wrapped_phase
+from .pipeline import unwrap_capture, write_results
+from .plan import plan_fringes
+from .reliability import error_rate, phase_error_pdf, phase_sigma
+from .temporal import Unwrapped, base_phase, mf_unwrap, mw_unwrap, nt_lookup_table, nt_unwrap, refine
 
-
-def unwrap_capture(*args, **kwargs):
-    """See :func:`unwrap.pipeline.unwrap_capture` (imported lazily: it needs OpenCV)."""
-    from .pipeline import unwrap_capture as f
-    return f(*args, **kwargs)
-
-
-def write_results(*args, **kwargs):
-    """See :func:`unwrap.pipeline.write_results` (imported lazily: it needs h5py/matplotlib)."""
-    from .pipeline import write_results as f
-    return f(*args, **kwargs)
+__all__ = [
+    "fringe_pattern", "fringe_intensity", "phase_shift", "absolute_phase", "projector_coordinate",
+    "wrapped_phase", "WrappedPhase", "equal_shifts", "least_squares_weights", "phase_noise_gain",
+    "Unwrapped", "mf_unwrap", "mw_unwrap", "nt_unwrap", "nt_lookup_table", "gray_unwrap",
+    "complementary_gray_unwrap", "gray_coarse_unwrap", "gray_code_unwrap", "binarize", "gray_to_index", "gray_code_bits",
+    "base_phase", "refine", "mf_unwrap_stacks",
+    "error_rate", "phase_error_pdf", "phase_sigma", "plan_fringes", "monte_carlo_error_rate",
+    "unwrap_capture", "write_results", "read_phase", "write_phase_file",
+    "UnwrapError", "UnreliableFringesWarning",
+]

@@ -12,9 +12,13 @@ frames. Layouts:
 - ``slmaster`` (Practice3DVision/SLMaster monocular data): ``L/0..17.png``; 12-step, 32 periods
   of 60 px on a 1920-px DMD, shifts ``pi - 2 pi n/12`` in our convention, then 5+1 bits of
   complementary Gray code thresholded against the background A.
-- ``kamino`` (kamino410/phase-shifting sample): ``pat00..31.png`` + ``config.xml``; 3-step at
-  periods 200/3 and 100 px (shifts +2pi/3, 0, -2pi/3), OpenCV Gray code (pattern, inverse) pairs
-  on 100-px blocks, white and black frames.
+- ``kamino-phaseshift`` (kamino410/phase-shifting sample; formerly ``kamino``, still accepted):
+  ``pat00..31.png`` + ``config.xml``; 3-step at periods 200/3 and 100 px (shifts +2pi/3, 0,
+  -2pi/3), OpenCV Gray code (pattern, inverse) pairs on 100-px blocks, white and black frames.
+- Gray code only (no phase shifting; :mod:`unwrap.graycode_capture`): the DESIGN.md layout with
+  ``[pattern] kind = "graycode"``, and ``procam-graycode`` (kamino410/procam-calibration's
+  ``capture_*/graycode_NN.png``, OpenCV's frame order; the projector size comes from the
+  ``description`` - the capture.toml - since the frame count does not fix it).
 
 The preset is taken from ``capture.toml`` (``[capture] preset = "..."``), the ``preset``
 argument, or recognised from the files present.
@@ -30,8 +34,12 @@ from pathlib import Path
 import numpy as np
 
 from .errors import UnwrapError
+from .graycode_capture import GRAY_KIND, design_gray_orientations, procam_orientations, read_gray_pattern
 
-PRESETS = ("design", "slstudio", "slmaster", "kamino")
+PRESETS = ("design", "slstudio", "slmaster", "kamino-phaseshift", "procam-graycode")
+PRESET_ALIASES = {"kamino": "kamino-phaseshift"}
+"""Former preset names, still read: ``kamino`` named the author, not the layout (a phase-shift +
+Gray-block capture; the same author's Gray-code calibration tool is ``procam-graycode``)."""
 
 
 @dataclass
@@ -92,7 +100,9 @@ def detect_preset(folder: Path) -> str:
         meta = tomllib.loads((folder / "capture.toml").read_text())
         return meta.get("capture", {}).get("preset", "design")
     if (folder / "config.xml").exists() and (folder / "pat00.png").exists():
-        return "kamino"
+        return "kamino-phaseshift"
+    if (folder / "graycode_00.png").exists():
+        return "procam-graycode"
     if (folder / "L" / "0.png").exists() or (folder / "0.png").exists():
         return "slmaster"
     if (folder / "frameSeq_00.png").exists():
@@ -101,16 +111,24 @@ def detect_preset(folder: Path) -> str:
                       f"(presets: {', '.join(PRESETS)})")
 
 
-def load_capture(folder, preset: str | None = None, pose: str | None = None) -> Capture:
-    """Describe the capture in ``folder`` (no pixels read yet). See the module docstring."""
+def load_capture(folder, preset: str | None = None, pose: str | None = None, *,
+                 description: dict | None = None) -> Capture:
+    """Describe the capture in ``folder`` (no pixels read yet). See the module docstring.
+
+    ``description``: the session's capture.toml as a dict, for layouts whose frames do not say
+    everything (``procam-graycode``: the projector size); default: ``capture.toml`` in the folder
+    or, for a pose folder, in its parent."""
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"capture folder not found: {folder}")
     preset = preset or detect_preset(folder)
+    preset = PRESET_ALIASES.get(preset, preset)
     if preset not in PRESETS:
         raise UnwrapError(f"unknown capture preset {preset!r}: expected one of {PRESETS}")
+    if preset == "procam-graycode":
+        return _procam(folder, description)
     return {"design": _design, "slstudio": _slstudio, "slmaster": _slmaster,
-            "kamino": _kamino}[preset](folder, pose)
+            "kamino-phaseshift": _kamino}[preset](folder, pose)
 
 
 def design_frame_stem(orientation: str, frequency: float, step: int) -> str:
@@ -126,6 +144,20 @@ def read_design_pattern(toml) -> tuple:
     if not toml.exists():
         raise FileNotFoundError(f"{toml.parent}: capture.toml missing (DESIGN.md layout)")
     meta = tomllib.loads(toml.read_text())
+    kind = meta.get("pattern", {}).get("kind", "phase-shift")
+    if kind == GRAY_KIND:
+        raise UnwrapError(f"{toml}: [pattern] kind = \"graycode\": a Gray-code-only session has no phase-shift "
+                          "frequencies; decode it with method 'gray'")
+    if kind != "phase-shift":
+        raise UnwrapError(f"{toml}: [pattern] kind = {kind!r}: expected \"phase-shift\" (steps, frequencies; "
+                          f"the default) or \"{GRAY_KIND}\" (Gray code only: block_px, inverse)")
+    if "frequencies" not in meta.get("pattern", {}):
+        raise UnwrapError(f"{toml}: [pattern] has no 'frequencies': a phase-shift session lists its fringe "
+                          f"frequencies (and steps); a session of Gray code only says kind = \"{GRAY_KIND}\" "
+                          "(docs/unwrap.md, Gray-code sessions)")
+    if not meta["pattern"]["frequencies"]:
+        raise UnwrapError(f"{toml}: [pattern] frequencies = []: a phase-shift session needs at least one "
+                          f"frequency; a session of Gray code only says kind = \"{GRAY_KIND}\"")
     try:
         freqs = [float(v) for v in meta["pattern"]["frequencies"]]
         steps = meta["pattern"]["steps"]
@@ -141,18 +173,62 @@ def read_design_pattern(toml) -> tuple:
     return freqs, steps, (W, H)
 
 
+def check_design_description(toml) -> dict:
+    """Validate a DESIGN.md ``capture.toml`` of either kind (phase shift: :func:`read_design_pattern`;
+    Gray code only: :func:`unwrap.graycode_capture.read_gray_pattern`); returns it as a dict."""
+    toml = Path(toml)
+    if not toml.exists():
+        raise FileNotFoundError(f"{toml.parent}: capture.toml missing (DESIGN.md layout)")
+    meta = tomllib.loads(toml.read_text())
+    if meta.get("pattern", {}).get("kind") == GRAY_KIND:
+        read_gray_pattern(meta, toml)
+    else:
+        read_design_pattern(toml)
+    return meta
+
+
+def _frames_dir(folder: Path, pose, frame_glob: str) -> Path:
+    if pose is not None:
+        return folder / pose
+    if list(folder.glob(frame_glob)):
+        return folder
+    poses = sorted(p for p in folder.iterdir() if p.is_dir() and p.name.startswith("pose_"))
+    if not poses:
+        raise UnwrapError(f"{folder}: no frames {frame_glob} and no pose_* folders")
+    return poses[0]
+
+
+def _gray_capture(folder: Path, preset: str, orientations: dict) -> Capture:
+    cap = Capture(folder, preset, default_method="gray")
+    for o, spec in orientations.items():
+        cap.orientations[o] = OrientationCapture(o, spec["width"], [], gray=spec["gray"], white=spec["white"],
+                                                 black=spec["black"])
+    return cap
+
+
+def _procam(folder: Path, description) -> Capture:
+    if description is None:
+        for toml in (folder / "capture.toml", folder.parent / "capture.toml"):
+            if toml.exists():
+                description, source = tomllib.loads(toml.read_text()), toml
+                break
+        else:
+            raise UnwrapError(f"{folder}: procam-graycode frames do not say how many bits are columns: give the "
+                              "projector size in a capture.toml ([projector] size; in the folder, its parent, "
+                              "or --capture-toml)")
+    else:
+        source = f"{folder} (capture description)"
+    return _gray_capture(folder, "procam-graycode", procam_orientations(folder, read_gray_pattern(description, source)))
+
+
 def _design(folder: Path, pose) -> Capture:
     toml = folder / "capture.toml"
+    meta = check_design_description(toml)
+    if meta.get("pattern", {}).get("kind") == GRAY_KIND:
+        frames_dir = _frames_dir(folder, pose, "[vh]_gray_b*.*")
+        return _gray_capture(folder, "design", design_gray_orientations(frames_dir, read_gray_pattern(meta, toml)))
     freqs, steps, (W, H) = read_design_pattern(toml)
-    meta = tomllib.loads(toml.read_text())
-    frames_dir = folder
-    if pose is not None:
-        frames_dir = folder / pose
-    elif not list(folder.glob("[vh]_f*_n*.*")):
-        poses = sorted(p for p in folder.iterdir() if p.is_dir() and p.name.startswith("pose_"))
-        if not poses:
-            raise UnwrapError(f"{folder}: no frames v_fFFF_nNN.png and no pose_* folders")
-        frames_dir = poses[0]
+    frames_dir = _frames_dir(folder, pose, "[vh]_f*_n*.*")
     cap = Capture(folder, "design", default_method=meta.get("capture", {}).get("method", "mf"))
     for o, width in (("v", W), ("h", H)):
         sets = []
@@ -234,7 +310,7 @@ def _kamino(folder: Path, pose) -> Capture:
                           f"frames pat00..; found {len(files)}")
     shifts = np.array([2 * math.pi / 3, 0.0, -2 * math.pi / 3])  # cos(x w + (phs-2) 2pi/3), phs=1..3
     gray = files[12:12 + 2 * (n_col + n_row)]
-    cap = Capture(folder, "kamino", default_method="gray")
+    cap = Capture(folder, "kamino-phaseshift", default_method="gray")
     for o, width, first, bits in (("v", W, 0, gray[:2 * n_col]), ("h", H, 6, gray[2 * n_col:])):
         cap.orientations[o] = OrientationCapture(
             o, width,

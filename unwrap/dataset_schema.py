@@ -64,7 +64,7 @@ import math
 
 import numpy as np
 
-from .errors import UnwrapError
+from .errors import DatasetSchemaError, UnwrapError  # noqa: F401  (DatasetSchemaError re-exported)
 
 SCHEMA = "sltwin-fringe-dataset"
 SCHEMA_VERSION = 1
@@ -78,10 +78,6 @@ FLAG_LOW_MODULATION, FLAG_SATURATED, FLAG_OUT_OF_RANGE = 1, 2, 4
 #: Root attributes every file must carry.
 REQUIRED_ATTRS = ("schema", "schema_version", "kind", "orientations", "frequencies", "steps", "widths",
                   "camera_size", "n_samples", "complete")
-
-
-class DatasetSchemaError(UnwrapError):
-    """A file that is not a fringe-order dataset this code understands (or an incomplete one)."""
 
 
 def encode_phase(phi: np.ndarray) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""Exception and warning types of the unwrap package.
+"""Exception and warning types of the unwrap package: ``UnwrapError``, its one error root (a
+``ValueError``), ``DatasetSchemaError`` and ``UnreliableFringesWarning``.
 
 Every error names the input, the offending value and what was expected.
 """
@@ -6,6 +7,10 @@ Every error names the input, the offending value and what was expected.
 
 class UnwrapError(ValueError):
     """Invalid input to phase shifting or phase unwrapping (shape, length, values, frequencies)."""
+
+
+class DatasetSchemaError(UnwrapError):
+    """A file that is not a fringe-order dataset this code understands (or an incomplete one)."""
 
 
 class UnreliableFringesWarning(UserWarning):

@@ -21,19 +21,21 @@ import math
 
 import numpy as np
 
+from .errors import UnwrapError
+
 ORIENTATIONS = ("v", "h")
 
 
 def _check_orientation(orientation: str) -> None:
     if orientation not in ORIENTATIONS:
-        raise ValueError(f"orientation must be 'v' (fringes along projector columns, gives u_p) "
-                         f"or 'h' (along rows, gives v_p); got {orientation!r}")
+        raise UnwrapError(f"orientation must be 'v' (fringes along projector columns, gives u_p) "
+                          f"or 'h' (along rows, gives v_p); got {orientation!r}")
 
 
 def phase_shift(step: int, steps: int) -> float:
     """Shift of pattern ``step`` of ``steps``: ``2*pi*step/steps`` (radians)."""
     if steps < 1 or not 0 <= step < steps:
-        raise ValueError(f"step {step} of {steps}: expected 0 <= step < steps")
+        raise UnwrapError(f"step {step} of {steps}: expected 0 <= step < steps")
     return 2.0 * math.pi * step / steps
 
 

@@ -9,6 +9,7 @@ Layout (DESIGN.md): one group per orientation, ``v`` (fringes along projector co
 - any further per-pixel datasets a writer adds (``prior``, ``modulation``, ``phase_f008`` ...);
 - attribute ``frequency`` (periods across the projector pattern) when known.
 
+``phase_orientations`` lists the orientations (and frequencies) an HDF5 file holds.
 ``read_phase`` also reads the phase maps others publish: a MATLAB ``.mat`` (the dp-tpu ball
 phase: one 2-D array, e.g. ``phase3``) and ``.npy``. Pixels stored as 0, NaN or inf are invalid
 and come back as NaN.
@@ -59,6 +60,25 @@ def read_phase(path, key: str | None = None, orientation: str = "v") -> np.ndarr
         raise UnwrapError(f"{path}: a phase map is 2-D, got shape {phase.shape}")
     phase[~np.isfinite(phase) | (phase == 0)] = np.nan
     return phase
+
+
+def phase_orientations(path) -> dict:
+    """``{orientation: frequency (float) or None}`` of the groups an HDF5 phase file holds
+    (DESIGN.md layout: ``v`` and/or ``h`` with a ``phase`` dataset); ``{}`` for ``.mat``/``.npy``
+    files, which hold one map of an orientation they do not record."""
+    path = Path(path)
+    if path.suffix.lower() not in (".h5", ".hdf5"):
+        return {}
+    import h5py
+
+    if not path.exists():
+        raise UnwrapError(f"{path}: no such phase file")
+    try:
+        with h5py.File(path, "r") as f:
+            return {o: (float(f[o].attrs["frequency"]) if "frequency" in f[o].attrs else None)
+                    for o in ORIENTATIONS if o in f and "phase" in f[o]}
+    except OSError as exc:
+        raise UnwrapError(f"{path}: not a readable HDF5 file ({exc})") from None
 
 
 def _read_mat(path: Path, key):

@@ -9,12 +9,12 @@ SYNOPSIS (Python)
 HDF5 layout (DESIGN.md): one group per orientation ``v``/``h`` with ``phase`` (float64 absolute
 phase of the highest frequency, NaN invalid), ``order`` (int32, -1 invalid), ``valid`` (bool),
 plus ``prior`` (float64 physics prior), ``modulation`` (float64 B of the highest frequency) and
-``projector_coordinate`` (float64 px); attributes: method, frequency, width, preset.
+``projector_coordinate`` (float64 px); attributes: method, frequency, width, preset, and
+``quantisation_px`` for a Gray-code-only capture (the projector coordinate is a block centre).
 """
 from __future__ import annotations
 
 import logging
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -24,7 +24,7 @@ from ._xp import wrap
 from .capture import Capture, OrientationCapture, load_capture, read_image, read_stack
 from .errors import UnwrapError
 from .fused_mf import mf_unwrap_stacks
-from .graycode import (binarize, complementary_gray_unwrap, gray_coarse_unwrap, gray_to_index)
+from .graycode import binarize, complementary_gray_unwrap, gray_coarse_unwrap, gray_code_unwrap, gray_to_index
 from .patterns import projector_coordinate
 from .phase_io import write_phase_file
 from .phase_shift import wrapped_phase
@@ -37,11 +37,17 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class OrientationResult:
+    """One orientation decoded: ``result`` (absolute phase, order, valid), the pattern ``width``
+    (px), ``modulation`` (B of the finest fringes; Gray code only: white - black) and
+    ``background`` (A; Gray code only: (white + black) / 2), both (H, W) grey levels;
+    ``quantisation_px``: None, or the block size when the projector coordinate is a Gray block
+    centre (no phase shifting)."""
     orientation: str
     width: float
     result: Unwrapped
     modulation: np.ndarray
     background: np.ndarray
+    quantisation_px: float | None = None
     extras: dict = field(default_factory=dict)   # more per-pixel maps for unwrap.h5 (e.g. confidence)
 
 
@@ -70,6 +76,11 @@ def unwrap_orientation(oc: OrientationCapture, method: str, *, min_modulation=No
     """Wrapped phases of every fringe set, then the chosen temporal method, for one orientation."""
     if method not in METHODS:
         raise UnwrapError(f"unknown method {method!r}: expected one of {METHODS}")
+    if not oc.sets:
+        if method != "gray":
+            raise UnwrapError(f"orientation {oc.orientation}: this capture holds Gray code only (no phase-shift "
+                              f"frames), which method {method!r} cannot decode; use method 'gray'")
+        return _gray_only(oc, min_modulation, gray_min_contrast, progress)
     sets = sorted(oc.sets, key=lambda s: s.frequency)
     freqs = [s.frequency for s in sets]
     if method == "mf" and len(sets) >= 2:
@@ -113,9 +124,43 @@ def unwrap_orientation(oc: OrientationCapture, method: str, *, min_modulation=No
     return OrientationResult(oc.orientation, oc.width, res, last.B, last.A)
 
 
+def _gray_only(oc, min_modulation, min_contrast, progress) -> OrientationResult:
+    """Gray code without phase shifting: block index -> block centre (``gray_code_unwrap``); valid
+    where every bit clears ``min_contrast`` against its inverse (or against (white + black) / 2)
+    and white - black clears ``min_modulation`` (default 2 % of full scale)."""
+    g = oc.gray
+    _log(progress, f"  [{oc.orientation}] Gray code only: {len(g['files'])} bits"
+                   f"{' with inverses' if g.get('inverse') else ''}, blocks of {g['block_px']} px")
+    frames = read_stack(g["files"])
+    white = black = None
+    if oc.white is not None and oc.black is not None:
+        white, black = (read_image(f).astype(np.float64) for f in (oc.white, oc.black))
+        if white.shape != frames.shape[1:] or black.shape != frames.shape[1:]:
+            raise UnwrapError(f"orientation {oc.orientation}: white/black frames {white.shape}, {black.shape} "
+                              f"differ from the code frames {frames.shape[1:]}")
+    if g.get("inverse"):
+        inverse = read_stack(g["inverse"])
+        bits, reliable = binarize(frames, inverse, min_contrast=min_contrast)
+        mid = 0.5 * (frames.astype(np.float64) + inverse).mean(axis=0)
+    elif white is not None:
+        bits, reliable = binarize(frames, threshold=0.5 * (white + black), min_contrast=min_contrast)
+        mid = 0.5 * (white + black)
+    else:
+        raise UnwrapError(f"orientation {oc.orientation}: Gray code without inverse frames needs white and black "
+                          "frames to threshold against")
+    if white is not None:
+        contrast, background = white - black, 0.5 * (white + black)
+    else:
+        contrast, background = 2 * np.abs(frames.astype(np.float64) - mid).mean(axis=0), mid
+    mm = _default_min_modulation(frames.dtype) if min_modulation is None else min_modulation
+    res = gray_code_unwrap(gray_to_index(bits), g["block_px"], oc.width, reliable=reliable, valid=contrast > mm)
+    return OrientationResult(oc.orientation, oc.width, res, contrast, background, float(g["block_px"]))
+
+
 def _gray(oc, phases, freqs, valid, last, min_contrast, progress) -> Unwrapped:
     if oc.gray is None:
-        raise UnwrapError(f"orientation {oc.orientation}: this capture has no Gray-code frames")
+        raise UnwrapError(f"orientation {oc.orientation}: this capture has no Gray-code frames; its "
+                          "phase-shift frames decode with method mf, mw or nt")
     g = oc.gray
     _log(progress, f"  [{oc.orientation}] Gray code: {len(g['files'])} bits ({g['kind']})")
     frames = read_stack(g["files"])
@@ -164,7 +209,8 @@ def write_results(results: dict, out_dir, *, previews: bool = True, attrs: dict 
                                "projector_coordinate": projector_coordinate(np.asarray(u.phase), u.frequency,
                                                                             r.width),
                                **r.extras},
-                     "attrs": {"method": u.method, "width": r.width, "valid_fraction": float(np.mean(u.valid))}}
+                     "attrs": {"method": u.method, "width": r.width, "valid_fraction": float(np.mean(u.valid)),
+                               **({} if r.quantisation_px is None else {"quantisation_px": r.quantisation_px})}}
     path = write_phase_file(Path(out_dir) / "unwrap.h5", groups, attrs=attrs)
     if previews:
         _previews(results, Path(out_dir))

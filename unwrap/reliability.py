@@ -19,7 +19,17 @@ rounding margin); the error of a method is the probability that any of its steps
 - complementary Gray code (bits right): ``|e| > pi/2``.
 
 Pixels are interior (their base phase is not within the noise of the 2*pi cut of the base
-pattern); :func:`unwrap.monte_carlo.monte_carlo_error_rate` simulates real intensity stacks the same way.
+pattern); :func:`unwrap.monte_carlo.monte_carlo_error_rate` simulates real intensity stacks the
+same way.
+
+SYNOPSIS (the paper's set: MF 1, 8, 48 periods, N = 12, noise 2 grey levels, modulation 60)
+
+    >>> from unwrap.reliability import error_rate, phase_sigma
+    >>> s = phase_sigma(2.0, 12, 60.0)
+    >>> round(s, 5)
+    0.01361
+    >>> error_rate("mf", (1, 8, 48), s) < 1e-12
+    True
 """
 from __future__ import annotations
 

@@ -21,6 +21,8 @@ import cv2
 import numpy as np
 from scipy.ndimage import map_coordinates
 
+from ..errors import DetectionError
+
 CENTRE_METHODS = ("moments", "edge")
 
 
@@ -205,7 +207,7 @@ def find_blobs(f: np.ndarray, dark_blobs: bool, *, method: str = "moments", kern
     """Blob candidates of a grey float image (see module docstring). ``dark_blobs``: the circles
     are darker than the board. ``method``: "moments" or "edge" (centre estimator)."""
     if method not in CENTRE_METHODS:
-        raise ValueError(f"centre method: expected one of {CENTRE_METHODS}, got {method!r}")
+        raise DetectionError(f"centre method: expected one of {CENTRE_METHODS}, got {method!r}")
     H, W = f.shape
     notes = []
     k = kernel or _odd(max(15, min(H, W) / 12))

@@ -1,11 +1,17 @@
 """``calib reconstruct``: absolute phase + calibration -> point cloud (PLY).
 
     calib reconstruct --phase standardball_phase_real.mat --frequency 96 --calibration calibration.json -o ball.ply
+    calib reconstruct --phase unwrap.h5 --calibration calibration.json -o out.ply     # v and/or h, frequency stored
     calib reconstruct --phase phase.h5 --frequency 48 --calibration CAM.mat PRJ.mat --method linear -o out.ply
 
-``--phase``: an HDF5 phase file of DESIGN.md (``--orientation``'s group, dataset ``phase``), a
-MATLAB .mat (its 2-D array, or ``--variable``) or a .npy (:func:`unwrap.phase_io.read_phase`).
-Pixels with phase 0 or NaN are invalid.
+``--phase``: an HDF5 phase file of DESIGN.md (groups ``v``/``h``, dataset ``phase``, attribute
+``frequency``), a MATLAB .mat (its 2-D array, or ``--variable``) or a .npy
+(:func:`unwrap.phase_io.read_phase`). Pixels with phase 0 or NaN are invalid.
+``--orientation`` (default ``auto``): with both orientations in the file, both projector
+coordinates (:func:`calib.triangulate.triangulate_both`); with one, that one; a .mat/.npy map is
+taken as columns (``v``) unless told ``h``. A warning says when the coordinate used is the
+ill-conditioned one for this rig (:mod:`calib.coordinate_choice`: e.g. columns on a rig whose
+baseline is mostly vertical).
 ``--method``: ``distortion`` (default; distortion-aware, iterated) or ``linear`` (K[R|t], no
 distortion, as the paper). ``--sphere`` also fits a sphere and prints its RMS (um).
 Exit codes: 0 success; 2 invalid input.
@@ -18,40 +24,65 @@ HELP = "absolute phase + calibration -> point cloud (PLY)"
 
 
 def add_arguments(p):
-    p.add_argument("--phase", required=True, help="absolute phase (.mat or DESIGN.md HDF5)")
+    p.add_argument("--phase", required=True, help="absolute phase (.mat, .npy or DESIGN.md HDF5)")
     p.add_argument("--variable", help="variable name in a .mat file or dataset in an HDF5 file (default: the "
                                       ".mat's only 2-D array; the HDF5's ORIENTATION/phase)")
-    p.add_argument("--frequency", type=float, required=True, help="periods across the projector pattern")
-    p.add_argument("--orientation", choices=("v", "h"), default="v",
-                   help="v: fringes along projector columns (u_p), h: rows (v_p)")
+    p.add_argument("--frequency", type=float, help="periods across the projector pattern (default: the HDF5 "
+                                                   "group's frequency attribute; required for .mat/.npy)")
+    p.add_argument("--orientation", choices=("auto", "v", "h", "both"), default="auto",
+                   help="v: projector columns (u_p), h: rows (v_p), both: both coordinates; auto (default): "
+                        "both when the file holds both, else the one it holds")
     p.add_argument("--calibration", nargs="+", required=True, help="calibration file(s) (calib.load_system)")
+    p.add_argument("--camera-size", nargs=2, type=int, metavar=("W", "H"),
+                   help="camera image size, for calibration files that do not store it")
+    p.add_argument("--projector-size", nargs=2, type=int, metavar=("W", "H"),
+                   help="projector image size, for calibration files that do not store it")
     p.add_argument("--method", choices=("distortion", "linear"), default="distortion")
     p.add_argument("--sphere", action="store_true", help="fit a sphere and print its RMS")
     p.add_argument("-o", "--output", required=True, help="PLY path")
+
+
+def _phase_maps(args) -> tuple[dict, dict]:
+    """({orientation: phase map}, {orientation: frequency}) the options ask for."""
+    from unwrap.phase_io import phase_orientations, read_phase
+
+    stored = phase_orientations(args.phase)
+    if stored:
+        wanted = [o for o in (("v", "h") if args.orientation in ("auto", "both") else (args.orientation,))
+                  if o in stored]
+        if not wanted or (args.orientation == "both" and len(wanted) < 2):
+            raise CommandError(f"{args.phase} holds orientation(s) {sorted(stored)}; --orientation "
+                               f"{args.orientation} needs {'v and h' if args.orientation == 'both' else args.orientation}")
+    else:
+        if args.orientation == "both":
+            raise CommandError(f"{args.phase} holds one phase map: --orientation both needs an HDF5 file with v and h")
+        wanted, stored = ["h" if args.orientation == "h" else "v"], {}
+    freqs = {}
+    for o in wanted:
+        f = args.frequency if args.frequency is not None else stored.get(o)
+        if f is None:
+            raise CommandError(f"--frequency is needed: {args.phase} does not record the fringe frequency of {o}")
+        freqs[o] = f
+    return {o: read_phase(args.phase, args.variable, o) for o in wanted}, freqs
 
 
 def run(args) -> int:
     import numpy as np
 
     from calib import load_system
-    from calib.triangulate import fit_sphere, triangulate, triangulate_linear, write_ply
-    from unwrap.patterns import projector_coordinate
-    from unwrap.phase_io import read_phase
+    from calib.triangulate import fit_sphere, points_from_phase, write_ply
 
-    system = load_system(args.calibration if len(args.calibration) > 1 else args.calibration[0])
-    phase = read_phase(args.phase, args.variable, args.orientation)
-    if phase.shape != (system.camera.height, system.camera.width):
-        raise CommandError(f"phase is {phase.shape[1]}x{phase.shape[0]}, the camera is "
+    paths = args.calibration if len(args.calibration) > 1 else args.calibration[0]
+    system = load_system(paths, camera_size=args.camera_size, projector_size=args.projector_size)
+    maps, freqs = _phase_maps(args)
+    shape = next(iter(maps.values())).shape
+    if shape != (system.camera.height, system.camera.width):
+        raise CommandError(f"phase is {shape[1]}x{shape[0]}, the camera is "
                            f"{system.camera.width}x{system.camera.height}")
-    valid = np.isfinite(phase)
-    rows, cols = np.nonzero(valid)
-    extent = system.projector.width if args.orientation == "v" else system.projector.height
-    coord = projector_coordinate(phase[valid], args.frequency, extent)
-    q = np.c_[cols, rows].astype(np.float64)
-    fn = triangulate if args.method == "distortion" else triangulate_linear
-    X, ok = fn(system, q, coord, args.orientation)
+    X, q, ok = points_from_phase(system, maps, freqs, args.orientation, args.method)
+    used = "both coordinates" if len(maps) == 2 else ("columns (v)" if "v" in maps else "rows (h)")
     write_ply(args.output, X[ok])
-    print(f"{int(ok.sum())} points of {int(valid.sum())} valid pixels -> {args.output}")
+    print(f"{int(ok.sum())} points of {len(q)} valid pixels ({used}) -> {args.output}")
     if args.sphere:
         c, r, res = fit_sphere(X[ok])
         print(f"sphere: centre {np.round(c, 4).tolist()} mm, radius {r:.5f} mm, "

@@ -4,6 +4,10 @@ from __future__ import annotations
 
 from sltwin.errors import CommandError
 
+PRESETS = ("design", "slstudio", "slmaster", "kamino-phaseshift", "procam-graycode", "kamino")
+"""unwrap.capture.PRESETS plus the former name ``kamino`` (kept literal: the parser is built without
+importing the library)."""
+
 HELP = "absolute phase, fringe order and masks of a fringe capture (HDF5 + PNG)"
 
 
@@ -11,9 +15,11 @@ def add_arguments(parser):
     parser.add_argument("capture_dir", help="capture folder (DESIGN.md layout or a scanner preset)")
     parser.add_argument("--method", choices=["mf", "mw", "nt", "gray"], default=None,
                         help="temporal unwrapping method (default: the capture's: mf for the "
-                             "DESIGN layout and slstudio, gray for slmaster and kamino)")
-    parser.add_argument("--preset", choices=["design", "slstudio", "slmaster", "kamino"], default=None,
-                        help="capture layout (default: capture.toml [capture] preset, else recognised)")
+                             "DESIGN layout and slstudio, gray for slmaster, kamino-phaseshift and Gray-code-only "
+                             "captures)")
+    parser.add_argument("--preset", choices=PRESETS, default=None,
+                        help="capture layout (default: capture.toml [capture] preset, else recognised); "
+                             "'kamino' is the former name of kamino-phaseshift")
     parser.add_argument("--pose", default=None, help="pose folder (DESIGN layout; default the first)")
     parser.add_argument("--min-modulation", type=float, default=None,
                         help="minimum modulation B in grey levels (default 2 %% of full scale)")

@@ -1,0 +1,45 @@
+"""Every benchmark, in its quick mode: ``python -m bench`` (``make bench``).
+
+Each benchmark prints its own Markdown tables; run one alone, in full, with
+``python -m bench.NAME`` (see its docstring). Quick modes cut repetitions and cases, so their
+numbers are for checking that the benchmarks run, not for quoting.
+"""
+from __future__ import annotations
+
+import sys
+import time
+
+from . import ba_scale, calib_accuracy, calib_captures, detect_accuracy, export_speed, synth_speed, unwrap_speed
+
+#: (name, main(argv) of the benchmark, arguments of its quick mode)
+BENCHMARKS = [
+    ("unwrap_speed", unwrap_speed.main, ["--quick"]),
+    ("synth_speed", synth_speed.main, ["--quick"]),
+    ("detect_accuracy", detect_accuracy.main, ["--quick", "--setup", "0"]),
+    ("calib_accuracy", calib_accuracy.main, ["--quick"]),
+    ("ba_scale", ba_scale.main, ["--quick"]),
+    ("calib_captures", calib_captures.main, ["--quick"]),
+    ("export_speed", export_speed.main, ["--quick"]),
+]
+
+
+def main(argv=None) -> int:
+    names = argv if argv is not None else sys.argv[1:]
+    unknown = [n for n in names if n not in dict((b[0], b) for b in BENCHMARKS)]
+    if unknown:
+        print(f"unknown benchmark(s) {unknown}; known: {[b[0] for b in BENCHMARKS]}", file=sys.stderr)
+        return 2
+    for name, run, args in BENCHMARKS:
+        if names and name not in names:
+            continue
+        t0 = time.perf_counter()
+        print(f"\n# bench.{name} {' '.join(args)}\n", flush=True)
+        rc = run(args) or 0
+        print(f"\n(bench.{name}: {time.perf_counter() - t0:.0f} s)", flush=True)
+        if rc:
+            return rc
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
