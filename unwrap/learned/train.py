@@ -248,7 +248,179 @@ def _attach_file_log(run_dir: Path):
     return h
 
 
+def _cpu_seconds() -> float:
+    """CPU seconds of this process plus its finished children (the data-loading workers of the
+    epochs so far: a worker's time is counted once it has been joined, at its epoch's end)."""
+    t = os.times()
+    return time.process_time() + t.children_user + t.children_system
+
+
+def _open_run(config, overrides, out_dir, resume) -> tuple[dict, Path]:
+    """(resolved config, run folder) of a new run or of the run ``resume`` continues."""
+    if resume is not None:
+        if config is not None:
+            raise ConfigError("give either a config (new run) or --resume RUN, not both")
+        run_dir = Path(resume)
+        if not (run_dir / "last.pt").is_file():
+            raise ConfigError(f"--resume {run_dir}: no last.pt there (not a run folder, or it never saved)")
+        return _resume_config(run_dir, overrides), run_dir
+    cfg = resolve_config(config, overrides)
+    run_dir = Path(out_dir) if out_dir is not None else Path("runs") / time.strftime("%Y%m%d-%H%M%S")
+    if (run_dir / "last.pt").exists():
+        raise ConfigError(f"{run_dir} already holds a run (last.pt); use --resume {run_dir} or another -o")
+    return cfg, run_dir
+
+
+def _make_optimiser(model, cfg: dict, device):
+    """(optimiser, LR scheduler, autocast dtype or None, gradient scaler or None)."""
+    o = cfg["optim"]
+    opt = torch.optim.AdamW(model.parameters(), lr=o["lr"], weight_decay=o["weight_decay"]) if o["name"] == "adamw" \
+        else torch.optim.SGD(model.parameters(), lr=o["lr"], momentum=0.9, weight_decay=o["weight_decay"])
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: lr_factor(s, cfg))
+    amp_dtype, scaler = None, None
+    if device.type == "cuda" and cfg["run"]["amp"]:
+        amp_dtype = torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16
+        if amp_dtype == torch.float16:
+            scaler = torch.amp.GradScaler("cuda")
+    return opt, sched, amp_dtype, scaler
+
+
 # ---------------------------------------------------------------- the loop
+class _Session:
+    """One training session (new or resumed): model, optimiser, counters, timing and, on rank 0,
+    the run folder's files. :func:`train` drives it batch by batch."""
+
+    def __init__(self, cfg: dict, run_dir: Path, resume, rank: int, world: int, local_rank: int, device, info: dict):
+        self.cfg, self.run_dir, self.world, self.device, self.info = cfg, run_dir, world, device, info
+        self.writer = rank == 0
+        self.arch = arch_from_config(cfg["model"])
+        self.model = build_model(self.arch).to(device)
+        self.opt, self.sched, self.amp_dtype, self.scaler = _make_optimiser(self.model, cfg, device)
+        self.step, self.epoch, self.batch_in_epoch, self.best, self.cpu_before = 0, 0, 0, float("inf"), 0.0
+        if resume is not None:
+            self._restore(read_checkpoint(run_dir / "last.pt"))
+        self.net = torch.nn.parallel.DistributedDataParallel(
+            self.model, device_ids=[local_rank] if device.type == "cuda" else None) if world > 1 else self.model
+        self.weights = LossWeights(**cfg["loss"])
+        d = cfg["data"]
+        self.meta = {"methods": d["methods"], "orientations": d["orientations"],
+                     "frequencies": {m: d[f"{m}_frequencies"] for m in d["methods"]},
+                     "data": d["train"] or f"synthetic:{d['synthetic_samples']}",
+                     "val_scenes": info["val_scenes"], "loss": cfg["loss"]}
+        self.files = self.handler = None
+        self.total = int(cfg["optim"]["steps"])
+        self.t_train, self.n_seen, self.last_loss, self.val_row = 0.0, 0, float("nan"), None
+
+    def _restore(self, ck: dict):
+        self.model.load_state_dict(ck["model"])
+        self.opt.load_state_dict(ck["optimizer"])
+        self.sched.load_state_dict(ck["scheduler"])
+        if self.scaler is not None and ck.get("scaler"):
+            self.scaler.load_state_dict(ck["scaler"])
+        self.step, self.epoch, self.batch_in_epoch, self.best = ck["step"], ck["epoch"], ck["batch_in_epoch"], ck["best"]
+        self.cpu_before = float(ck.get("cpu_s", 0.0))
+        set_rng_state(ck["rng"])
+
+    def open_files(self, resumed: bool, steps_per_epoch: int):
+        """Rank 0: the resolved config, the CSV logs (cut back to the checkpoint), log.txt."""
+        if self.writer:
+            self.run_dir.mkdir(parents=True, exist_ok=True)
+            (self.run_dir / "config.toml").write_text(to_toml(self.cfg))
+            self.files = RunFiles(self.run_dir, self.step if resumed else None)
+            self.handler = _attach_file_log(self.run_dir)
+            log.info("%s run %s: %d training items (%d scenes), %d validation items, %d step(s)/epoch, world %d, "
+                     "device %s%s", "resumed" if resumed else "new", self.run_dir, self.info["train_items"],
+                     len(self.info["train_scenes"]), self.info["val_items"], steps_per_epoch, self.world,
+                     self.device, f", step {self.step}" if resumed else "")
+        self.t_start, self.cpu_start = time.perf_counter(), _cpu_seconds()
+
+    def cpu_s(self) -> float:
+        return self.cpu_before + _cpu_seconds() - self.cpu_start
+
+    def state(self) -> dict:
+        return {"format": FORMAT, "format_version": FORMAT_VERSION, "arch": self.arch,
+                "model": self.model.state_dict(), "meta": {**self.meta, "step": self.step},
+                "optimizer": self.opt.state_dict(), "scheduler": self.sched.state_dict(),
+                "scaler": self.scaler.state_dict() if self.scaler is not None else {}, "step": self.step,
+                "epoch": self.epoch, "batch_in_epoch": self.batch_in_epoch, "best": self.best, "rng": rng_state(),
+                "cpu_s": self.cpu_s(), "config": to_toml(self.cfg)}
+
+    def optimise(self, batch: dict, bs: int) -> dict:
+        """One optimiser step on a batch; returns the loss parts."""
+        t0 = time.perf_counter()
+        batch = _to(batch, self.device)
+        loss, parts = training_step_loss(self.net, batch, self.cfg, self.weights, self.amp_dtype)
+        if not torch.isfinite(loss):
+            raise DatasetTooSmallError(f"step {self.step}: the loss is not finite ({float(loss)}); the batch "
+                                       "has no usable pixels or the learning rate is too high")
+        self.opt.zero_grad(set_to_none=True)
+        if self.scaler is not None:
+            self.scaler.scale(loss).backward()
+            self.scaler.unscale_(self.opt)
+        else:
+            loss.backward()
+        if self.cfg["optim"]["grad_clip"] > 0:
+            torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg["optim"]["grad_clip"])
+        if self.scaler is not None:
+            self.scaler.step(self.opt)
+            self.scaler.update()
+        else:
+            self.opt.step()
+        self.sched.step()
+        self.step += 1
+        self.batch_in_epoch += 1
+        self.t_train += time.perf_counter() - t0
+        self.n_seen += bs * self.world
+        self.last_loss = float(loss.detach())
+        return parts
+
+    def samples_per_s(self) -> float:
+        return self.n_seen / self.t_train if self.t_train > 0 else 0.0
+
+    def record(self, parts: dict, bar, val_ds):
+        """Rank 0 after a step: CSV row, progress bar, validation + best.pt, last.pt."""
+        run, step, last = self.cfg["run"], self.step, self.step == self.total
+        if step % run["log_every"] == 0 or last:
+            self.files.append("train.csv", TRAIN_FIELDS, {
+                "step": step, "epoch": self.epoch, "loss": f"{self.last_loss:.6g}",
+                **{k: f"{v:.6g}" for k, v in parts.items()}, "lr": f"{self.sched.get_last_lr()[0]:.6g}",
+                "samples_per_s": f"{self.samples_per_s():.4g}", "time_s": f"{time.perf_counter() - self.t_start:.1f}",
+                "cpu_s": f"{self.cpu_s():.1f}"})
+        bar.update(step, loss=self.last_loss, samples_per_s=self.samples_per_s())
+        if val_ds is not None and (step % run["val_every"] == 0 or last):
+            self.val_row = validate(self.model, val_ds, self.cfg, self.weights, self.device)
+            self.files.append("val.csv", VAL_FIELDS, {"step": step, **self.val_row})
+            log.info("step %d: val loss %.4g, error traditional %.4f %%, model %.4f %%", step, self.val_row["loss"],
+                     100 * self.val_row["error_traditional"], 100 * self.val_row["error_model"])
+            score = self.val_row["error_model"]
+            if score == score and score < self.best:
+                self.best = score
+                save_atomic(self.state(), self.run_dir / "best.pt")
+        if step % run["checkpoint_every"] == 0 or last:
+            save_atomic(self.state(), self.run_dir / "last.pt")
+
+    def finish(self, bar):
+        """Rank 0 at the end: last.pt, model.pt (when complete), metrics.json, metrics.png."""
+        run_dir = self.run_dir
+        save_atomic(self.state(), run_dir / "last.pt")
+        bar.update(self.step, force=True, loss=self.last_loss)
+        bar.close()
+        if self.step >= self.total:
+            src = run_dir / "best.pt" if (run_dir / "best.pt").exists() else run_dir / "last.pt"
+            export_model(read_checkpoint(src), run_dir / "model.pt")
+        info = self.info
+        summary = {"run": str(run_dir), "step": self.step, "steps": self.total, "final_loss": self.last_loss,
+                   "best_val_error": None if self.best == float("inf") else self.best, "last_val": self.val_row,
+                   "train_samples_per_s": self.samples_per_s(), "world_size": self.world, "device": str(self.device),
+                   "threads": torch.get_num_threads(), "wall_s_this_session": time.perf_counter() - self.t_start,
+                   "cpu_s_total": self.cpu_s(), "train_items": info["train_items"], "val_items": info["val_items"],
+                   "train_scenes": len(info["train_scenes"]), "val_scenes": info["val_scenes"]}
+        (run_dir / "metrics.json").write_text(json.dumps(summary, indent=1))
+        plot_metrics(run_dir)
+        log.removeHandler(self.handler)
+        self.handler.close()
+
+
 def train(config=None, overrides=(), out_dir=None, *, resume=None, deterministic: bool | None = None,
           progress: bool = True, stop_after: int | None = None, on_step=None) -> TrainResult:
     """Train (or resume) a fringe-order network; see the module docstring for the run folder.
@@ -263,28 +435,14 @@ def train(config=None, overrides=(), out_dir=None, *, resume=None, deterministic
     RETURNED VALUE: :class:`TrainResult`.
     """
     rank, world, local_rank = _dist_env()
-    distributed = world > 1
-    if resume is not None:
-        if config is not None:
-            raise ConfigError("give either a config (new run) or --resume RUN, not both")
-        run_dir = Path(resume)
-        if not (run_dir / "last.pt").is_file():
-            raise ConfigError(f"--resume {run_dir}: no last.pt there (not a run folder, or it never saved)")
-        cfg = _resume_config(run_dir, overrides)
-    else:
-        cfg = resolve_config(config, overrides)
-        if out_dir is None:
-            out_dir = Path("runs") / time.strftime("%Y%m%d-%H%M%S")
-        run_dir = Path(out_dir)
-        if (run_dir / "last.pt").exists():
-            raise ConfigError(f"{run_dir} already holds a run (last.pt); use --resume {run_dir} or another -o")
+    cfg, run_dir = _open_run(config, overrides, out_dir, resume)
     if deterministic is not None:
         cfg["run"]["deterministic"] = bool(deterministic)
     set_deterministic(cfg["run"]["deterministic"])
     if cfg["run"]["threads"]:
         torch.set_num_threads(int(cfg["run"]["threads"]))
     device = _device(cfg, local_rank)
-    if distributed and not torch.distributed.is_initialized():
+    if world > 1 and not torch.distributed.is_initialized():
         torch.distributed.init_process_group("nccl" if device.type == "cuda" else "gloo")
     seed = int(cfg["run"]["seed"])
     seed_everything(seed)
@@ -296,140 +454,29 @@ def train(config=None, overrides=(), out_dir=None, *, resume=None, deterministic
         raise DatasetTooSmallError(f"training set too small: {len(train_ds)} items for {world} process(es) x "
                                    f"batch {bs}; lower optim.batch_size or add data")
     steps_per_epoch = sampler.per_rank() // bs
-
-    arch = arch_from_config(cfg["model"])
-    model = build_model(arch).to(device)
-    o = cfg["optim"]
-    opt = torch.optim.AdamW(model.parameters(), lr=o["lr"], weight_decay=o["weight_decay"]) if o["name"] == "adamw" \
-        else torch.optim.SGD(model.parameters(), lr=o["lr"], momentum=0.9, weight_decay=o["weight_decay"])
-    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: lr_factor(s, cfg))
-    amp_dtype, scaler = None, None
-    if device.type == "cuda" and cfg["run"]["amp"]:
-        amp_dtype = torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16
-        if amp_dtype == torch.float16:
-            scaler = torch.amp.GradScaler("cuda")
-    step, epoch, batch_in_epoch, best, cpu_before = 0, 0, 0, float("inf"), 0.0
-    if resume is not None:
-        ck = read_checkpoint(run_dir / "last.pt")
-        model.load_state_dict(ck["model"])
-        opt.load_state_dict(ck["optimizer"])
-        sched.load_state_dict(ck["scheduler"])
-        if scaler is not None and ck.get("scaler"):
-            scaler.load_state_dict(ck["scaler"])
-        step, epoch, batch_in_epoch, best = ck["step"], ck["epoch"], ck["batch_in_epoch"], ck["best"]
-        cpu_before = float(ck.get("cpu_s", 0.0))
-        set_rng_state(ck["rng"])
-    net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[local_rank] if device.type == "cuda" else None) \
-        if distributed else model
-    writer = rank == 0
-    files = handler = None
-    if writer:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        (run_dir / "config.toml").write_text(to_toml(cfg))
-        files = RunFiles(run_dir, step if resume is not None else None)
-        handler = _attach_file_log(run_dir)
-        log.info("%s run %s: %d training items (%d scenes), %d validation items, %d step(s)/epoch, world %d, "
-                 "device %s%s", "resumed" if resume else "new", run_dir, info["train_items"],
-                 len(info["train_scenes"]), info["val_items"], steps_per_epoch, world, device,
-                 f", step {step}" if resume else "")
-    weights = LossWeights(**cfg["loss"])
-    meta = {"methods": cfg["data"]["methods"], "orientations": cfg["data"]["orientations"],
-            "frequencies": {m: cfg["data"][f"{m}_frequencies"] for m in cfg["data"]["methods"]},
-            "data": cfg["data"]["train"] or f"synthetic:{cfg['data']['synthetic_samples']}",
-            "val_scenes": info["val_scenes"], "loss": cfg["loss"]}
-
-    def state(best_value):
-        return {"format": FORMAT, "format_version": FORMAT_VERSION, "arch": arch, "model": model.state_dict(),
-                "meta": {**meta, "step": step}, "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
-                "scaler": scaler.state_dict() if scaler is not None else {}, "step": step, "epoch": epoch,
-                "batch_in_epoch": batch_in_epoch, "best": best_value, "rng": rng_state(),
-                "cpu_s": cpu_before + time.process_time() - cpu_start,
-                "config": to_toml(cfg)}
-
-    total = int(cfg["optim"]["steps"])
-    t_start, cpu_start = time.perf_counter(), time.process_time()
-    bar = StepBar(total, start=step, enabled=progress and writer)
-    model.train()
-    t_train, n_seen, last_loss, val_row = 0.0, 0, float("nan"), None
-    while step < total:
-        sampler.set_epoch(epoch, batch_in_epoch * bs)
-        train_ds.set_epoch(epoch)
+    s = _Session(cfg, run_dir, resume, rank, world, local_rank, device, info)
+    s.open_files(resume is not None, steps_per_epoch)
+    bar = StepBar(s.total, start=s.step, enabled=progress and s.writer)
+    s.model.train()
+    stop = s.total if stop_after is None else min(s.total, stop_after)
+    while s.step < stop:
+        sampler.set_epoch(s.epoch, s.batch_in_epoch * bs)
+        train_ds.set_epoch(s.epoch)
         loader = torch.utils.data.DataLoader(train_ds, batch_size=bs, sampler=sampler, drop_last=True,
-                                             num_workers=int(cfg["data"]["workers"]),
-                                             persistent_workers=False)
+                                             num_workers=int(cfg["data"]["workers"]), persistent_workers=False)
         for batch in loader:
-            t0 = time.perf_counter()
-            batch = _to(batch, device)
-            loss, parts = training_step_loss(net, batch, cfg, weights, amp_dtype)
-            if not torch.isfinite(loss):
-                raise DatasetTooSmallError(f"step {step}: the loss is not finite ({float(loss)}); the batch "
-                                           "has no usable pixels or the learning rate is too high")
-            opt.zero_grad(set_to_none=True)
-            if scaler is not None:
-                scaler.scale(loss).backward()
-                scaler.unscale_(opt)
-            else:
-                loss.backward()
-            if cfg["optim"]["grad_clip"] > 0:
-                torch.nn.utils.clip_grad_norm_(model.parameters(), cfg["optim"]["grad_clip"])
-            if scaler is not None:
-                scaler.step(opt)
-                scaler.update()
-            else:
-                opt.step()
-            sched.step()
-            step += 1
-            batch_in_epoch += 1
-            t_train += time.perf_counter() - t0
-            n_seen += bs * world
-            last_loss = float(loss.detach())
-            sps = n_seen / t_train if t_train > 0 else 0.0
-            if writer:
-                if step % cfg["run"]["log_every"] == 0 or step == total:
-                    files.append("train.csv", TRAIN_FIELDS, {
-                        "step": step, "epoch": epoch, "loss": f"{last_loss:.6g}", **{k: f"{v:.6g}" for k, v in parts.items()},
-                        "lr": f"{sched.get_last_lr()[0]:.6g}", "samples_per_s": f"{sps:.4g}",
-                        "time_s": f"{time.perf_counter() - t_start:.1f}",
-                        "cpu_s": f"{cpu_before + time.process_time() - cpu_start:.1f}"})
-                bar.update(step, loss=last_loss, samples_per_s=sps)
-                if val_ds is not None and (step % cfg["run"]["val_every"] == 0 or step == total):
-                    val_row = validate(model, val_ds, cfg, weights, device)
-                    files.append("val.csv", VAL_FIELDS, {"step": step, **val_row})
-                    log.info("step %d: val loss %.4g, error traditional %.4f %%, model %.4f %%", step, val_row["loss"],
-                             100 * val_row["error_traditional"], 100 * val_row["error_model"])
-                    score = val_row["error_model"]
-                    if score == score and score < best:
-                        best = score
-                        save_atomic(state(best), run_dir / "best.pt")
-                if step % cfg["run"]["checkpoint_every"] == 0 or step == total:
-                    save_atomic(state(best), run_dir / "last.pt")
+            parts = s.optimise(batch, bs)
+            if s.writer:
+                s.record(parts, bar, val_ds)
                 if on_step is not None:
-                    on_step(step, last_loss)
-            if step >= total or (stop_after is not None and step >= stop_after):
+                    on_step(s.step, s.last_loss)
+            if s.step >= stop:
                 break
-        if step >= total or (stop_after is not None and step >= stop_after):
+        if s.step >= stop:
             break
-        epoch += 1
-        batch_in_epoch = 0
-    if batch_in_epoch >= steps_per_epoch:   # the loop ended exactly at an epoch's end
-        epoch, batch_in_epoch = epoch + 1, 0
-    result = TrainResult(run_dir if writer else None, step, best, last_loss, n_seen / t_train if t_train else 0.0)
-    if writer:
-        save_atomic(state(best), run_dir / "last.pt")
-        bar.update(step, force=True, loss=last_loss)
-        bar.close()
-        if step >= total:
-            src = run_dir / "best.pt" if (run_dir / "best.pt").exists() else run_dir / "last.pt"
-            export_model(read_checkpoint(src), run_dir / "model.pt")
-        summary = {"run": str(run_dir), "step": step, "steps": total, "final_loss": last_loss,
-                   "best_val_error": None if best == float("inf") else best, "last_val": val_row,
-                   "train_samples_per_s": result.samples_per_s, "world_size": world, "device": str(device),
-                   "threads": torch.get_num_threads(), "wall_s_this_session": time.perf_counter() - t_start,
-                   "cpu_s_total": cpu_before + time.process_time() - cpu_start,
-                   "train_items": info["train_items"], "val_items": info["val_items"],
-                   "train_scenes": len(info["train_scenes"]), "val_scenes": info["val_scenes"]}
-        (run_dir / "metrics.json").write_text(json.dumps(summary, indent=1))
-        plot_metrics(run_dir)
-        log.removeHandler(handler)
-        handler.close()
-    return result
+        s.epoch, s.batch_in_epoch = s.epoch + 1, 0
+    if s.batch_in_epoch >= steps_per_epoch:   # the loop ended exactly at an epoch's end
+        s.epoch, s.batch_in_epoch = s.epoch + 1, 0
+    if s.writer:
+        s.finish(bar)
+    return TrainResult(run_dir if s.writer else None, s.step, s.best, s.last_loss, s.samples_per_s())
