@@ -45,12 +45,12 @@ def test_masked_pixels_do_not_change_any_loss_even_when_nan():
     w = LossWeights(mse=1, fourier=0.5, ce=1)
     logits = torch.randn(3, 5, 24, 40)
     t = torch.randint(-2, 3, (3, 24, 40)).float()
-    a, _ = composite_loss(w, pred, t, mask, logits=logits)
+    a, _ = composite_loss(w, pred, t, mask, logits=logits, classes=t.long() + 2)
     pred2, logits2 = pred.clone().requires_grad_(True), logits.clone()
     with torch.no_grad():
         pred2[~mask] = float("nan")
         logits2.permute(0, 2, 3, 1)[~mask] = 1e4
-    b, _ = composite_loss(w, pred2, t, mask, logits=logits2)
+    b, _ = composite_loss(w, pred2, t, mask, logits=logits2, classes=t.long() + 2)
     assert torch.allclose(a, b, rtol=1e-6)
     b.backward()
     assert torch.isfinite(pred2.grad).all() and (pred2.grad[~mask] == 0).all()

@@ -40,8 +40,12 @@ are themselves frequency-free. A network that outputs the order itself must map 
 The softmax probability of the chosen correction is the per-pixel confidence.
 
 ``prior_free`` (the paper's DT-TPU baseline): the wrapped low and high phases (sin, cos, phase/pi),
-both modulations, the valid mask and the method as three one-hot channels; one output channel,
-the order divided by ``order_scale`` (64), regressed directly.
+both modulations, the valid mask and the method as three one-hot channels; :data:`ORDER_CLASSES`
+(65) logits per pixel for the order itself, 0 ... 64 (classification: a regressed order divided by
+64 had to reach 1/128 precision and stayed ~5 orders off after 1500 steps - 89 % wrong at the seen
+48 periods; see docs/learned.md). The MSE / Fourier terms see the expected order / 64, the
+confidence is the probability of the chosen order. Orders above 64 cannot be produced at all: the
+point of table S5's unseen row.
 
 Every input is made NaN-free here (``torch.where``, never a product with the mask), and pixels
 with a non-finite input leave the valid mask, so NaN never reaches the network or the loss.
@@ -59,6 +63,8 @@ KINDS = ("physics", "prior_free")
 METHOD_INDEX = {"mf": 0, "mw": 1, "nt": 2}
 MODULATION_GAIN = 4.0
 ORDER_SCALE = 64.0
+#: Order classes of the prior-free model: 0 ... ORDER_SCALE.
+ORDER_CLASSES = int(ORDER_SCALE) + 1
 #: Boxes (px) over which the smoothed priors filter the coarse phase.
 SMOOTH_WINDOWS = (7, 15)
 
@@ -73,9 +79,10 @@ def input_channels(kind: str) -> int:
 
 
 def output_channels(kind: str, max_correction: int = 2) -> int:
-    """Output channels: ``2 K + 1`` correction logits (physics) or one order (prior_free)."""
+    """Output channels: ``2 K + 1`` correction logits (physics) or :data:`ORDER_CLASSES` order
+    logits (prior_free)."""
     input_channels(kind)
-    return 2 * int(max_correction) + 1 if kind == "physics" else 1
+    return 2 * int(max_correction) + 1 if kind == "physics" else ORDER_CLASSES
 
 
 def _round_order(x: torch.Tensor) -> torch.Tensor:
@@ -168,34 +175,46 @@ def targets(batch: dict, kind: str, max_correction: int = 2) -> tuple[torch.Tens
     return torch.where(ok, t, torch.zeros((), dtype=torch.float32)), ok
 
 
+def class_targets(batch: dict, kind: str, max_correction: int = 2) -> torch.Tensor:
+    """(B, H, W) int64 class index of the cross-entropy term, -1 where not trained (invalid inputs,
+    no true order, or an order the prior-free model cannot output).
+
+    physics: the correction clipped to [-K, K], plus K; prior_free: the true order (0 ... 64).
+    """
+    target, ok = targets(batch, kind, max_correction)
+    if kind == "physics":
+        cls = target.round().long() + max_correction
+    else:
+        cls = batch["order_true"].long()
+        ok = ok & (cls < ORDER_CLASSES)
+    return torch.where(ok, cls, torch.full_like(cls, -1))
+
+
 def expected_map(out: torch.Tensor, kind: str, max_correction: int = 2) -> torch.Tensor:
     """The differentiable fringe-order map the loss compares with :func:`targets` (B, H, W).
 
-    physics: the expected correction ``sum_c p_c c`` under the softmax; prior_free: the output.
+    physics: the expected correction ``sum_c p_c c`` under the softmax; prior_free: the expected
+    order ``sum_k p_k k`` / ORDER_SCALE.
     """
     if kind == "physics":
         c = torch.arange(-max_correction, max_correction + 1, dtype=out.dtype, device=out.device)
-        return (torch.softmax(out, dim=1) * c[None, :, None, None]).sum(dim=1)
-    return out[:, 0]
+    else:
+        c = torch.arange(out.shape[1], dtype=out.dtype, device=out.device) / ORDER_SCALE
+    return (torch.softmax(out, dim=1) * c[None, :, None, None]).sum(dim=1)
 
 
 def decode(out: torch.Tensor, batch: dict, kind: str, max_correction: int = 2):
     """Network output -> (order int64 (B,H,W) -1 invalid, confidence float32 (B,H,W) in [0, 1]).
 
     physics: the most probable correction added to the traditional order, clipped to
-    [0, round(f_high)]; confidence = its probability. prior_free: the rounded regressed order;
-    confidence = 1 - 2 |distance to the nearest integer| (a margin, not a probability).
+    [0, round(f_high)]; confidence = its probability. prior_free: the most probable order class;
+    confidence = its probability.
     """
     ok = valid_mask(batch)
     kmax = torch.floor(batch["frequency_high"].to(torch.float64) + 0.5).to(torch.int64)[:, None, None]
-    if kind == "physics":
-        p = torch.softmax(out.float(), dim=1)
-        conf, cls = p.max(dim=1)
-        order = batch["order_traditional"] + cls - max_correction
-    else:
-        k = out[:, 0].float() * ORDER_SCALE
-        order = torch.round(k).to(torch.int64)
-        conf = 1.0 - 2.0 * (k - torch.round(k)).abs()
+    p = torch.softmax(out.float(), dim=1)
+    conf, cls = p.max(dim=1)
+    order = batch["order_traditional"] + cls - max_correction if kind == "physics" else cls
     order = torch.minimum(order.clamp(min=0), kmax)
     order = torch.where(ok, order, torch.full_like(order, -1))
     return order, torch.where(ok, conf, torch.zeros_like(conf))

@@ -21,8 +21,9 @@ Fourier term (``fourier_weighting``):
   gradient on the spatial frequencies where the error spectrum is largest (the long-range,
   surface-wide error patterns rather than isolated pixels).
 
-Cross-entropy (physics model only, optional ``ce`` weight): on the correction classes, for the
-pixels whose true correction lies in [-K, K].
+Cross-entropy (optional ``ce`` weight): on the output classes (the physics model's corrections
+-K ... K, the prior-free model's orders 0 ... 64; :func:`unwrap.learned.features.class_targets`),
+for the pixels with a class (index >= 0).
 """
 from __future__ import annotations
 
@@ -95,18 +96,19 @@ def fourier_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, *
     return _safe_mean((w * d).flatten(1).sum(dim=1), _per_sample_count(mask))
 
 
-def cross_entropy_loss(logits: torch.Tensor, target: torch.Tensor, mask: torch.Tensor,
-                       max_correction: int) -> torch.Tensor:
-    """Per-sample mean cross-entropy of the correction classes over masked, representable pixels."""
-    m = mask & (target.abs() <= max_correction)
-    cls = torch.where(m, target.round().long() + max_correction, torch.zeros((), dtype=torch.long))
+def cross_entropy_loss(logits: torch.Tensor, classes: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Per-sample mean cross-entropy of ``logits`` (B, C, H, W) against the class indices
+    ``classes`` (B, H, W) over the masked pixels with a class in [0, C)."""
+    m = mask & (classes >= 0) & (classes < logits.shape[1])
+    cls = torch.where(m, classes.long(), torch.zeros((), dtype=torch.long))
     ce = F.cross_entropy(logits.float(), cls, reduction="none")
     ce = torch.where(m, ce, torch.zeros((), dtype=ce.dtype))
     return _safe_mean(ce.flatten(1).sum(dim=1), _per_sample_count(m))
 
 
-def composite_loss(weights: LossWeights, pred_map, target, mask, logits=None, max_correction: int = 2):
-    """(total, parts dict of floats): ``mse*MSE + fourier*FL + ce*CE`` on the order maps."""
+def composite_loss(weights: LossWeights, pred_map, target, mask, logits=None, classes=None):
+    """(total, parts dict of floats): ``mse*MSE + fourier*FL + ce*CE`` on the order maps; the CE
+    term needs ``logits`` (B, C, H, W) and ``classes`` (B, H, W) int64 (-1: no class)."""
     parts = {}
     total = torch.zeros((), dtype=torch.float32, device=pred_map.device)
     if weights.mse > 0:
@@ -117,8 +119,8 @@ def composite_loss(weights: LossWeights, pred_map, target, mask, logits=None, ma
         v = fourier_loss(pred_map, target, mask, weighting=weights.fourier_weighting, alpha=weights.fourier_alpha)
         parts["fourier"] = v
         total = total + weights.fourier * v
-    if weights.ce > 0 and logits is not None:
-        v = cross_entropy_loss(logits, target, mask, max_correction)
+    if weights.ce > 0 and logits is not None and classes is not None:
+        v = cross_entropy_loss(logits, classes, mask)
         parts["ce"] = v
         total = total + weights.ce * v
     return total, {k: float(v.detach()) for k, v in parts.items()}

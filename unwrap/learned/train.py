@@ -152,8 +152,7 @@ def training_step_loss(model, batch, cfg, weights: LossWeights, amp_dtype=None):
         out = model(x)
     out = out.float()
     pred = Fe.expected_map(out, kind, K)
-    return composite_loss(weights, pred, target, mask, logits=out if kind == "physics" else None,
-                          max_correction=K)
+    return composite_loss(weights, pred, target, mask, logits=out, classes=Fe.class_targets(batch, kind, K))
 
 
 @torch.no_grad()
