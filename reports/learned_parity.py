@@ -83,15 +83,31 @@ def matched_full_well(noise: dict) -> float:
     return float(noise["modulation"] / max(noise["sigma_I"], 1e-6) ** 2)
 
 
-def twin_config_text(system_file, full_well: float, *, samples: int = 6, steps: int = 3, frequencies=(1, 16, 48, 96),
-                     depth_mm=(360, 430), size_mm=(80, 180), mesh_dir=None, seed: int = 5) -> str:
-    """Export TOML of twin renders of ``system_file`` with the matched noise (scene ranges as the
-    training set's, objects at the capture's working distance)."""
+def _world_depths(system_file) -> tuple[float, float]:
+    """Depth of the world origin in the camera and in the projector (mm): the export measures focus
+    distances from these (``synth.dataset_scenes``); for a system whose world is the camera (SLStudio)
+    they are 0 and ~the baseline, not the working distance."""
+    from calib import load_system
+
+    s = load_system(system_file)
+    return float(s.camera.t[2]), float(s.projector.t[2])
+
+
+def twin_config_text(system_file, full_well: float, *, exposure=(0.45, 0.95), samples: int = 6, steps: int = 3,
+                     frequencies=(1, 16, 48, 96), depth_mm=(350, 450), size_mm=(100, 200), mesh_dir=None,
+                     seed: int = 5) -> str:
+    """Export TOML of twin renders of ``system_file`` with the matched noise and exposure: scene
+    and effect ranges as the training set's, objects at the capture's working distance (``depth_mm``
+    from the world origin), both devices focused on it (+-50 mm)."""
     mesh_dir = Path(mesh_dir) if mesh_dir else Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
+    z_cam, z_prj = _world_depths(system_file)
+    mid = 0.5 * (depth_mm[0] + depth_mm[1])
+    f_cam = [mid - z_cam - 50, mid - z_cam + 50]
+    f_prj = [mid - z_prj - 50, mid - z_prj + 50]
     return f"""[export]
 samples = {int(samples)}
 seed = {int(seed)}
-min_object_fraction = 0.15
+min_object_fraction = 0.05
 
 [system]
 file = {json.dumps(str(Path(system_file).resolve()))}
@@ -104,8 +120,8 @@ steps = {int(steps)}
 [scene]
 objects = [1, 2]
 mesh_dir = {json.dumps(str(mesh_dir.resolve()))}
-meshes = ["nefertiti.obj", "cheburashka.obj", "suzanne.obj", "stanford-bunny.obj"]
-mesh_fraction = 0.7
+meshes = ["cheburashka.obj", "suzanne.obj", "stanford-bunny.obj", "spot.obj"]
+mesh_fraction = 0.5
 procedural = ["sphere", "blobs", "heightfield"]
 size_mm = {json.dumps(list(size_mm))}
 depth_mm = {json.dumps(list(depth_mm))}
@@ -117,11 +133,11 @@ texture = 0.5
 texture_contrast = [0.1, 0.6]
 
 [effects]
-exposure = [0.45, 0.95]
+exposure = {json.dumps([round(float(e), 4) for e in exposure])}
 ambient = [0.0, 0.08]
 noise = {{full_well_e = {full_well:.1f}, read_noise_e = 2}}
-projector_defocus = {{aperture_mm = [0, 3], focus_offset_mm = [-100, 100]}}
-camera_defocus = {{aperture_mm = [0, 3], focus_offset_mm = [-100, 100]}}
+projector_defocus = {{aperture_mm = [0, 3], focus_offset_mm = {json.dumps([round(v, 1) for v in f_prj])}}}
+camera_defocus = {{aperture_mm = [0, 3], focus_offset_mm = {json.dumps([round(v, 1) for v in f_cam])}}}
 global_illumination = {{subsurface = [0, 0.6], scatter_mm = [0.5, 4], interreflection = [0, 0.1], interreflection_mm = [20, 60]}}
 bits = 8
 
@@ -133,35 +149,41 @@ codec = "gzip-1"
 def render_matched_twin(real_file, system_file, out_dir, *, samples: int = 6, frequencies=(1, 16, 48, 96),
                         progress: bool = True) -> dict:
     """Measure the capture's noise, render the twin of ``system_file`` (synth) with the full well
-    that matches it, and measure the renders the same way.
+    and exposure that match it, and measure the renders the same way.
 
-    The shot-noise formula (:func:`matched_full_well`) is only a first guess (the twin's intensity
-    is not exactly its modulation): a 2-sample pilot render is measured and the full well scaled by
-    ``(sigma_twin / sigma_real)^2`` before the final render.
-    RETURNED VALUE: {"file", "config", "noise_real", "noise_twin", "full_well", "pilot"}."""
+    A 1-sample pilot (full well from :func:`matched_full_well`, exposure 0.45-0.95) is measured;
+    the exposure is then scaled by ``a = B_real / B_pilot`` (the export's light falloff is
+    referenced to the world origin's distance, which differs between systems) and the full well
+    by ``a (sigma_pilot / sigma_real)^2`` (shot noise: ``sigma_I^2 ~ I / full_well``) for the final
+    render.
+    RETURNED VALUE: {"file", "config", "noise_real", "noise_twin", "full_well", "exposure", "pilot"}."""
     from synth.dataset_config import load_config
     from synth.dataset_export import export_dataset
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     noise = capture_noise(real_file)
-    pilot_pair = (1.0, float(noise["pair"][1]))
+    pair = (1.0, float(noise["pair"][1]))
 
-    def render(name, fw, n):
+    def render(name, fw, exposure, n):
         cfg_path = out / f"{name}.toml"
-        cfg_path.write_text(twin_config_text(system_file, fw, samples=n, steps=noise["steps"], frequencies=frequencies))
+        cfg_path.write_text(twin_config_text(system_file, fw, exposure=exposure, samples=n, steps=noise["steps"],
+                                             frequencies=frequencies))
         path = out / f"{name}.h5"
         export_dataset(load_config(cfg_path), path, progress=progress)
-        return cfg_path, path, capture_noise(path, pair=pilot_pair)
+        return cfg_path, path, capture_noise(path, pair=pair)
 
-    fw0 = matched_full_well(noise)
-    _, _, pilot = render("twin_pilot", fw0, 2)
-    fw = fw0 * (pilot["sigma_I"] / noise["sigma_I"]) ** 2
-    LOG.info("learned parity: capture sigma_I %.4f; pilot twin at %.0f e- gave %.4f -> full well %.0f e-",
-             noise["sigma_I"], fw0, pilot["sigma_I"], fw)
-    cfg_path, path, twin = render("twin_parity", fw, samples)
+    fw0, exp0 = matched_full_well(noise), (0.45, 0.95)
+    _, _, pilot = render("twin_pilot", fw0, exp0, 1)
+    a = noise["modulation"] / max(pilot["modulation"], 1e-6)
+    fw = fw0 * a * (pilot["sigma_I"] / noise["sigma_I"]) ** 2
+    exposure = (exp0[0] * a, exp0[1] * a)
+    LOG.info("learned parity: capture sigma_I %.4f, B %.3f; pilot twin (%.0f e-) sigma_I %.4f, B %.3f -> exposure "
+             "x%.2f, full well %.0f e-", noise["sigma_I"], noise["modulation"], fw0, pilot["sigma_I"],
+             pilot["modulation"], a, fw)
+    cfg_path, path, twin = render("twin_parity", fw, exposure, samples)
     return {"file": str(path), "config": str(cfg_path), "noise_real": noise, "noise_twin": twin, "full_well": fw,
-            "pilot": {"full_well": fw0, "noise": pilot}}
+            "exposure": list(exposure), "pilot": {"full_well": fw0, "exposure": list(exp0), "noise": pilot}}
 
 
 def _score(files, pair, model) -> dict:
@@ -275,7 +297,7 @@ def section(real_files, twin_files, model="learned", *, twin_info: dict | None =
     return (SECTION_TITLE, blocks), summary
 
 
-def slstudio_parity(shared_data, out_dir, model="learned", *, samples: int = 4, progress: bool = True):
+def slstudio_parity(shared_data, out_dir, model="learned", *, samples: int = 2, progress: bool = True):
     """The whole parity check on SLStudio's skull (``shared_data`` = ``../shared/data``): export the
     capture with its Gray-code reference, render the matched twin, build the section.
 
