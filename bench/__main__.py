@@ -9,7 +9,8 @@ from __future__ import annotations
 import sys
 import time
 
-from . import calib_accuracy, calib_captures, detect_accuracy, export_speed, synth_speed, unwrap_speed
+from . import (calib_accuracy, calib_captures, detect_accuracy, export_speed, outlier_rule, synth_speed,
+               unwrap_speed)
 
 #: (name, main(argv) of the benchmark, arguments of its quick mode)
 BENCHMARKS = [
@@ -18,6 +19,7 @@ BENCHMARKS = [
     ("detect_accuracy", detect_accuracy.main, ["--quick", "--setup", "0"]),
     ("calib_accuracy", calib_accuracy.main, ["--quick"]),
     ("calib_captures", calib_captures.main, ["--quick"]),
+    ("outlier_rule", outlier_rule.main, ["--quick"]),
     ("export_speed", export_speed.main, ["--quick"]),
 ]
 

@@ -4,12 +4,13 @@ from board captures or point observations, triangulation.
 Public surface:
 
 - models: ``DeviceModel``, ``SystemModel``, ``default_system`` (the paper's real system),
-  ``load_system`` (any supported calibration file or pair).
+  ``load_system`` (any supported calibration file or pair) and ``save_system`` (calibration.json,
+  OpenCV YAML/XML or a mrcal pair, by the file name).
 - boards: ``Board``, ``paper_board``; detection ``detect_board``.
 - observations: ``Observations``, ``ViewObservations``, ``observations_from_captures`` (board
   captures -> camera and projector pixels).
 - calibration: ``run_calibration`` -> ``Calibration`` (Zhang seeds + bundle adjustment, settings
-  ``BAConfig`` / ``DeviceConfig``); ``calibrate_captures`` and ``calibrate_observations``
+  ``BAConfig`` / ``DeviceConfig``; ``reweight_views`` gives noisy views their own noise level); ``calibrate_captures`` and ``calibrate_observations``
   (calibrate and write every output, as ``calib run``).
 - 3D: ``triangulate`` (distortion-aware), ``triangulate_linear`` (the paper's),
   ``points_from_phase``, ``sphere_from_phase``, ``fit_sphere``.
@@ -22,23 +23,23 @@ Progress goes to the `calib` logger.
 """
 from .board import Board, paper_board
 from .bundle_adjustment import BAConfig, DeviceConfig
-from .calibrate import Calibration, run_calibration
+from .calibrate import Calibration, reweight_views, run_calibration
 from .captures import observations_from_captures
 from .detect import detect_board
 from .device import DeviceModel
 from .errors import (BoardError, BundleAdjustmentError, CalibError, CaptureError, DetectionError, FormatError,
                      InitError, MarkerPhaseError, ModelError, ObservationError, OutputError, TriangulationError)
-from .io import load_system
+from .io import load_system, save_system
 from .observations import Observations, ViewObservations
 from .pipeline import calibrate_captures, calibrate_observations
 from .system import SystemModel, default_system
 from .triangulate import fit_sphere, points_from_phase, sphere_from_phase, triangulate, triangulate_linear
 
 __all__ = [
-    "DeviceModel", "SystemModel", "default_system", "load_system",
+    "DeviceModel", "SystemModel", "default_system", "load_system", "save_system",
     "Board", "paper_board", "detect_board",
     "Observations", "ViewObservations", "observations_from_captures",
-    "run_calibration", "Calibration", "BAConfig", "DeviceConfig", "calibrate_captures", "calibrate_observations",
+    "run_calibration", "reweight_views", "Calibration", "BAConfig", "DeviceConfig", "calibrate_captures", "calibrate_observations",
     "triangulate", "triangulate_linear", "points_from_phase", "sphere_from_phase", "fit_sphere",
     "CalibError", "ModelError", "FormatError", "BoardError", "DetectionError", "MarkerPhaseError", "CaptureError",
     "ObservationError", "InitError", "BundleAdjustmentError", "TriangulationError", "OutputError",

@@ -77,7 +77,10 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
     except OSError as exc:
         raise OutputError(f"cannot write outputs to {out}: {exc}") from None
     for name, path in written.items():
-        log.info(f"wrote {name}: {path}")
+        if isinstance(path, str) and path.startswith("not written: "):
+            log.warning(f"{name} not written: {path[len('not written: '):]}")
+        else:
+            log.info(f"wrote {name}: {path}")
     return CalibrationRun(cal, obs, captured, written)
 
 

@@ -126,6 +126,12 @@ def points_from_phase(system, phase, frequency: float, orientation: str = "v", m
     - method: "distortion-aware" (:func:`triangulate`) or "linear" (:func:`triangulate_linear`).
     RETURNED VALUE: (points_world (N, 3) mm, q_cam (N, 2) px, ok (N,)) over the N valid pixels,
     row-major; points are NaN where not ok.
+
+    Refused (TriangulationError): a map with no valid pixel, a frequency that is not > 0, and a
+    map of which more than ``MAX_OUTSIDE`` of the pixels give projector coordinates more than
+    ``OUTSIDE_MARGIN_PX`` outside the projector's [-0.5, extent - 0.5) (a wrong frequency: too low
+    a frequency stretches the coordinates beyond the pattern); the few such pixels of an accepted
+    map are not ok.
     """
     from unwrap.patterns import projector_coordinate
 
@@ -136,13 +142,31 @@ def points_from_phase(system, phase, frequency: float, orientation: str = "v", m
                                  f"image {system.camera.width}x{system.camera.height}")
     if orientation not in ("v", "h"):
         raise TriangulationError(f"orientation: expected 'v' or 'h', got {orientation!r}")
+    if not (np.isfinite(frequency) and frequency > 0):
+        raise TriangulationError(f"frequency: expected periods across the projector > 0, got {frequency!r}")
     valid = np.isfinite(phase)
+    if not valid.any():
+        raise TriangulationError("the phase map has no valid pixel (all NaN, inf or 0)")
     v, u = np.nonzero(valid)
     q_cam = np.stack([u, v], axis=1).astype(np.float64)
     extent = system.projector.width if orientation == "v" else system.projector.height
     coord = projector_coordinate(phase[valid], frequency, extent)
+    inside = (coord >= -0.5 - OUTSIDE_MARGIN_PX) & (coord < extent - 0.5 + OUTSIDE_MARGIN_PX)
+    if np.mean(~inside) > MAX_OUTSIDE:
+        raise TriangulationError(
+            f"{100 * np.mean(~inside):.1f} % of the valid pixels map outside the projector (coordinates "
+            f"{coord.min():.1f} .. {coord.max():.1f} px, the projector spans -0.5 .. {extent - 0.5} px at "
+            f"{frequency:g} periods): wrong frequency, orientation or calibration?")
     points, ok = fn(system, q_cam, coord, orientation)
+    ok = ok & inside
+    points[~ok] = np.nan
     return points, q_cam, ok
+
+
+#: Projector coordinates this far (px) outside the projector count as outside (points_from_phase).
+OUTSIDE_MARGIN_PX = 1.0
+#: Largest fraction of a phase map's pixels outside the projector that points_from_phase accepts.
+MAX_OUTSIDE = 0.01
 
 
 def sphere_from_phase(system, phase, frequency: float, orientation: str = "v", method: str = "linear",

@@ -6,12 +6,19 @@ frames. Layouts:
 
 - ``design`` (DESIGN.md): ``capture.toml`` with ``[pattern] steps, frequencies`` and
   ``[projector] size``; frames ``{v|h}_f{FFF}_n{NN}.png`` in the folder (or in its first pose
-  folder ``pose_00``; ``pose=`` picks another).
+  folder ``pose_00``; ``pose=`` picks another). A frame of that naming which the description does
+  not account for (``v_f048_n12.png`` beside ``steps = 12``) is refused: the step count is wrong.
+  Captures written in another convention declare it in ``[pattern]`` (:func:`design_shifts`):
+  ``shift_sign = -1`` for ``A + B cos(Phi + 2 pi n/N)``, ``phase_offset`` (rad) for frames
+  ``A + B cos(Phi + phase_offset - delta_n)`` (pi: the pattern starts dark), or explicit
+  ``shifts`` (rad, one list per frequency).
 - ``slstudio`` (jakobwilm/slstudio example data): ``frameSeq_00..11.png``; 3-step, 16 periods +
   1-period cue per orientation, projector 1824 x 1140 (6 frames: columns only).
 - ``slmaster`` (Practice3DVision/SLMaster monocular data): ``L/0..17.png``; 12-step, 32 periods
   of 60 px on a 1920-px DMD, shifts ``pi - 2 pi n/12`` in our convention, then 5+1 bits of
   complementary Gray code thresholded against the background A.
+
+  Both read ``.bmp`` (what the two tools write) or ``.tif`` frames of the same names too.
 - ``kamino`` (kamino410/phase-shifting sample): ``pat00..31.png`` + ``config.xml``; 3-step at
   periods 200/3 and 100 px (shifts +2pi/3, 0, -2pi/3), OpenCV Gray code (pattern, inverse) pairs
   on 100-px blocks, white and black frames.
@@ -59,10 +66,13 @@ class OrientationCapture:
 
 @dataclass
 class Capture:
+    """A capture folder: its layout (``preset``), orientations, default method and, where its
+    description states it, the camera image size (W, H) the frames must have."""
     folder: Path
     preset: str
     orientations: dict = field(default_factory=dict)
     default_method: str = "mf"
+    camera_size: tuple | None = None
 
 
 def read_image(path) -> np.ndarray:
@@ -87,15 +97,36 @@ def read_stack(files) -> np.ndarray:
     return np.stack(imgs)
 
 
+def read_toml(path) -> dict:
+    """A capture description as a dict; UnwrapError naming the file when it is not valid TOML."""
+    try:
+        return tomllib.loads(Path(path).read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise UnwrapError(f"{path}: not valid TOML ({exc})") from None
+
+
+#: Lossless image formats a scanner's own layout may use (SLStudio and SLMaster write BMP).
+FRAME_SUFFIXES = (".png", ".bmp", ".tif", ".tiff")
+
+
+def frame_file(folder: Path, stem: str) -> Path:
+    """``folder/stem`` with the first suffix of :data:`FRAME_SUFFIXES` that exists (``.png`` when
+    none does, so that a missing frame is reported by its usual name)."""
+    for suffix in FRAME_SUFFIXES:
+        if (folder / f"{stem}{suffix}").exists():
+            return folder / f"{stem}{suffix}"
+    return folder / f"{stem}.png"
+
+
 def detect_preset(folder: Path) -> str:
     if (folder / "capture.toml").exists():
-        meta = tomllib.loads((folder / "capture.toml").read_text())
+        meta = read_toml(folder / "capture.toml")
         return meta.get("capture", {}).get("preset", "design")
     if (folder / "config.xml").exists() and (folder / "pat00.png").exists():
         return "kamino"
-    if (folder / "L" / "0.png").exists() or (folder / "0.png").exists():
+    if frame_file(folder / "L", "0").exists() or frame_file(folder, "0").exists():
         return "slmaster"
-    if (folder / "frameSeq_00.png").exists():
+    if frame_file(folder, "frameSeq_00").exists():
         return "slstudio"
     raise UnwrapError(f"{folder}: no capture.toml and not a known scanner layout "
                       f"(presets: {', '.join(PRESETS)})")
@@ -125,38 +156,100 @@ def read_design_pattern(toml) -> tuple:
     toml = Path(toml)
     if not toml.exists():
         raise FileNotFoundError(f"{toml.parent}: capture.toml missing (DESIGN.md layout)")
-    meta = tomllib.loads(toml.read_text())
+    meta = read_toml(toml)
     try:
         freqs = [float(v) for v in meta["pattern"]["frequencies"]]
         steps = meta["pattern"]["steps"]
         W, H = (int(v) for v in meta["projector"]["size"])
+        steps = [int(steps)] * len(freqs) if isinstance(steps, int) else [int(s) for s in steps]
     except KeyError as exc:
         raise UnwrapError(f"{toml}: missing key {exc} ([pattern] frequencies, steps; "
                           "[projector] size)") from None
-    steps = [int(steps)] * len(freqs) if isinstance(steps, int) else [int(s) for s in steps]
+    except (TypeError, ValueError) as exc:
+        raise UnwrapError(f"{toml}: [pattern] frequencies / steps and [projector] size must be numbers "
+                          f"({exc})") from None
+    if not freqs or not all(math.isfinite(f) and f > 0 for f in freqs) or W <= 0 or H <= 0:
+        raise UnwrapError(f"{toml}: frequencies must be > 0 and the projector size positive, got "
+                          f"frequencies {freqs}, size [{W}, {H}]")
     if len(steps) != len(freqs):
         raise UnwrapError(f"{toml}: {len(steps)} step counts for {len(freqs)} frequencies")
     if any(n < 3 for n in steps):
         raise UnwrapError(f"{toml}: [pattern] steps must be >= 3 each, got {steps}")
+    design_shifts(meta["pattern"], toml, steps)   # refuse bad shift keys with the rest of [pattern]
     return freqs, steps, (W, H)
+
+
+def design_shifts(pattern: dict, source, steps) -> list:
+    """Decoding shifts (rad), one (N_i,) array per frequency, from a ``capture.toml`` ``[pattern]``.
+
+    The frames are ``I_n = A + B cos(Phi + phase_offset - delta_n)`` with ``delta_n = shifts[i][n]``
+    when ``shifts`` is given (one list per frequency, or one list for every frequency), else
+    ``shift_sign * 2 pi n / N`` (``shift_sign`` 1, DESIGN.md's convention, or -1 for captures
+    written as ``A + B cos(Phi + 2 pi n/N)``); ``phase_offset`` defaults to 0. The decoder uses
+    ``delta_n - phase_offset``, so the phase it returns is ``Phi``. UnwrapError names a bad key.
+
+    >>> [np.round(d, 4).tolist() for d in design_shifts({"shift_sign": -1, "phase_offset": math.pi}, "t", [4])]
+    [[-3.1416, -4.7124, -6.2832, -7.854]]
+    """
+    sign = pattern.get("shift_sign", 1)
+    if isinstance(sign, bool) or sign not in (1, -1):
+        raise UnwrapError(f"{source}: [pattern] shift_sign must be 1 (A + B cos(Phi - 2 pi n/N), DESIGN.md) "
+                          f"or -1 (A + B cos(Phi + 2 pi n/N)), got {sign!r}")
+    offset = pattern.get("phase_offset", 0.0)
+    if isinstance(offset, bool) or not isinstance(offset, (int, float)) or not math.isfinite(offset):
+        raise UnwrapError(f"{source}: [pattern] phase_offset must be a finite number (rad), got {offset!r}")
+    if "shifts" not in pattern:
+        return [sign * 2 * math.pi * np.arange(n) / n - offset for n in steps]
+    given = pattern["shifts"]
+    if isinstance(given, list) and given and not isinstance(given[0], list):
+        given = [given] * len(steps)
+    if not isinstance(given, list) or len(given) != len(steps):
+        raise UnwrapError(f"{source}: [pattern] shifts must be one list of shifts (rad) per frequency "
+                          f"({len(steps)}), or one list for all, got {pattern['shifts']!r}")
+    out = []
+    for i, (row, n) in enumerate(zip(given, steps)):
+        if (not isinstance(row, list) or len(row) != n
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in row)):
+            raise UnwrapError(f"{source}: [pattern] shifts[{i}] must hold {n} finite numbers (rad, one per step), "
+                              f"got {row!r}")
+        out.append(np.asarray(row, dtype=np.float64) - offset)
+    return out
+
+
+def _design_frames_dir(folder: Path, pose) -> Path:
+    if pose is not None:
+        return folder / pose
+    if not list(folder.glob("[vh]_f*_n*.*")):
+        poses = sorted(p for p in folder.iterdir() if p.is_dir() and p.name.startswith("pose_"))
+        if not poses:
+            raise UnwrapError(f"{folder}: no frames v_fFFF_nNN.png and no pose_* folders")
+        return poses[0]
+    return folder
+
+
+def _check_no_extra_frames(cap: Capture, frames_dir: Path, steps) -> None:
+    """Refuse frames named like the layout's that the description does not account for: a frame
+    ``v_f048_n12.png`` beside ``steps = 12`` means the step count is wrong, and decoding would
+    silently use the wrong shifts."""
+    expected = {Path(f).stem for oc in cap.orientations.values() for s in oc.sets for f in s.files}
+    extra = sorted(p.name for p in frames_dir.glob("[vh]_f*_n*.*") if p.stem not in expected)
+    if extra:
+        raise UnwrapError(f"{frames_dir}: frame(s) {extra[:4]}{' ...' if len(extra) > 4 else ''} are not "
+                          f"described by capture.toml's [pattern] (steps = {list(steps)}): wrong step count "
+                          "or frequencies?")
 
 
 def _design(folder: Path, pose) -> Capture:
     toml = folder / "capture.toml"
     freqs, steps, (W, H) = read_design_pattern(toml)
-    meta = tomllib.loads(toml.read_text())
-    frames_dir = folder
-    if pose is not None:
-        frames_dir = folder / pose
-    elif not list(folder.glob("[vh]_f*_n*.*")):
-        poses = sorted(p for p in folder.iterdir() if p.is_dir() and p.name.startswith("pose_"))
-        if not poses:
-            raise UnwrapError(f"{folder}: no frames v_fFFF_nNN.png and no pose_* folders")
-        frames_dir = poses[0]
-    cap = Capture(folder, "design", default_method=meta.get("capture", {}).get("method", "mf"))
+    meta = read_toml(toml)
+    shifts = design_shifts(meta.get("pattern", {}), toml, steps)
+    frames_dir = _design_frames_dir(folder, pose)
+    cap = Capture(folder, "design", default_method=meta.get("capture", {}).get("method", "mf"),
+                  camera_size=camera_size(meta, toml))
     for o, width in (("v", W), ("h", H)):
         sets = []
-        for f, n in zip(freqs, steps):
+        for f, n, delta in zip(freqs, steps, shifts):
             files, missing = [], []
             for j in range(n):
                 stem = design_frame_stem(o, f, j)
@@ -170,7 +263,7 @@ def _design(folder: Path, pose) -> Capture:
             if missing:
                 raise UnwrapError(f"{frames_dir}: orientation {o}, frequency {f:g}: found {len(files)} "
                                   f"of {n} frames {o}_f{int(round(f)):03d}_nNN; missing {missing}")
-            sets.append(FringeSet(f, files, 2 * math.pi * np.arange(n) / n))
+            sets.append(FringeSet(f, files, delta))
         if sets:
             if len(sets) != len(freqs):
                 raise UnwrapError(f"{frames_dir}: orientation {o} has {len(sets)} of {len(freqs)} frequencies")
@@ -179,11 +272,23 @@ def _design(folder: Path, pose) -> Capture:
                                                      white=white if white.exists() else None)
     if not cap.orientations:
         raise UnwrapError(f"{frames_dir}: no frames named like v_f{int(freqs[0]):03d}_n00.png")
+    _check_no_extra_frames(cap, frames_dir, steps)
     return cap
 
 
+def camera_size(meta: dict, source) -> tuple | None:
+    """``[camera] size`` (W, H) of a ``capture.toml`` (None when absent); UnwrapError if malformed."""
+    size = meta.get("camera", {}).get("size")
+    if size is None:
+        return None
+    if (not isinstance(size, list) or len(size) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
+        raise UnwrapError(f"{source}: [camera] size must be [width, height] in pixels, got {size!r}")
+    return (size[0], size[1])
+
+
 def _slstudio(folder: Path, pose) -> Capture:
-    files = [folder / f"frameSeq_{i:02d}.png" for i in range(12)]
+    files = [frame_file(folder, f"frameSeq_{i:02d}") for i in range(12)]
     n = sum(f.exists() for f in files)
     if n not in (6, 12):
         raise UnwrapError(f"{folder}: slstudio layout needs frameSeq_00..05 or 00..11, found {n} frames")
@@ -198,10 +303,10 @@ def _slstudio(folder: Path, pose) -> Capture:
 
 def _slmaster(folder: Path, pose) -> Capture:
     d = folder / "L" if (folder / "L").is_dir() else folder
-    files = [d / f"{i}.png" for i in range(18)]
+    files = [frame_file(d, str(i)) for i in range(18)]
     missing = [f.name for f in files if not f.exists()]
     if missing:
-        raise UnwrapError(f"{d}: slmaster layout needs 0.png .. 17.png; missing {missing}")
+        raise UnwrapError(f"{d}: slmaster layout needs 0.png .. 17.png (or .bmp); missing {missing}")
     shifts = math.pi - 2 * math.pi * np.arange(12) / 12
     cap = Capture(folder, "slmaster", default_method="gray")
     cap.orientations["v"] = OrientationCapture(

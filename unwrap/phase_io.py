@@ -49,16 +49,40 @@ def read_phase(path, key: str | None = None, orientation: str = "v") -> np.ndarr
     if suffix == ".mat":
         phase = _read_mat(path, key)
     elif suffix == ".npy":
-        phase = np.load(path)
+        try:
+            phase = np.load(path, allow_pickle=False)
+        except (ValueError, OSError, EOFError) as exc:
+            raise UnwrapError(f"{path}: not a readable .npy array ({exc})") from None
     elif suffix in (".h5", ".hdf5"):
         phase = _read_h5(path, key or f"{orientation}/phase")
     else:
         raise UnwrapError(f"{path}: unknown phase format (expected .h5, .mat or .npy)")
-    phase = np.array(phase, dtype=np.float64)
+    try:
+        phase = np.array(phase, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise UnwrapError(f"{path}: the phase map holds {np.asarray(phase).dtype} values, not numbers") from None
     if phase.ndim != 2:
         raise UnwrapError(f"{path}: a phase map is 2-D, got shape {phase.shape}")
     phase[~np.isfinite(phase) | (phase == 0)] = np.nan
     return phase
+
+
+def phase_attributes(path, orientation: str = "v") -> dict:
+    """What a phase file says about its phase map: the attributes of the HDF5 group ``orientation``
+    (``frequency``, ``width``, ``method``, ... as stored, e.g. by ``calib unwrap``), ``{}`` for a
+    ``.mat`` / ``.npy`` map, which stores none. Raises UnwrapError for an unreadable HDF5 file."""
+    path = Path(path)
+    if path.suffix.lower() not in (".h5", ".hdf5"):
+        return {}
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            if orientation not in f:
+                return {}
+            return {k: (v.item() if hasattr(v, "item") else v) for k, v in f[orientation].attrs.items()}
+    except OSError as exc:
+        raise UnwrapError(f"{path}: not a readable HDF5 file ({exc})") from None
 
 
 def _read_mat(path: Path, key):
@@ -66,7 +90,7 @@ def _read_mat(path: Path, key):
 
     try:
         m = {k: v for k, v in scipy.io.loadmat(str(path)).items() if not k.startswith("__")}
-    except (ValueError, OSError) as exc:
+    except Exception as exc:   # scipy raises MatReadError, ValueError, OSError, ... for a broken file
         raise UnwrapError(f"{path}: not a readable MATLAB file ({exc})") from None
     arrays = [k for k, v in m.items() if isinstance(v, np.ndarray) and v.ndim == 2]
     if key is None:

@@ -3,6 +3,7 @@ the twin (9 board poses, v/h fringes, 12 steps, frequencies 1 8 48, white), with
 from __future__ import annotations
 
 from ..errors import CommandError
+from ..outputs import output_dir
 
 HELP = "render the paper's calibration session from the twin"
 
@@ -25,6 +26,7 @@ def run(args) -> int:
     from synth.board_session import render_board_session
     from synth.effects import Noise
 
+    output_dir(args.output)
     if args.steps < 3:
         raise CommandError(f"--steps: expected >= 3, got {args.steps}")
     system = load_system(args.system)

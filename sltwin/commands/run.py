@@ -16,6 +16,7 @@ from __future__ import annotations
 from calib.errors import BundleAdjustmentError, InitError, ObservationError, OutputError
 
 from ..errors import CommandError
+from ..outputs import output_dir
 
 HELP = "calibrate camera + projector from board captures or point observations (seed + bundle adjustment)"
 
@@ -122,6 +123,7 @@ def run(args) -> int:
 
     if (args.captures is None) == (args.observations is None):
         raise CommandError("give either a CAPTURES folder or --observations FILE(S)")
+    output_dir(args.output)
     config = ba_config(args)
     if args.captures is not None:
         result = calibrate_captures(args.captures, args.output, config, capture_toml=args.capture_toml,
@@ -130,5 +132,6 @@ def run(args) -> int:
     else:
         result = calibrate_observations(load_observations(args.observations), args.output, config,
                                         skew_tol_px=args.skew_tol)
-    print(summary_table(result.calibration))
+    print(summary_table(result.calibration, result.observations,
+                        result.captured.skipped if result.captured is not None else None))
     return 0
