@@ -126,7 +126,7 @@ def _plot_distribution(ax, cal, obs, d) -> None:
     if cal.outlier_threshold is not None:
         ax.axvline(cal.outlier_threshold, color="red", ls="--")
     ax.set_yscale("log")
-    ax.set_ylim(0.5, None)
+    ax.set_ylim(0.5, 2.0 * len(z))
     ax.set_xlabel("|residual| / robust sigma")
     ax.set_ylabel("points")
     ax.set_title(f"{d}: residual distribution")
@@ -147,7 +147,7 @@ def plot_residuals(cal: Calibration, obs, path) -> Path:
         m = ba.point_device == d
         ax = axes[0, k]
         sc = ax.scatter(ba.residuals_px[m & ba.inlier, 0], ba.residuals_px[m & ba.inlier, 1], s=6,
-                        c=ba.point_view[m & ba.inlier], cmap="viridis")
+                        c=ba.point_view[m & ba.inlier] + 1, cmap="viridis")
         if (m & ~ba.inlier).any():
             ax.scatter(ba.residuals_px[m & ~ba.inlier, 0], ba.residuals_px[m & ~ba.inlier, 1], s=18,
                        marker="x", c="red", label="rejected")
@@ -159,7 +159,7 @@ def plot_residuals(cal: Calibration, obs, path) -> Path:
         fig.colorbar(sc, ax=ax, label="view")
         ax = axes[1, k]
         rms = [v[d]["rms_px"] or 0.0 for v in ba.stats["views"]]
-        ax.bar(np.arange(len(rms)), rms)
+        ax.bar(np.arange(1, len(rms) + 1), rms)
         ax.set_xlabel("view")
         ax.set_ylabel("RMS residual (px)")
         ax.set_title(f"{d}: per-view RMS")

@@ -4,7 +4,8 @@ and ``calib demo`` do, one function each.
 1. captures -> observations (:func:`calib.captures.observations_from_captures`: unwrapping, board
    detection, projector pixels from a local phase fit);
 2. observations -> calibration (:func:`calib.calibrate.run_calibration`: Zhang seeds, joint
-   bundle adjustment);
+   bundle adjustment; again with per-view noise levels where views stand out,
+   :func:`calib.calibrate.reweight_views`);
 3. the outputs in ``out``: ``calibration.json`` (DESIGN.md keys plus uncertainties, residuals,
    board poses, solver facts and, for captures, the capture summary), ``camera.cameramodel``,
    ``projector.cameramodel``, ``residuals.png``; for captures also ``observations.json`` and
@@ -27,7 +28,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from .bundle_adjustment import BAConfig
-from .calibrate import Calibration, run_calibration
+from .calibrate import Calibration, reweight_views, run_calibration
 from .calibration_report import write_outputs
 from .capture_outputs import write_capture_outputs
 from .captures import CaptureObservations, observations_from_captures
@@ -55,12 +56,15 @@ class CalibrationRun:
 
 
 def calibrate_observations(obs: Observations, out, config: BAConfig | None = None, *,
-                           skew_tol_px: float = 0.01, captured: CaptureObservations | None = None
-                           ) -> CalibrationRun:
+                           skew_tol_px: float = 0.01, captured: CaptureObservations | None = None,
+                           view_noise: bool = True) -> CalibrationRun:
     """Calibrate from point observations and write the outputs into ``out`` (module docstring).
 
     A joint ``config`` with only one device observed falls back to single-device mode (logged).
     ``captured``: the capture folder's facts, written beside the calibration when given.
+    ``view_noise``: give a view whose residuals stand out its own noise level and adjust again
+    (:func:`calib.calibrate.reweight_views`; on the paper's real observations two views carry 3-4x
+    the projector noise of the others, docs/calib.md); False: one noise level per device.
     """
     config = config or BAConfig()
     devices = obs.devices()
@@ -68,7 +72,7 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
         log.info(f"only {devices} observed: calibrating in single-device mode")
         config = replace(config, mode="single")
     log.info(f"{len(obs.views)} view(s) from {obs.source}; devices {devices}; mode {config.mode}")
-    cal = run_calibration(obs, config)
+    cal = reweight_views(obs, config) if view_noise else run_calibration(obs, config)
     try:
         written = write_outputs(cal, obs, out, skew_tol_px=skew_tol_px,
                                 extra=None if captured is None else {"captures": captured.summary()})
@@ -85,7 +89,8 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
 
 
 def calibrate_captures(folder, out, config: BAConfig | None = None, *, capture_toml=None, method=None,
-                       strict: bool = False, degree: int = 2, skew_tol_px: float = 0.01) -> CalibrationRun:
+                       strict: bool = False, degree: int = 2, skew_tol_px: float = 0.01,
+                       view_noise: bool = True) -> CalibrationRun:
     """Calibrate from the board captures in ``folder`` and write the outputs into ``out``.
 
     ARGUMENTS
@@ -96,10 +101,11 @@ def calibrate_captures(folder, out, config: BAConfig | None = None, *, capture_t
     - method: temporal unwrapping method (default: the capture's); strict: refuse the run when a
       pose cannot be used (default: skip it, and say so in the summary); degree: local polynomial
       degree of the projector-pixel fit (1 or 2).
-    - skew_tol_px: see :func:`calib.io.mrcal_model.write_cameramodel`.
+    - skew_tol_px: see :func:`calib.io.mrcal_model.write_cameramodel`; view_noise: as
+      :func:`calibrate_observations`.
     RETURNED VALUE: :class:`CalibrationRun`.
     """
     captured = observations_from_captures(folder, capture_toml=capture_toml, method=method, strict=strict,
                                           degree=degree, keep_images=True)
     return calibrate_observations(captured.observations, Path(out), config, skew_tol_px=skew_tol_px,
-                                  captured=captured)
+                                  captured=captured, view_noise=view_noise)

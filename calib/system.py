@@ -100,9 +100,11 @@ def check_rig(system: SystemModel, source: str = "system") -> None:
     baseline = float(np.linalg.norm(c_prj - c_cam))
     scale = max(float(np.linalg.norm(c_cam)), float(np.linalg.norm(c_prj)))
     if baseline <= MIN_BASELINE_FRACTION * scale or baseline == 0.0:
+        only = system.meta.get("only_device")
         raise ModelError(f"{source}: camera and projector centres coincide (baseline {baseline:.3g} mm at "
                          f"{scale:.4g} mm from the world origin): a structured-light rig needs a baseline to "
-                         "triangulate")
+                         "triangulate" + (f" (this is a calibration of the {only} alone, single-device mode)"
+                                          if only else ""))
     cam, prj = tuple(system.camera.size), tuple(system.projector.size)
     if cam in DMD_SIZES and prj not in DMD_SIZES:
         raise ModelError(f"{source}: the camera is {cam[0]}x{cam[1]}, the size of a {DMD_SIZES[cam]} "

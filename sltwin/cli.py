@@ -5,8 +5,9 @@ Adding a command: write a module in ``sltwin/commands/`` with
 - ``HELP``: one line of help;
 - ``add_arguments(parser)``: its options (argparse);
 - ``run(args) -> int``: parse nothing, call library functions, print results, return the exit code;
-- optionally ``EXIT_CODES``: ``[(error type, exit code, message prefix), ...]`` for errors that
-  deserve their own exit code (``calib run``), and ``LOG_FORMAT`` (how progress lines look);
+- optionally ``exit_codes()``: ``[(error type, exit code, message prefix), ...]`` for errors that
+  deserve their own exit code (``calib run``; a function, so that the error types are imported
+  only when an error happens), and ``LOG_FORMAT`` (how progress lines look);
 
 then import it below and add ``("name", module)`` to ``COMMANDS``. A command module imports only
 light modules at top level (numpy, error types) and the heavy ones (torch, cv2, casadi) inside
@@ -15,7 +16,7 @@ light modules at top level (numpy, error types) and the heavy ones (torch, cv2, 
 Errors: every package's errors derive from one root per package (``calib.errors.CalibError``,
 ``unwrap.errors.UnwrapError``, ``twin_mapping.errors.TwinError``, ``synth.errors.SynthError``,
 ``reports.errors.ReportError``, ``sltwin.errors.CommandError``), all ``ValueError`` subclasses.
-``main`` maps them, here and only here, to exit code 2 (or the command's ``EXIT_CODES``) with the
+``main`` maps them, here and only here, to exit code 2 (or the command's ``exit_codes()``) with the
 message on stderr, never a traceback; so do file-system errors (``OSError``: the message names the
 path). Anything else is a bug: exit code 1 and a one-line message asking for ``--debug``, which
 shows the traceback (of every error) for a bug report. Ctrl-C ends with 130. Outputs are checked
@@ -87,8 +88,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def exit_code(module, exc: Exception) -> tuple[int, str]:
     """(exit code, message prefix) of a toolkit error raised by a command: the command's own
-    ``EXIT_CODES`` entry for the error's type, else 2."""
-    for error_type, code, prefix in getattr(module, "EXIT_CODES", ()):
+    ``exit_codes()`` entry for the error's type, else 2."""
+    for error_type, code, prefix in getattr(module, "exit_codes", list)():
         if isinstance(exc, error_type):
             return code, prefix
     return 2, ""

@@ -225,3 +225,15 @@ def test_camera_detection_error_carries_into_the_projector_pixel_as_the_fit_grad
     assert max(grad_err) < 2e-3, grad_err
     assert rms(raw) > 20 * rms(sig), (rms(raw), rms(sig))          # the camera error dominates the raw read-out
     assert rms(explained) < 1.6 * rms(sig), (rms(explained), rms(sig))  # and the gradient explains it
+
+
+def test_a_skipped_pose_is_a_warning_so_quiet_runs_still_show_it(session, tmp_path, caplog):
+    import logging
+
+    folder = copy_session(session, tmp_path / "c")
+    (folder / "pose_01" / "v_f048_n05.png").unlink()
+    detect, *_ = truth_detector(folder)
+    with caplog.at_level(logging.WARNING, logger="calib"):   # what calib run -q shows
+        co = observations_from_captures(folder, detector=detect, min_poses=1)
+    assert [r.getMessage() for r in caplog.records if "pose_01: skipped" in r.getMessage()]
+    assert list(co.skipped) == ["pose_01"]

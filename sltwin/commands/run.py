@@ -13,15 +13,19 @@ written.
 """
 from __future__ import annotations
 
-from calib.errors import BundleAdjustmentError, InitError, ObservationError, OutputError
-
 from ..errors import CommandError
 from ..outputs import output_dir
 
 HELP = "calibrate camera + projector from board captures or point observations (seed + bundle adjustment)"
 
-EXIT_CODES = [(ObservationError, 3, "observations: "), (InitError, 4, "initialisation: "),
-              (BundleAdjustmentError, 5, "bundle adjustment: "), (OutputError, 6, "")]
+
+def exit_codes() -> list:
+    """(error type, exit code, message prefix) of the errors with their own exit code (imported
+    when needed: ``calib.errors`` loads the whole calib package, which ``calib --help`` need not)."""
+    from calib.errors import BundleAdjustmentError, InitError, ObservationError, OutputError
+
+    return [(ObservationError, 3, "observations: "), (InitError, 4, "initialisation: "),
+            (BundleAdjustmentError, 5, "bundle adjustment: "), (OutputError, 6, "")]
 
 
 def add_arguments(p):
@@ -56,6 +60,9 @@ def add_arguments(p):
     p.add_argument("--loss-scale", type=float, default=3.0, help="robust loss scale, in residual sigmas")
     p.add_argument("--outlier-threshold", type=float, default=5.0,
                    help="reject points beyond this many robust sigmas (0: keep all)")
+    p.add_argument("--no-view-noise", action="store_true",
+                   help="one noise level per device (default: a view whose residuals are more than 1.5x the "
+                        "median view's gets its own, and the adjustment runs again; docs/calib.md)")
     p.add_argument("--board-warp", action="store_true", help="estimate a 2-parameter board warp (mrcal's)")
     p.add_argument("--no-camera-error-transfer", action="store_true",
                    help="treat projector pixels as independent of the camera's detection errors (default: "
@@ -87,6 +94,7 @@ def parse_fix(items) -> tuple[dict, dict]:
 def ba_config(args):
     """The adjustment settings the options ask for (a ``calib.bundle_adjustment.BAConfig``)."""
     from calib.bundle_adjustment import BAConfig, DeviceConfig
+    from calib.errors import BundleAdjustmentError
 
     fixed, values = parse_fix(args.fix)
     n_dist = {"camera": args.camera_distortion, "projector": args.projector_distortion}
@@ -103,6 +111,7 @@ def ba_config(args):
 
 def load_observations(paths):
     """``--observations``: one observation JSON, or a camera/projector Bouguet .mat pair ('-': none)."""
+    from calib.errors import ObservationError
     from calib.observations import from_bouguet, read_observations_json
 
     try:
@@ -128,10 +137,10 @@ def run(args) -> int:
     if args.captures is not None:
         result = calibrate_captures(args.captures, args.output, config, capture_toml=args.capture_toml,
                                     method=args.method, strict=args.strict, degree=args.phase_fit_degree,
-                                    skew_tol_px=args.skew_tol)
+                                    skew_tol_px=args.skew_tol, view_noise=not args.no_view_noise)
     else:
         result = calibrate_observations(load_observations(args.observations), args.output, config,
-                                        skew_tol_px=args.skew_tol)
+                                        skew_tol_px=args.skew_tol, view_noise=not args.no_view_noise)
     print(summary_table(result.calibration, result.observations,
                         result.captured.skipped if result.captured is not None else None))
     return 0
