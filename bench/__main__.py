@@ -9,8 +9,8 @@ from __future__ import annotations
 import sys
 import time
 
-from . import (calib_accuracy, calib_captures, detect_accuracy, export_speed, outlier_rule, synth_speed,
-               unwrap_speed)
+from . import (ba_scale, calib_accuracy, calib_captures, detect_accuracy, export_speed, outlier_rule,
+               synth_speed, unwrap_speed)
 
 #: (name, main(argv) of the benchmark, arguments of its quick mode)
 BENCHMARKS = [
@@ -18,6 +18,7 @@ BENCHMARKS = [
     ("synth_speed", synth_speed.main, ["--quick"]),
     ("detect_accuracy", detect_accuracy.main, ["--quick", "--setup", "0"]),
     ("calib_accuracy", calib_accuracy.main, ["--quick"]),
+    ("ba_scale", ba_scale.main, ["--quick"]),
     ("calib_captures", calib_captures.main, ["--quick"]),
     ("outlier_rule", outlier_rule.main, ["--quick"]),
     ("export_speed", export_speed.main, ["--quick"]),

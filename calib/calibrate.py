@@ -166,7 +166,7 @@ def run_calibration(obs: Observations, config: BAConfig | None = None) -> Calibr
         say(f"seeding {d}: Zhang closed form on {len(views)} view(s)")
         seeds[d] = init_device([v.points_board[v.seen(d)] for v in views],
                                [v.q[d][v.seen(d)] for v in views], obs.sizes[d],
-                               n_distortion=config.device(d).n_distortion, label=d)
+                               n_distortion=config.device(d).n_distortion, refine=False, label=d)
         say(f"  {d} seed: fx {seeds[d].K[0, 0]:.2f} fy {seeds[d].K[1, 1]:.2f} cx {seeds[d].K[0, 2]:.2f}"
                      f" cy {seeds[d].K[1, 2]:.2f}, RMS {seeds[d].rms_px:.4f} px")
     t_init = time.perf_counter() - t0

@@ -62,6 +62,8 @@ def calibration_dict_extra(cal: Calibration, obs) -> dict:
         "solver": {"mode": ba.mode, "iterations": ba.iterations, "converged": ba.converged,
                    "cost": ba.cost, "residual_variance": ba.sigma2,
                    "device_noise_px": ba.device_sigma_px, "conditioning": ba.conditioning,
+                   "poorly_determined": ba.poorly_determined, "residual_kernel": ba.backend,
+                   "evaluations": ba.timings.get("evaluations"),
                    "estimated": ba.free_names if len(ba.free_names) < 60 else
                    [n for n in ba.free_names if "/" not in n and not n.startswith("prj_cam")],
                    "seeds": {d: {"method": s.method, "rms_px": s.rms_px,
@@ -136,13 +138,14 @@ def _plot_distribution(ax, cal, obs, d) -> None:
 def plot_residuals(cal: Calibration, obs, path) -> Path:
     """Residual scatter per device, per-view RMS bars and the residual distribution beside a
     Gaussian's, with the rejection threshold (PNG)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure   # no pyplot: no global state, a faster import
 
     ba = cal.ba
     devices = [d for d in ("camera", "projector") if d in ba.stats]
-    fig, axes = plt.subplots(3, len(devices), figsize=(5.5 * len(devices), 13), squeeze=False)
+    fig = Figure(figsize=(5.5 * len(devices), 13))
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(3, len(devices), squeeze=False)
     for k, d in enumerate(devices):
         m = ba.point_device == d
         ax = axes[0, k]
@@ -164,10 +167,10 @@ def plot_residuals(cal: Calibration, obs, path) -> Path:
         ax.set_ylabel("RMS residual (px)")
         ax.set_title(f"{d}: per-view RMS")
         _plot_distribution(axes[2, k], cal, obs, d)
-    fig.tight_layout()
+    # fixed margins: tight_layout would draw the figure once more to measure it (a third of the time)
+    fig.subplots_adjust(left=0.08, right=0.97, bottom=0.05, top=0.97, wspace=0.3, hspace=0.3)
     path = Path(path)
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return path
 
 
@@ -177,6 +180,7 @@ def summary_table(cal: Calibration, obs=None, skipped=None) -> str:
     {name: reason}); timings."""
     lines = [f"{'parameter':<22}{'value':>16}{'std (1 sigma)':>16}"]
     unc = uncertainties(cal)
+    flagged = {f["name"]: f for f in getattr(cal.ba, "poorly_determined", [])}
     for d in ("camera", "projector"):
         dev = getattr(cal.system, d)
         if d not in unc:
@@ -185,12 +189,17 @@ def summary_table(cal: Calibration, obs=None, skipped=None) -> str:
         vals.update(dict(zip(PARAMS[5:], dev.distortion)))
         for p, v in vals.items():
             s = unc[d].get(p)
-            lines.append(f"{d + '.' + p:<22}{v:>16.6g}{('%.3g' % s) if s is not None else 'fixed':>16}")
+            flag = "  poorly determined *" if f"{d}.{p}" in flagged else ""
+            lines.append(f"{d + '.' + p:<22}{v:>16.6g}{('%.3g' % s) if s is not None else 'fixed':>16}{flag}")
     if "rt_prj_cam" in unc:
         Rpc_t = cal.ba.state.poses["prj_cam"][1]
         for j, a in enumerate("xyz"):
             lines.append(f"{'t_prj_cam.' + a + ' (mm)':<22}{Rpc_t[j]:>16.6g}"
                          f"{unc['rt_prj_cam']['translation_mm'][j]:>16.3g}")
+    if flagged:
+        lines.append("* the observations hardly determine these (consider fixing them, e.g. --fix camera.k3, "
+                     "or more / wider views):")
+        lines += [f"    {n}: {'; '.join(f['reasons'])}" for n, f in flagged.items()]
     lines.append("")
     lines.append(f"{'residuals':<12}{'points':>8}{'RMS px':>10}{'max px':>10}{'rejected':>10}{'Gaussian expects':>18}")
     rule = outlier_summary(cal, obs) if obs is not None else {}
@@ -219,7 +228,7 @@ def summary_table(cal: Calibration, obs=None, skipped=None) -> str:
     t = cal.timings
     lines.append("")
     lines.append(f"time: init {t['init_s']:.3f} s, build {t['build_s']:.3f} s, solve {t['solve_s']:.3f} s, "
-                 f"total {t['total_s']:.3f} s; {cal.ba.iterations} LM iterations, converged={cal.ba.converged}")
+                 f"total {t['total_s']:.3f} s; {cal.ba.iterations} iterations, converged={cal.ba.converged}")
     return "\n".join(lines)
 
 

@@ -66,13 +66,16 @@ def homography(xy_board, q) -> np.ndarray:
     Ta, Tb = _normalisation(xy_board), _normalisation(q)
     a = (np.c_[xy_board, np.ones(len(q))] @ Ta.T)
     b = (np.c_[q, np.ones(len(q))] @ Tb.T)
-    rows = []
-    for (x, y, _), (u, v, _) in zip(a, b):
-        rows.append([x, y, 1, 0, 0, 0, -u * x, -u * y, -u])
-        rows.append([0, 0, 0, x, y, 1, -v * x, -v * y, -v])
-    _, _, vt = np.linalg.svd(np.asarray(rows))
+    x, y, u, v = a[:, 0], a[:, 1], b[:, 0], b[:, 1]
+    one, zero = np.ones_like(x), np.zeros_like(x)
+    rows = np.empty((2 * len(x), 9))
+    rows[0::2] = np.stack([x, y, one, zero, zero, zero, -u * x, -u * y, -u], axis=1)
+    rows[1::2] = np.stack([zero, zero, zero, x, y, one, -v * x, -v * y, -v], axis=1)
+    _, _, vt = np.linalg.svd(rows, full_matrices=False)  # vt only: thin SVD
     Hn = vt[-1].reshape(3, 3)
-    H = np.linalg.inv(Tb) @ Hn @ Ta
+    s = Tb[0, 0]                                        # Tb^-1 of the similarity Tb, in closed form
+    Tb_inv = np.array([[1 / s, 0, -Tb[0, 2] / s], [0, 1 / s, -Tb[1, 2] / s], [0, 0, 1.0]])
+    H = Tb_inv @ Hn @ Ta
     return H / H[2, 2]
 
 

@@ -140,7 +140,12 @@ def test_camera_intrinsics_agree_with_mrcal_without_regularisation(dp_obs, n_dis
     ours = np.r_[d.fx, d.fy, d.cx, d.cy, d.distortion]
     rel = np.abs(ours - theirs) / np.abs(theirs)
     assert np.all(rel[:4] < 1e-6), rel
-    assert np.all(rel[4:] < 1e-5), rel  # mrcal stops a little earlier along the flat k2/k3 valley
+    # the distortion terms in units of their own standard deviation: mrcal stops a little earlier
+    # along the flat k2/k3 valley, and where it stops depends on the BLAS kernel (1.5e-5 relative
+    # in k2 with OPENBLAS_CORETYPE=SkylakeX, measured) - 1e-3 sigma is the same optimum on any CPU
+    names = ["k1", "k2", "p1", "p2", "k3"][:n_distortion]
+    sigma = np.array([cal.ba.std[f"camera.{k}"] for k in names])
+    assert np.all(np.abs(ours[4:] - theirs[4:]) < 1e-3 * sigma), np.abs(ours[4:] - theirs[4:]) / sigma
     assert abs(rms - cal.ba.stats["camera"]["rms_px"]) < 1e-9
     # started from our solution, mrcal does not move: ours is a minimum of its cost too
     st = cal.ba.state

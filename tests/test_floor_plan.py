@@ -48,10 +48,8 @@ def test_no_library_package_holds_a_command_line():
 
 
 def test_functions_stay_readable_in_one_sitting():
-    # the two bundle-adjustment functions are rewritten by issue 14 (calib/bundle_adjustment.py,
-    # calib/ba_solver.py) and are left as they are until then
     long = {f for _, f in import_graph.long_functions(80)}
-    assert long <= {"calib/bundle_adjustment.py:build_problem", "calib/ba_solver.py:solve"}, long
+    assert not long, long
 
 
 @pytest.mark.parametrize("package", PACKAGES)
