@@ -183,8 +183,11 @@ def run_calibration(obs: Observations, config: BAConfig | None = None) -> Calibr
 
 
 #: A view whose robust residual level exceeds the median view's by this factor gets its own noise
-#: level in :func:`reweight_views` (35 points per view estimate a level to about 9 %).
-VIEW_NOISE_RATIO = 1.5
+#: level in :func:`reweight_views` (35 points per view estimate a level to about 10 %). The paper's
+#: observations have projector views at 5.5, 3.6 and 2.1x; the SLStudio example's worst is 1.7x,
+#: where reweighting (at 1.5) moved camera k1 by 1.6 sigma and did not reduce the rejections
+#: (15 -> 25, their tails are not one view's noise): only views clearly noisier count.
+VIEW_NOISE_RATIO = 2.0
 
 
 def sigma_of_points(obs: Observations, ba: BAResult) -> np.ndarray:

@@ -73,6 +73,12 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
         config = replace(config, mode="single")
     log.info(f"{len(obs.views)} view(s) from {obs.source}; devices {devices}; mode {config.mode}")
     cal = reweight_views(obs, config) if view_noise else run_calibration(obs, config)
+    if not cal.ba.converged:
+        rms = ", ".join(f"{d} {cal.ba.stats[d]['rms_px']:.3g} px" for d in ("camera", "projector")
+                        if cal.ba.stats.get(d, {}).get("rms_px") is not None)
+        log.warning(f"the adjustment did not converge in {cal.ba.iterations} iterations (residual RMS {rms}): the "
+                    "estimate is not a minimum; observations that no camera + projector rig explains (e.g. one "
+                    "orientation decoded with the wrong phase-shift sign) do this")
     try:
         written = write_outputs(cal, obs, out, skew_tol_px=skew_tol_px,
                                 extra=None if captured is None else {"captures": captured.summary()})

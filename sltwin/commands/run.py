@@ -61,7 +61,7 @@ def add_arguments(p):
     p.add_argument("--outlier-threshold", type=float, default=5.0,
                    help="reject points beyond this many robust sigmas (0: keep all)")
     p.add_argument("--no-view-noise", action="store_true",
-                   help="one noise level per device (default: a view whose residuals are more than 1.5x the "
+                   help="one noise level per device (default: a view whose residuals are more than twice the "
                         "median view's gets its own, and the adjustment runs again; docs/calib.md)")
     p.add_argument("--board-warp", action="store_true", help="estimate a 2-parameter board warp (mrcal's)")
     p.add_argument("--no-camera-error-transfer", action="store_true",
