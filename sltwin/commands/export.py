@@ -6,8 +6,6 @@
 """
 from __future__ import annotations
 
-from ..outputs import output_file
-
 HELP = "twin training data or a real capture as sharded, resumable HDF5"
 
 
@@ -34,7 +32,6 @@ def run(args) -> int:
     modes = sum(x is not None for x in (args.config, args.combine, args.capture))
     if modes != 1:
         raise ExportError("give exactly one of CONFIG, --combine SHARDS or --capture DIR")
-    output_file(args.output)
     if args.combine:
         out = combine(args.combine, args.output)
         print(f"combined {len(args.combine)} shard(s) into {out} (virtual datasets, no data copied)")
