@@ -290,8 +290,16 @@ def check_nt_pair(f) -> tuple[int, int]:
     f1, f2 = (int(v) for v in f)
     if f1 == f2:
         raise UnwrapError(f"NT frequencies must differ, got {f1} and {f2}")
-    nt_lookup_table(f1, f2)   # refuses a pair with a common factor
+    _check_coprime(f1, f2)
     return f1, f2
+
+
+def _check_coprime(f1: int, f2: int) -> None:
+    g = math.gcd(f1, f2)
+    if g != 1:
+        raise UnwrapError(f"NT frequencies {f1} and {f2} share the factor {g}: the pair repeats "
+                          f"{g} times across the pattern, so k is ambiguous; choose coprime "
+                          f"frequencies (e.g. {f1} and {f2 + 1 if math.gcd(f1, f2 + 1) == 1 else f2 - 1})")
 
 
 def _frequencies_from(frequencies, pitches, width, n):
@@ -373,11 +381,7 @@ def nt_lookup_table(f1: int, f2: int):
     For the integer residue ``m = f2*k1 - f1*k2`` (``Round[(f1*phi2 - f2*phi1)/(2 pi)]``, eq. 9)
     ``table[m + offset]`` is ``k1 mod f1``. Returns (table int32 read-only, offset).
     """
-    if math.gcd(f1, f2) != 1:
-        g = math.gcd(f1, f2)
-        raise UnwrapError(f"NT frequencies {f1} and {f2} share the factor {g}: the pair repeats "
-                          f"{g} times across the pattern, so k is ambiguous; choose coprime "
-                          f"frequencies (e.g. {f1} and {f2 + 1 if math.gcd(f1, f2 + 1) == 1 else f2 - 1})")
+    _check_coprime(f1, f2)
     inv = pow(f2, -1, f1)
     offset = f1 * f2 + f1 + f2
     m = np.arange(-offset, offset + 1, dtype=np.int64)
