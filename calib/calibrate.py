@@ -240,15 +240,21 @@ def reweight_views(obs: Observations, config: BAConfig | None = None, *, ratio: 
         return first
     (config.progress or log.info)("views with their own noise level: " + "; ".join(
         f"{d} view(s) {', '.join(f'{v + 1} (x{f:.2f})' for v, f in fv.items())}" for d, fv in factors.items()))
+    cal = run_calibration(with_view_noise(obs, factors), config)
+    cal.view_noise = factors
+    return cal
+
+
+def with_view_noise(obs: Observations, factors: dict) -> Observations:
+    """``obs`` with the points' sigma of view i of device d multiplied by ``factors[d][i]``
+    (:func:`view_noise_factors`; views not listed keep theirs)."""
     views = []
     for i, v in enumerate(obs.views):
         sigma = {d: np.asarray(v.sigma.get(d, np.ones(len(v.points_board))), dtype=np.float64)
                  * factors.get(d, {}).get(i, 1.0) for d in v.q}
         views.append(replace(v, sigma=sigma))
-    cal = run_calibration(replace(obs, views=views), config)
-    cal.view_noise = factors
-    return cal
+    return replace(obs, views=views)
 
 
-__all__ = ["Calibration", "run_calibration", "reweight_views", "view_noise_factors", "sigma_of_points", "start_state",
-           "system_from_result", "rotvec_from_matrix"]
+__all__ = ["Calibration", "run_calibration", "reweight_views", "view_noise_factors", "with_view_noise", "sigma_of_points",
+           "start_state", "system_from_result", "rotvec_from_matrix"]

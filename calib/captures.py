@@ -264,10 +264,18 @@ class CaptureObservations:
 
 def observations_from_captures(folder, *, capture_toml=None, method=None, strict: bool = False,
                                min_poses: int = 3, detector=None, degree: int = 2, keep_images: bool = False,
-                               progress=None) -> CaptureObservations:
+                               progress=None, camera=None) -> CaptureObservations:
     """Every pose of a capture folder -> :class:`CaptureObservations` (see the module docstring).
-    Progress goes to the ``calib`` logger (or to ``progress``, a callable taking one line)."""
+    Progress goes to the ``calib`` logger (or to ``progress``, a callable taking one line).
+    ``camera``: a camera model (e.g. a first calibration's ``cal.system.camera``) for the lens-bias
+    correction of circle centres (``calib.detect.circles.lens_centre_bias``); with the default
+    detector only."""
     say = progress or log.info
+    if camera is not None and detector is None:
+        from .detect import detect_board
+
+        def detector(image, board):
+            return detect_board(image, board, camera=camera)
     t0 = time.perf_counter()
     session = read_session(folder, capture_toml)
     say(f"capture {session.folder}: {len(session.poses)} pose(s), board {session.board.kind} "

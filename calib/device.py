@@ -150,10 +150,14 @@ class DeviceModel:
         """A copy with some fields replaced (validated again)."""
         return replace(self, **changes)
 
-    def without_skew_and_distortion(self) -> "DeviceModel":
+    def without_skew(self) -> "DeviceModel":
+        """A copy with skew K[0, 1] = 0 (the rest unchanged)."""
         K = np.array(self.K)
         K[0, 1] = 0.0
-        return self.with_(K=K, distortion=np.zeros(0))
+        return self.with_(K=K)
+
+    def without_skew_and_distortion(self) -> "DeviceModel":
+        return self.without_skew().with_(distortion=np.zeros(0))
 
     # -- geometry ---------------------------------------------------------------------------
     def world_to_device(self, points_world) -> np.ndarray:

@@ -6,8 +6,10 @@ and ``calib demo`` do, one function each.
 2. observations -> calibration (:func:`calib.calibrate.run_calibration`: Zhang seeds, joint
    bundle adjustment; again with per-view noise levels where views stand out,
    :func:`calib.calibrate.reweight_views`);
-3. the outputs in ``out``: ``calibration.json`` (DESIGN.md keys plus uncertainties, residuals,
-   board poses, solver facts and, for captures, the capture summary), ``camera.cameramodel``,
+3. where skew is held at 0, a refit with skew free (:mod:`calib.skew_check`), which warns when
+   the data need a skew (a zero-skew model of a skewed system is biased);
+4. the outputs in ``out``: ``calibration.json`` (DESIGN.md keys plus uncertainties, residuals,
+   board poses, solver facts, the skew check and, for captures, the capture summary), ``camera.cameramodel``,
    ``projector.cameramodel``, ``residuals.png``; for captures also ``observations.json`` and
    ``detections.png`` (:mod:`calib.capture_outputs`).
 
@@ -28,7 +30,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from .bundle_adjustment import BAConfig
-from .calibrate import Calibration, reweight_views, run_calibration
+from .calibrate import Calibration, reweight_views, run_calibration, with_view_noise
 from .calibration_report import write_outputs
 from .capture_outputs import write_capture_outputs
 from .captures import CaptureObservations, observations_from_captures
@@ -55,9 +57,30 @@ class CalibrationRun:
     written: dict
 
 
+def skew_check_outputs(obs: Observations, cal: Calibration, config: BAConfig) -> dict:
+    """Refit with skew free (:mod:`calib.skew_check`) where ``config`` holds it at 0; a skew
+    beyond the check's threshold is logged as a warning (shown even by ``calib run -q``).
+    Returns ``{"skew_check": ...}`` for ``calibration.json``, or {} when nothing was checked."""
+    from .skew_check import check_skew
+
+    log.info("skew check: refitting with skew free")
+    try:
+        check = check_skew(obs, cal, config)
+    except ValueError as exc:       # the refit's adjustment errors
+        log.info(f"skew check: the refit failed ({exc}); not checked")
+        return {}
+    if check is None:
+        return {}
+    if check.significant():
+        log.warning(f"warning: {check.message()}")
+    else:
+        log.info(check.message())
+    return {"skew_check": check.to_dict()}
+
+
 def calibrate_observations(obs: Observations, out, config: BAConfig | None = None, *,
                            skew_tol_px: float = 0.01, captured: CaptureObservations | None = None,
-                           view_noise: bool = True) -> CalibrationRun:
+                           view_noise: bool = True, skew_check: bool = True) -> CalibrationRun:
     """Calibrate from point observations and write the outputs into ``out`` (module docstring).
 
     A joint ``config`` with only one device observed falls back to single-device mode (logged).
@@ -65,6 +88,8 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
     ``view_noise``: give a view whose residuals stand out its own noise level and adjust again
     (:func:`calib.calibrate.reweight_views`; on the paper's real observations two views carry 3-4x
     the projector noise of the others, docs/calib.md); False: one noise level per device.
+    ``skew_check``: where skew is held at 0, refit with it free and warn when the data need it
+    (:func:`skew_check_outputs`; the result goes into ``calibration.json``).
     """
     config = config or BAConfig()
     devices = obs.devices()
@@ -79,9 +104,12 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
         log.warning(f"the adjustment did not converge in {cal.ba.iterations} iterations (residual RMS {rms}): the "
                     "estimate is not a minimum; observations that no camera + projector rig explains (e.g. one "
                     "orientation decoded with the wrong phase-shift sign) do this")
+    fitted = with_view_noise(obs, cal.view_noise) if cal.view_noise else obs   # as the adjustment saw them
+    extra = {} if captured is None else {"captures": captured.summary()}
+    if skew_check:
+        extra.update(skew_check_outputs(fitted, cal, config))
     try:
-        written = write_outputs(cal, obs, out, skew_tol_px=skew_tol_px,
-                                extra=None if captured is None else {"captures": captured.summary()})
+        written = write_outputs(cal, fitted, out, skew_tol_px=skew_tol_px, extra=extra or None)
         if captured is not None:
             written.update(write_capture_outputs(captured, out))
     except OSError as exc:
@@ -96,7 +124,7 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
 
 def calibrate_captures(folder, out, config: BAConfig | None = None, *, capture_toml=None, method=None,
                        strict: bool = False, degree: int = 2, skew_tol_px: float = 0.01,
-                       view_noise: bool = True) -> CalibrationRun:
+                       view_noise: bool = True, skew_check: bool = True) -> CalibrationRun:
     """Calibrate from the board captures in ``folder`` and write the outputs into ``out``.
 
     ARGUMENTS
@@ -107,11 +135,11 @@ def calibrate_captures(folder, out, config: BAConfig | None = None, *, capture_t
     - method: temporal unwrapping method (default: the capture's); strict: refuse the run when a
       pose cannot be used (default: skip it, and say so in the summary); degree: local polynomial
       degree of the projector-pixel fit (1 or 2).
-    - skew_tol_px: see :func:`calib.io.mrcal_model.write_cameramodel`; view_noise: as
-      :func:`calibrate_observations`.
+    - skew_tol_px: see :func:`calib.io.mrcal_model.write_cameramodel`.
+    - view_noise, skew_check: see :func:`calibrate_observations`.
     RETURNED VALUE: :class:`CalibrationRun`.
     """
     captured = observations_from_captures(folder, capture_toml=capture_toml, method=method, strict=strict,
                                           degree=degree, keep_images=True)
     return calibrate_observations(captured.observations, Path(out), config, skew_tol_px=skew_tol_px,
-                                  captured=captured, view_noise=view_noise)
+                                  captured=captured, view_noise=view_noise, skew_check=skew_check)

@@ -206,6 +206,10 @@ def render_board_session(out_dir, system=None, *, steps: int = 12, frequencies=(
         timings.append(time.perf_counter() - t0)
         (progress or log.info)(f"pose {i + 1}/{n_poses}: tilt ({rx:+.1f}, {ry:+.1f}) deg, {len(patterns)} images, "
                                  f"{visible[-1]}/{len(pts)} board points in view, {timings[-1]:.1f} s")
+    skewed = {d: dev.skew for d, dev in system.devices().items() if dev.skew != 0}
+    if skewed:
+        (progress or log.info)("the rendered system has skew (" + ", ".join(f"{d} {s:+.4g} px" for d, s in skewed.items())
+                               + "): a calibration whose model contains the truth estimates it (calib run --skew)")
     (out_dir / "capture.toml").write_text(capture_toml(
         texture.board, [int(steps)] * len(freqs), freqs, system.camera.size, system.projector.size,
         {"bits": int(bits), "seed": int(seed), "noise": noise is not None, "software": "sltwin synth"}))

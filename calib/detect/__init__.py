@@ -13,10 +13,10 @@ SYNOPSIS
     ...     print(exc)
     image (64x64 px): the image is constant (128); no board in it
 
-``detect_board(image, board, *, min_points=6) -> BoardDetection`` (ids, q, points_board,
+``detect_board(image, board, *, min_points=6, camera=None) -> BoardDetection`` (ids, q, points_board,
 feature_px, homography, method, notes); ``DetectionError`` when the board is not found, too few
 features are identified, or the orientation is ambiguous.
 """
 from .result import BoardDetection, DetectionError  # noqa: F401
 from .detect import detect_board  # noqa: F401
-from .circles import circle_image_centre, perspective_bias  # noqa: F401
+from .circles import circle_image_centre, lens_centre_bias, perspective_bias  # noqa: F401

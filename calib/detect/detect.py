@@ -8,7 +8,7 @@ from ..board import Board
 from .result import BoardDetection, DetectionError, image_as_float
 
 
-def detect_board(image, board: Board, *, min_points: int = 6) -> BoardDetection:
+def detect_board(image, board: Board, *, min_points: int = 6, camera=None) -> BoardDetection:
     """Find ``board`` in a grey camera ``image`` and return its features with their ids.
 
     ARGUMENTS
@@ -16,6 +16,9 @@ def detect_board(image, board: Board, *, min_points: int = 6) -> BoardDetection:
       phase-shift mean A). Pixel centres at integer coordinates (OpenCV).
     - board: calib.board.Board ("circles", "checkerboard" or "charuco").
     - min_points: fewer identified features than this raise DetectionError.
+    - camera: optional ``calib.device.DeviceModel`` of this camera (e.g. a first calibration's):
+      circle centres are then corrected for the lens bias as well (``circles.lens_centre_bias``).
+      Corners need no such correction (a corner images to a point) and ignore it.
 
     RETURNED VALUE: BoardDetection (ids sorted ascending, q (N, 2) px, points_board (N, 3) mm,
     feature_px (N,), homography board mm -> px, method, notes).
@@ -34,7 +37,7 @@ def detect_board(image, board: Board, *, min_points: int = 6) -> BoardDetection:
     try:
         if board.kind == "circles":
             from .circles import detect_circles
-            return detect_circles(f, board, min_points=min_points)
+            return detect_circles(f, board, min_points=min_points, camera=camera)
         if board.kind == "checkerboard":
             from .chessboard import detect_checkerboard
             return detect_checkerboard(f, board, min_points=min_points)

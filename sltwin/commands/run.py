@@ -69,6 +69,9 @@ def add_arguments(p):
                         "model how a camera error moves the projector pixel read there, where the "
                         "observations carry dprj_dcam)")
     p.add_argument("--skew-tol", type=float, default=0.01, help="px; see calib.io.mrcal_model")
+    p.add_argument("--no-skew-check", action="store_true",
+                   help="skip the refit with skew free that tells whether a zero-skew model fits the data "
+                        "(calib.skew_check; run when skew is not estimated; a needed skew is a warning)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
 
 
@@ -137,10 +140,12 @@ def run(args) -> int:
     if args.captures is not None:
         result = calibrate_captures(args.captures, args.output, config, capture_toml=args.capture_toml,
                                     method=args.method, strict=args.strict, degree=args.phase_fit_degree,
-                                    skew_tol_px=args.skew_tol, view_noise=not args.no_view_noise)
+                                    skew_tol_px=args.skew_tol, view_noise=not args.no_view_noise,
+                                    skew_check=not args.no_skew_check)
     else:
         result = calibrate_observations(load_observations(args.observations), args.output, config,
-                                        skew_tol_px=args.skew_tol, view_noise=not args.no_view_noise)
+                                        skew_tol_px=args.skew_tol, view_noise=not args.no_view_noise,
+                                        skew_check=not args.no_skew_check)
     print(summary_table(result.calibration, result.observations,
                         result.captured.skipped if result.captured is not None else None))
     return 0
