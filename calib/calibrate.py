@@ -49,9 +49,12 @@ class Calibration:
     - seeds: {device: DeviceSeed}; timings: {"init_s", "build_s", "solve_s", "total_s"}.
     - baseline_scatter_mm: spread (std, mm) of the projector centre in the camera frame over the
       per-view seed compositions (what a rig built from independent per-device poses suffers).
+    - config: the :class:`calib.bundle_adjustment.BAConfig` it was solved with
+      (``outlier_threshold``: the rejection rule's threshold in robust sigmas, None: no rejection).
     - view_noise: {device: {view index: noise factor}} of the views :func:`reweight_views` gave
       their own noise level (None when it did not run).
-    - outlier_threshold: the rejection rule's threshold in robust sigmas (None: no rejection).
+    - uncertainty: None, or what :mod:`calib.uncertainty` added (the error model's standard
+      deviations, resampled spreads, warnings), set by :func:`calib.pipeline.calibrate_observations`.
     """
 
     system: SystemModel
@@ -59,8 +62,14 @@ class Calibration:
     seeds: dict
     timings: dict
     baseline_scatter_mm: float | None
+    config: BAConfig | None = None
     view_noise: dict | None = None
-    outlier_threshold: float | None = None
+    uncertainty: object = None
+
+    @property
+    def outlier_threshold(self) -> float | None:
+        """The rejection rule's threshold in robust sigmas (None: no rejection)."""
+        return None if self.config is None else self.config.outlier_threshold
 
 
 def _average_rotation(Rs):
@@ -179,7 +188,7 @@ def run_calibration(obs: Observations, config: BAConfig | None = None) -> Calibr
     system = system_from_result(obs, res)
     timings = {"init_s": t_init, "build_s": problem.build_seconds, "solve_s": res.timings["solve_s"],
                "total_s": time.perf_counter() - t0}
-    return Calibration(system, res, seeds, timings, scatter, outlier_threshold=config.outlier_threshold)
+    return Calibration(system, res, seeds, timings, scatter, config)
 
 
 #: A view whose robust residual level exceeds the median view's by this factor gets its own noise

@@ -16,18 +16,29 @@ PARAMS = ("fx", "fy", "cx", "cy", "skew", "k1", "k2", "p1", "p2", "k3", "k4", "k
           "s1", "s2", "s3", "s4")
 
 
-def uncertainties(cal: Calibration) -> dict:
-    """{device: {param: std}} for intrinsics, plus the rig pose (joint mode), 1-sigma."""
+def _reported_std(cal: Calibration) -> dict:
+    """{name: 1-sigma}: the uncertainty report's (calib.uncertainty) where there is one, else the
+    adjustment's own."""
+    std = dict(cal.ba.std)
+    if cal.uncertainty is not None:
+        std.update(cal.uncertainty.std)
+    return std
+
+
+def uncertainties(cal: Calibration, std: dict | None = None) -> dict:
+    """{device: {param: std}} for intrinsics, plus the rig pose (joint mode), 1-sigma: the reported
+    uncertainty (``std`` if given, else :func:`_reported_std`)."""
+    std = _reported_std(cal) if std is None else std
     out = {}
     for d in ("camera", "projector"):
-        e = {p: cal.ba.std[f"{d}.{p}"] for p in PARAMS if f"{d}.{p}" in cal.ba.std}
+        e = {p: std[f"{d}.{p}"] for p in PARAMS if f"{d}.{p}" in std}
         if e:
             out[d] = e
-    rig = {k.split(".")[1]: v for k, v in cal.ba.std.items() if k.startswith("prj_cam.")}
+    rig = {k.split(".")[1]: v for k, v in std.items() if k.startswith("prj_cam.")}
     if rig:
         out["rt_prj_cam"] = {"rotation_rad": [rig[f"w{j}"] for j in range(3)],
                              "translation_mm": [rig[f"t{j}"] for j in range(3)]}
-    warp = {k: v for k, v in cal.ba.std.items() if k.startswith("board_warp.")}
+    warp = {k: v for k, v in std.items() if k.startswith("board_warp.")}
     if warp:
         out["board_warp_mm"] = warp
     return out
@@ -36,7 +47,13 @@ def uncertainties(cal: Calibration) -> dict:
 def covariance_of_system(cal: Calibration) -> dict:
     """The joint covariance of the device intrinsics and the rig transform (``camera.fx``, ...,
     ``prj_cam.w0..w2`` (rad, tangent: ``R = R0 Exp(w)``), ``prj_cam.t0..t2`` (mm)), without the
-    board poses: what a twin needs to draw systems from the calibration's posterior."""
+    board poses: what a twin needs to draw systems from the calibration's posterior. The reported
+    covariance (calib.uncertainty) where there is one, else the adjustment's."""
+    u = getattr(cal, "uncertainty", None)
+    if u is not None:
+        keep = [k for k, n in enumerate(u.cov_names) if not n.startswith("board_warp")]
+        return {"names": [u.cov_names[k] for k in keep], "matrix": np.asarray(u.cov)[np.ix_(keep, keep)].tolist(),
+                "model": u.reported}
     keep = [k for k, n in enumerate(cal.ba.free_names) if "/" not in n and not n.startswith("board_warp")]
     cov = np.asarray(cal.ba.cov)[np.ix_(keep, keep)]
     return {"names": [cal.ba.free_names[k] for k in keep], "matrix": cov.tolist()}
@@ -53,6 +70,7 @@ def calibration_dict_extra(cal: Calibration, obs) -> dict:
         poses.append(e)
     extra = {
         "uncertainties_1sigma": uncertainties(cal),
+        "uncertainties_1sigma_independent_residuals": uncertainties(cal, cal.ba.std),
         "covariance": covariance_of_system(cal),
         "residuals": {k: v for k, v in ba.stats.items()},
         "rejected_points": ba.rejected,
@@ -74,6 +92,8 @@ def calibration_dict_extra(cal: Calibration, obs) -> dict:
     }
     if ba.state.warp.any():
         extra["board_warp_mm"] = ba.state.warp.tolist()
+    if cal.uncertainty is not None:
+        extra["uncertainty"] = cal.uncertainty.to_dict()
     if cal.baseline_scatter_mm is not None:
         extra["seed_baseline_scatter_mm"] = cal.baseline_scatter_mm
     return extra
@@ -196,6 +216,13 @@ def summary_table(cal: Calibration, obs=None, skipped=None) -> str:
         for j, a in enumerate("xyz"):
             lines.append(f"{'t_prj_cam.' + a + ' (mm)':<22}{Rpc_t[j]:>16.6g}"
                          f"{unc['rt_prj_cam']['translation_mm'][j]:>16.3g}")
+    if "board_warp_mm" in unc:
+        for j, a in enumerate("xy"):
+            lines.append(f"{'board_warp.c' + a + ' (mm)':<22}{cal.ba.state.warp[j]:>16.4g}"
+                         f"{unc['board_warp_mm'][f'board_warp.c{a}']:>16.3g}")
+    if cal.uncertainty is not None:
+        lines.append(f"(std: {cal.uncertainty.reported}; the adjustment's independent-residual sigmas and the "
+                     "comparison: the uncertainty table below)")
     if flagged:
         lines.append("* the observations hardly determine these (consider fixing them, e.g. --fix camera.k3, "
                      "or more / wider views):")

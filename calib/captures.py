@@ -12,8 +12,14 @@ Session description (``capture.toml``, DESIGN.md) — the keys read here besides
     [capture]
     preset = "design"          # or a real scanner's layout known to unwrap/ ("slstudio", ...)
     method = "mf"              # temporal unwrapping method (default: the preset's)
-    poses = ["calseq1", ...]   # pose folders, relative to the capture folder (default: pose_*)
+    poses = ["calseq1", ...]   # pose folders, relative to the capture folder (default: pose_*;
+                               # capture_* for procam-graycode)
     board_image = ["white", "background", "modulation"]   # where to look for the board, in order
+
+Gray-code-only sessions (``[pattern] kind = "graycode"``, or the ``procam-graycode`` preset; see
+:mod:`unwrap.graycode_capture`) decode to block centres: the projector-pixel fit weighs every
+valid pixel equally and models the quantisation in each point's standard error
+(``calib.marker_phase``, ``quantisation_px``).
 
 The ``capture.toml`` may live outside the capture folder (``capture_toml=`` / ``--capture-toml``)
 for presets whose frame names it does not describe (a real scanner's folder that must stay
@@ -54,6 +60,7 @@ class CaptureSession:
     - poses: [(name, folder)] one per board pose.
     - camera_size, projector_size: (W, H) px or None where the description does not say.
     - board_image: sources tried in order for the board detection.
+    - description: the capture.toml as a dict (layouts that need more than their frames say).
     """
 
     folder: Path
@@ -65,6 +72,7 @@ class CaptureSession:
     camera_size: tuple | None
     projector_size: tuple | None
     board_image: tuple = BOARD_IMAGE_SOURCES
+    description: dict = field(default_factory=dict)
 
 
 def _size(meta, key, toml):
@@ -102,22 +110,25 @@ def read_session(folder, capture_toml=None) -> CaptureSession:
         if not (folder / "capture.toml").exists():
             raise CaptureError(f"{folder}: the DESIGN.md layout keeps its capture.toml in the capture folder")
     if preset == "design":
-        from unwrap.capture import read_design_pattern
+        from unwrap.capture import check_design_description
         from unwrap.errors import UnwrapError
 
         if capture_toml and Path(capture_toml).resolve() != (folder / "capture.toml").resolve():
             raise CaptureError(f"{capture_toml}: the DESIGN.md layout reads its frames' description from "
                                f"{folder / 'capture.toml'}; --capture-toml is for other presets")
         try:
-            read_design_pattern(toml)      # refuse a bad [pattern] now, not once per pose
+            check_design_description(toml)      # refuse a bad [pattern] now, not once per pose
         except UnwrapError as exc:
             raise CaptureError(str(exc)) from None
     if "poses" in cap:
         names = [str(p) for p in cap["poses"]]
     else:
-        names = sorted(p.name for p in folder.iterdir() if p.is_dir() and re.fullmatch(r"pose_\d+", p.name))
+        pattern = r"capture_\d+" if preset == "procam-graycode" else r"pose_\d+"
+        names = sorted((p.name for p in folder.iterdir() if p.is_dir() and re.fullmatch(pattern, p.name)),
+                       key=lambda n: int(n.split("_")[-1]))
     if not names:
-        raise CaptureError(f"{folder}: no pose folders (pose_00, pose_01, ... or [capture] poses)")
+        raise CaptureError(f"{folder}: no pose folders (pose_00, pose_01, ... or [capture] poses; capture_0, ... "
+                           "for procam-graycode)")
     missing = [n for n in names if not (folder / n).is_dir()]
     if missing:
         raise CaptureError(f"{folder}: pose folder(s) listed in {toml.name} not found: {missing}")
@@ -127,7 +138,7 @@ def read_session(folder, capture_toml=None) -> CaptureSession:
         raise CaptureError(f"{toml}: [capture] board_image: unknown source(s) {bad}; "
                            f"expected a list from {BOARD_IMAGE_SOURCES}")
     return CaptureSession(folder, toml, board, preset, cap.get("method"), [(n, folder / n) for n in names],
-                          _size(meta, "camera", toml), _size(meta, "projector", toml), sources)
+                          _size(meta, "camera", toml), _size(meta, "projector", toml), sources, meta)
 
 
 @dataclass
@@ -185,7 +196,7 @@ def observe_pose(session: CaptureSession, name: str, pose_dir: Path, *, method: 
     if session.preset == "design":
         cap = load_capture(session.folder, "design", pose=name)
     else:
-        cap = load_capture(pose_dir, session.preset)
+        cap = load_capture(pose_dir, session.preset, description=session.description)
     method = method or session.method or cap.default_method
     missing = [o for o in ("v", "h") if o not in cap.orientations]
     if missing:
@@ -216,11 +227,13 @@ def observe_pose(session: CaptureSession, name: str, pose_dir: Path, *, method: 
     for o in ("v", "h"):
         r = results[o]
         maps[o] = projector_coordinate(r.result.phase, r.result.frequency, r.width)
-        weights[o] = np.where(r.result.valid, r.modulation ** 2, 0.0)
+        # phase: inverse phase variance B^2; a quantised Gray map: every valid pixel alike
+        weights[o] = np.where(r.result.valid, 1.0 if r.quantisation_px else r.modulation ** 2, 0.0)
     feature = det.feature_px if session.board.kind == "circles" else np.zeros(len(det.q))
     radius, inner = window_radii(det.q, feature)
     fit = fit_projector_points(det.q, maps["v"], maps["h"], weight_u=weights["v"], weight_v=weights["h"],
-                               radius_px=radius, inner_px=inner, degree=degree)
+                               radius_px=radius, inner_px=inner, degree=degree,
+                               quantisation_px=(results["v"].quantisation_px, results["h"].quantisation_px))
     t3 = time.perf_counter()
     notes = list(getattr(det, "notes", []))
     if fit.reasons:

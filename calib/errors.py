@@ -13,6 +13,7 @@ expected, so that a user can act on the message alone.
 - ``BundleAdjustmentError``: the adjustment cannot be set up or did not converge to a usable estimate.
 - ``TriangulationError``: inputs of triangulation or of the sphere fit are inconsistent.
 - ``OutputError``: results could not be written.
+- ``UncertaintyError``: an uncertainty beyond the adjustment's own cannot be computed.
 """
 
 
@@ -62,3 +63,8 @@ class TriangulationError(CalibError):
 
 class OutputError(CalibError):
     """Results could not be written (the folder is not writable, the disk is full)."""
+
+
+class UncertaintyError(CalibError):
+    """An uncertainty beyond the adjustment's own cannot be computed for this calibration (a model
+    the error model does not rebuild, too few poses to resample)."""

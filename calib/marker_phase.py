@@ -20,6 +20,21 @@ Each fitted value comes with its standard error, ``s * sqrt([(A^T W A)^-1]_00)``
 weighted residual variance (pixels taken as independent, as sensor noise is). That is the per-point
 projector uncertainty the bundle adjustment weights by.
 
+Quantised maps (Gray code alone, ``quantisation_px = b``): every camera pixel reads the centre of
+its projector block, so its error is a sawtooth ``e(u) = centre(u) - u`` of the true coordinate
+``u`` (period b, uniform over [-b/2, b/2), variance b^2/12). Neighbouring camera pixels that see
+one block share almost the same error: the errors are not independent, and ``s^2 (A^T W A)^-1``
+understates the error of the fitted value by a factor that grows with the camera pixels per
+block (~3x on real Gray input). The standard error is then the exact variance of the fitted value
+``c0 = beta . y`` (``beta`` the first row of ``(A^T W A)^-1 A^T W``) over a random placement of
+the block grid relative to the feature: with the sawtooth's Fourier series
+``e(u) = sum_k (b / (pi k)) sin(2 pi k u / b + phase)``,
+
+    var(c0) = sum_k  b^2 / (2 pi^2 k^2) |sum_i beta_i exp(2 pi i k u_i / b)|^2
+
+(``u_i`` the fitted coordinate at pixel i; k = 1..64, the rest of the series as independent
+errors), plus the residual variance beyond b^2/12 (decoding noise) as independent pixel noise.
+
 SYNOPSIS
 
     >>> import numpy as np
@@ -72,6 +87,26 @@ class ProjectorPointFit:
 
 
 N_TERMS = {1: 3, 2: 6}
+SAWTOOTH_TERMS = 64
+"""Fourier terms of the quantisation sawtooth summed exactly; the rest is taken as independent."""
+
+
+def quantisation_variance(beta, u, block_px: float) -> float:
+    """Variance of ``beta . e`` where ``e_i`` is the quantisation error (block centre minus true
+    value, block ``block_px``) at true coordinates ``u_i``, over a uniformly random block phase
+    (module docstring). beta, u: (n,); returns projector px^2.
+
+    >>> import numpy as np
+    >>> round(quantisation_variance(np.array([1.0]), np.array([0.3]), 1.0), 6)   # one pixel: b^2/12
+    0.083333
+    """
+    beta = np.asarray(beta, dtype=np.float64)
+    k = np.arange(1, SAWTOOTH_TERMS + 1, dtype=np.float64)
+    phase = 2 * np.pi * np.outer(k, np.asarray(u, dtype=np.float64)) / block_px
+    power = np.abs(np.exp(1j * phase) @ beta) ** 2
+    amp2 = block_px ** 2 / (2 * np.pi ** 2 * k ** 2)
+    tail = block_px ** 2 / 12 - float(amp2.sum())
+    return float(amp2 @ power + tail * (beta @ beta))
 
 
 def _design_matrix(dx: np.ndarray, dy: np.ndarray, degree: int) -> np.ndarray:
@@ -81,10 +116,11 @@ def _design_matrix(dx: np.ndarray, dy: np.ndarray, degree: int) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
-def _fit_one(dx, dy, values, weights, degree, reject_sigma, min_pixels):
+def _fit_one(dx, dy, values, weights, degree, reject_sigma, min_pixels, block_px=None):
     """Weighted polynomial fit of ``values`` at offsets (dx, dy) (px, already scaled); returns
     (value at 0, standard error, n used, n rejected, weighted rms, gradient at 0 (2,) per scaled
-    unit) or a failure string."""
+    unit) or a failure string. ``block_px``: the values are quantised to blocks of that size
+    (standard error from :func:`quantisation_variance`)."""
     keep = np.ones(len(values), bool)
     n_terms = N_TERMS[degree]
     for _ in range(3):
@@ -114,6 +150,11 @@ def _fit_one(dx, dy, values, weights, degree, reject_sigma, min_pixels):
         return "fit covariance is not finite"
     # s2 is the variance of a unit-weight residual; weights are normalised to mean 1 by the caller
     sigma = float(np.sqrt(s2 * cov_unit[0, 0]))
+    if block_px:
+        A = _design_matrix(dx[keep], dy[keep], degree)
+        beta = (cov_unit @ (A * weights[keep][:, None]).T)[0]
+        noise = max(s2 - block_px ** 2 / 12, 0.0) * cov_unit[0, 0]
+        sigma = float(np.sqrt(quantisation_variance(beta, A @ coef, block_px) + noise))
     rms = float(np.sqrt(np.sum(r_all[keep] ** 2) / np.sum(weights[keep])))
     return float(coef[0]), sigma, int(keep.sum()), int(len(values) - keep.sum()), rms, coef[1:3].copy()
 
@@ -153,7 +194,7 @@ def _prepared_maps(items, exclude) -> dict:
     return maps
 
 
-def _fit_feature(x, y, r, inner, maps, degree, reject_sigma, min_pixels):
+def _fit_feature(x, y, r, inner, maps, degree, reject_sigma, min_pixels, quantisation=(None, None)):
     """The fits of one feature at camera pixel (x, y), window radii ``r`` / ``inner``: yields
     (coordinate index j, (value, sigma, n used, n rejected, rms, gradient (2,) per camera px) or
     a failure message)."""
@@ -178,7 +219,8 @@ def _fit_feature(x, y, r, inner, maps, degree, reject_sigma, min_pixels):
             yield j, f"{name}_p: no valid decoded pixel within {r:.1f} px of ({x:.1f}, {y:.1f})"
             continue
         wv = wv / wv.mean()
-        out = _fit_one(dx[sel] / r, dy[sel] / r, m[y0:y1 + 1, x0:x1 + 1][sel], wv, degree, reject_sigma, min_pixels)
+        out = _fit_one(dx[sel] / r, dy[sel] / r, m[y0:y1 + 1, x0:x1 + 1][sel], wv, degree, reject_sigma, min_pixels,
+                       quantisation[j])
         if isinstance(out, str):
             yield j, f"{name}_p: {out} within {r:.1f} px of ({x:.1f}, {y:.1f})"
             continue
@@ -187,7 +229,7 @@ def _fit_feature(x, y, r, inner, maps, degree, reject_sigma, min_pixels):
 
 def fit_projector_points(q_cam, u_map, v_map, *, valid_u=None, valid_v=None, weight_u=None, weight_v=None,
                          radius_px=10.0, inner_px=0.0, degree: int = 2, reject_sigma: float = 4.0,
-                         min_pixels: int = 12, exclude=None) -> ProjectorPointFit:
+                         min_pixels: int = 12, exclude=None, quantisation_px=None) -> ProjectorPointFit:
     """Fit the projector pixel of every camera feature.
 
     ARGUMENTS
@@ -203,6 +245,9 @@ def fit_projector_points(q_cam, u_map, v_map, *, valid_u=None, valid_v=None, wei
     - reject_sigma: outlier pixels beyond this many robust sigmas are dropped and the fit repeated.
     - min_pixels: fewer usable pixels than this and the feature fails (reason recorded).
     - exclude: optional (H, W) bool mask of pixels never to use (e.g. other features' circles).
+    - quantisation_px: None (phase-shift maps), or the block size (px) of quantised maps (Gray
+      code alone): a scalar for both, or ``(u, v)`` with None for an unquantised one. The standard
+      errors then model the quantisation (module docstring).
 
     RETURNS a :class:`ProjectorPointFit`.
     """
@@ -217,6 +262,9 @@ def fit_projector_points(q_cam, u_map, v_map, *, valid_u=None, valid_v=None, wei
     inner = np.broadcast_to(np.asarray(inner_px, dtype=np.float64), (n,))
     if np.any(~np.isfinite(radius)) or np.any(radius <= 0) or np.any(inner < 0) or np.any(inner >= radius):
         raise MarkerPhaseError("window radii: need 0 <= inner_px < radius_px, finite")
+    quant = tuple(quantisation_px) if isinstance(quantisation_px, (tuple, list)) else (quantisation_px,) * 2
+    if len(quant) != 2 or any(b is not None and not (np.isfinite(b) and b > 0) for b in quant):
+        raise MarkerPhaseError(f"quantisation_px: expected None, a block size > 0 or (u, v), got {quantisation_px!r}")
 
     q_prj = np.full((n, 2), np.nan)
     sigma = np.full((n, 2), np.nan)
@@ -229,7 +277,7 @@ def fit_projector_points(q_cam, u_map, v_map, *, valid_u=None, valid_v=None, wei
         if not (np.isfinite(x) and np.isfinite(y)):
             reasons[i] = "camera point is not finite"
             continue
-        for j, out in _fit_feature(x, y, radius[i], inner[i], maps, degree, reject_sigma, min_pixels):
+        for j, out in _fit_feature(x, y, radius[i], inner[i], maps, degree, reject_sigma, min_pixels, quant):
             if isinstance(out, str):
                 reasons[i] = out
                 continue

@@ -8,10 +8,15 @@ and ``calib demo`` do, one function each.
    :func:`calib.calibrate.reweight_views`);
 3. where skew is held at 0, a refit with skew free (:mod:`calib.skew_check`), which warns when
    the data need a skew (a zero-skew model of a skewed system is biased);
-4. the outputs in ``out``: ``calibration.json`` (DESIGN.md keys plus uncertainties, residuals,
-   board poses, solver facts, the skew check and, for captures, the capture summary), ``camera.cameramodel``,
-   ``projector.cameramodel``, ``residuals.png``; for captures also ``observations.json`` and
-   ``detections.png`` (:mod:`calib.capture_outputs`).
+4. the uncertainty it reports (:func:`calib.uncertainty.assess_uncertainty`: the per-pose error
+   model's sigmas by default, optionally a jackknife or bootstrap over poses beside them, the
+   residual diagnostics); the board warp is estimated by default where the views allow it
+   (``board_warp="auto"``: 4 or more views);
+5. the outputs in ``out``: ``calibration.json`` (DESIGN.md keys plus uncertainties, residuals,
+   board poses, solver facts, the skew check and, for captures, the capture summary),
+   ``camera.cameramodel``, ``projector.cameramodel``, ``residuals.png``, ``residuals_per_pose.png``
+   and ``residuals_on_board.png`` (:mod:`calib.residual_diagnostics`); for captures also
+   ``observations.json`` and ``detections.png`` (:mod:`calib.capture_outputs`).
 
 Progress goes to the ``calib`` logger. Errors are ``calib`` errors (``ValueError`` subclasses):
 ``ObservationError`` (too few views or points), ``InitError`` (degenerate views),
@@ -36,6 +41,8 @@ from .capture_outputs import write_capture_outputs
 from .captures import CaptureObservations, observations_from_captures
 from .errors import OutputError
 from .observations import Observations
+from .residual_diagnostics import plot_residual_diagnostics
+from .uncertainty import assess_uncertainty, warp_allowed
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +62,18 @@ class CalibrationRun:
     observations: Observations
     captured: CaptureObservations | None
     written: dict
+
+
+def resolve_board_warp(config: BAConfig, obs: Observations, board_warp) -> BAConfig:
+    """``config`` with the board warp decided: ``"auto"`` (estimated where the views allow it,
+    :func:`calib.uncertainty.warp_allowed`), True, False, or None (``config.board_warp`` as it is)."""
+    if board_warp is None:
+        return config
+    if board_warp == "auto":
+        on, why = warp_allowed(obs)
+        log.info(f"board warp {'estimated' if on else 'not estimated'}: {why}")
+        return replace(config, board_warp=on)
+    return replace(config, board_warp=bool(board_warp))
 
 
 def skew_check_outputs(obs: Observations, cal: Calibration, config: BAConfig) -> dict:
@@ -80,7 +99,8 @@ def skew_check_outputs(obs: Observations, cal: Calibration, config: BAConfig) ->
 
 def calibrate_observations(obs: Observations, out, config: BAConfig | None = None, *,
                            skew_tol_px: float = 0.01, captured: CaptureObservations | None = None,
-                           view_noise: bool = True, skew_check: bool = True) -> CalibrationRun:
+                           view_noise: bool = True, skew_check: bool = True, board_warp="auto",
+                           resample: str = "none", draws: int = 30) -> CalibrationRun:
     """Calibrate from point observations and write the outputs into ``out`` (module docstring).
 
     A joint ``config`` with only one device observed falls back to single-device mode (logged).
@@ -90,8 +110,10 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
     the projector noise of the others, docs/calib.md); False: one noise level per device.
     ``skew_check``: where skew is held at 0, refit with it free and warn when the data need it
     (:func:`skew_check_outputs`; the result goes into ``calibration.json``).
+    ``board_warp``: see :func:`resolve_board_warp`; ``resample``: "none", "jackknife" or
+    "bootstrap" (``draws`` runs) beside the reported uncertainty (:mod:`calib.uncertainty`).
     """
-    config = config or BAConfig()
+    config = resolve_board_warp(config or BAConfig(), obs, board_warp)
     devices = obs.devices()
     if config.mode == "joint" and len(devices) < 2:
         log.info(f"only {devices} observed: calibrating in single-device mode")
@@ -108,8 +130,13 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
     extra = {} if captured is None else {"captures": captured.summary()}
     if skew_check:
         extra.update(skew_check_outputs(fitted, cal, config))
+    # The error model (and any resampling) is estimated on the final fit: after reweight_views,
+    # with the observations weighted as that adjustment weighted them (the rebuilt Jacobian checks
+    # itself against the adjustment's sigmas, so it must see the same point sigmas).
+    cal.uncertainty = assess_uncertainty(cal, fitted, resample=resample, draws=draws)
     try:
         written = write_outputs(cal, fitted, out, skew_tol_px=skew_tol_px, extra=extra or None)
+        written.update(plot_residual_diagnostics(cal, fitted, cal.uncertainty.diagnostics, out))
         if captured is not None:
             written.update(write_capture_outputs(captured, out))
     except OSError as exc:
@@ -124,7 +151,8 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
 
 def calibrate_captures(folder, out, config: BAConfig | None = None, *, capture_toml=None, method=None,
                        strict: bool = False, degree: int = 2, skew_tol_px: float = 0.01,
-                       view_noise: bool = True, skew_check: bool = True) -> CalibrationRun:
+                       view_noise: bool = True, skew_check: bool = True, board_warp="auto",
+                       resample: str = "none", draws: int = 30) -> CalibrationRun:
     """Calibrate from the board captures in ``folder`` and write the outputs into ``out``.
 
     ARGUMENTS
@@ -136,10 +164,11 @@ def calibrate_captures(folder, out, config: BAConfig | None = None, *, capture_t
       pose cannot be used (default: skip it, and say so in the summary); degree: local polynomial
       degree of the projector-pixel fit (1 or 2).
     - skew_tol_px: see :func:`calib.io.mrcal_model.write_cameramodel`.
-    - view_noise, skew_check: see :func:`calibrate_observations`.
+    - view_noise, skew_check, board_warp, resample, draws: see :func:`calibrate_observations`.
     RETURNED VALUE: :class:`CalibrationRun`.
     """
     captured = observations_from_captures(folder, capture_toml=capture_toml, method=method, strict=strict,
                                           degree=degree, keep_images=True)
     return calibrate_observations(captured.observations, Path(out), config, skew_tol_px=skew_tol_px,
-                                  captured=captured, view_noise=view_noise, skew_check=skew_check)
+                                  captured=captured, view_noise=view_noise, skew_check=skew_check,
+                                  board_warp=board_warp, resample=resample, draws=draws)

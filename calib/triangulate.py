@@ -11,11 +11,20 @@ Two methods, both float64 and vectorised over pixels:
   contains the undistorted rays of ``(u_p, v_p)`` and ``(u_p, v_p + 1)``, with ``v_p`` the
   projector row of the current estimate. Iterated until ``v_p`` moves less than ``tol_px``.
   The same with ``orientation="h"`` for row coordinates ``v_p``.
+- ``triangulate_both``: both projector coordinates (fringes captured in both orientations): the
+  undistorted camera and projector rays, the point that best satisfies the four projection
+  equations in pixel units (linear least squares in the undistorted image planes). It is as good
+  as the better coordinate alone, whichever way the rig's baseline runs.
+
+Which coordinate: a rig whose baseline lies nearly in the projector's column planes (mostly
+vertical) triangulates badly from columns; :mod:`calib.coordinate_choice` measures it, and
+:func:`triangulate`, :func:`triangulate_linear` and :func:`points_from_phase` warn (``calib``
+logger) when asked for the ill-conditioned coordinate.
 
 Points are returned in the world frame (mm); invalid inputs give NaN rows and a False mask.
 
 From a phase map: :func:`points_from_phase` (every pixel with a valid absolute phase -> a world
-point, by either method), :func:`sphere_from_phase` (those points -> a least-squares sphere, the
+point, by either method; given both orientations' maps, by both coordinates), :func:`sphere_from_phase` (those points -> a least-squares sphere, the
 paper's Fig. 3 measure) and :func:`cross_reconstruction` (every pair of calibration and phase map).
 This is the one phase -> points -> sphere path of the toolkit (``calib reconstruct``, the report's
 ball matrix and the twin ball's pose all use it).
@@ -36,6 +45,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .coordinate_choice import choose_orientation, warn_if_ill_conditioned
 from .errors import TriangulationError
 
 METHODS = ("distortion-aware", "linear")
@@ -59,6 +69,7 @@ def projection_matrix(device) -> np.ndarray:
 def triangulate_linear(system, q_cam, coord, orientation: str = "v"):
     """Linear triangulation (the paper's): returns (points_world (N, 3), ok (N,))."""
     q, c = _check(q_cam, coord)
+    warn_if_ill_conditioned(system, orientation)
     Pc, Pp = projection_matrix(system.camera), projection_matrix(system.projector)
     k = 0 if orientation == "v" else 1
     A = np.stack([q[:, :1] * Pc[2] - Pc[0], q[:, 1:] * Pc[2] - Pc[1], c[:, None] * Pp[2] - Pp[k]], axis=1)
@@ -75,6 +86,7 @@ def triangulate_linear(system, q_cam, coord, orientation: str = "v"):
 def triangulate(system, q_cam, coord, orientation: str = "v", *, iterations: int = 20, tol_px: float = 1e-7):
     """Distortion-aware triangulation (module docstring): (points_world (N, 3), ok (N,))."""
     q, c = _check(q_cam, coord)
+    warn_if_ill_conditioned(system, orientation)
     cam, prj = system.camera, system.projector
     rays, ok = cam.unproject(q)  # camera frame (x, y, 1)
     R_prj_cam = prj.R @ cam.R.T
@@ -109,6 +121,45 @@ def triangulate(system, q_cam, coord, orientation: str = "v", *, iterations: int
     return X, ok
 
 
+def triangulate_both(system, q_cam, q_prj, *, undistort: bool = True):
+    """Triangulate camera pixels with both projector coordinates (module docstring).
+
+    ARGUMENTS: q_cam (N, 2) camera px; q_prj (N, 2) projector px ``(u_p, v_p)``; undistort: False
+    ignores both devices' distortion (the linear model).
+    RETURNED VALUE: (points_world (N, 3) mm, ok (N,)); NaN rows where not ok.
+    """
+    q = np.asarray(q_cam, dtype=np.float64)
+    p = np.asarray(q_prj, dtype=np.float64)
+    if q.ndim != 2 or q.shape[1] != 2 or p.shape != q.shape:
+        raise TriangulationError(f"expected q_cam (N, 2) and q_prj (N, 2), got {q.shape} and {p.shape}")
+    rows, rhs, ok = [], [], np.ones(len(q), bool)
+    for dev, pix in ((system.camera, q), (system.projector, p)):
+        if undistort:
+            rays, good = dev.unproject(pix)
+            xy = rays[:, :2]
+        else:
+            xy, good = dev.pixels_to_normalized(pix), np.all(np.isfinite(pix), axis=1)
+        ok &= good & np.all(np.isfinite(xy), axis=1)
+        xy = np.where(ok[:, None], xy, 0.0)
+        # x_n (r3 X + t3) = r1 X + t1, scaled by the focal lengths: residuals in pixels
+        for k, f in ((0, dev.fx), (1, dev.fy)):
+            rows.append(f * (xy[:, k:k + 1] * dev.R[2] - dev.R[k]))
+            rhs.append(f * (dev.t[k] - xy[:, k] * dev.t[2]))
+    A = np.stack(rows, axis=1)                   # (N, 4, 3)
+    b = np.stack(rhs, axis=1)                    # (N, 4)
+    AtA = np.einsum("nki,nkj->nij", A, A)
+    Atb = np.einsum("nki,nk->ni", A, b)
+    ok &= np.abs(np.linalg.det(AtA)) > 1e-12 * np.einsum("nii->n", AtA) ** 3
+    X = np.full((len(q), 3), np.nan)
+    if ok.any():
+        X[ok] = np.linalg.solve(AtA[ok], Atb[ok][..., None])[..., 0]
+    in_front = np.all([dev.world_to_device(np.where(ok[:, None], X, 0.0))[:, 2] > 0
+                       for dev in (system.camera, system.projector)], axis=0)
+    ok &= in_front
+    X[~ok] = np.nan
+    return X, ok
+
+
 def _method(method: str):
     name = _ALIASES.get(method, method)
     if name not in METHODS:
@@ -116,13 +167,55 @@ def _method(method: str):
     return triangulate if name == "distortion-aware" else triangulate_linear
 
 
-def points_from_phase(system, phase, frequency: float, orientation: str = "v", method: str = "distortion-aware"):
+def _extent(system, orientation) -> int:
+    return system.projector.width if orientation == "v" else system.projector.height
+
+
+def _inside(coord, extent) -> np.ndarray:
+    """Projector coordinates (px) no more than ``OUTSIDE_MARGIN_PX`` outside [-0.5, extent - 0.5)."""
+    return (coord >= -0.5 - OUTSIDE_MARGIN_PX) & (coord < extent - 0.5 + OUTSIDE_MARGIN_PX)
+
+
+def _coordinate_map(system, phase, frequency, orientation):
+    """Projector coordinate (H, W) px of an absolute phase map (NaN where the phase is invalid).
+
+    Refused (TriangulationError): a map that is not the camera's size, a frequency that is not
+    > 0, a map with no valid pixel, and one of which more than ``MAX_OUTSIDE`` of the valid
+    pixels map outside the projector (:func:`points_from_phase`)."""
+    from unwrap.patterns import projector_coordinate
+
+    phase = np.asarray(phase, dtype=np.float64)
+    if phase.shape != (system.camera.height, system.camera.width):
+        raise TriangulationError(f"phase map {phase.shape[1]}x{phase.shape[0]} (W x H) does not match the camera "
+                                 f"image {system.camera.width}x{system.camera.height}")
+    if frequency is None or not (np.isfinite(frequency) and frequency > 0):
+        raise TriangulationError(f"frequency: expected periods across the projector > 0, got {frequency!r}")
+    valid = np.isfinite(phase)
+    if not valid.any():
+        raise TriangulationError(f"the phase map ({orientation}) has no valid pixel (all NaN, inf or 0)")
+    extent = _extent(system, orientation)
+    coord = np.full(phase.shape, np.nan)
+    coord[valid] = projector_coordinate(phase[valid], frequency, extent)
+    outside = np.mean(~_inside(coord[valid], extent))
+    if outside > MAX_OUTSIDE:
+        raise TriangulationError(
+            f"{100 * outside:.1f} % of the valid pixels map outside the projector ({orientation}: coordinates "
+            f"{np.nanmin(coord):.1f} .. {np.nanmax(coord):.1f} px, the projector spans -0.5 .. {extent - 0.5} px at "
+            f"{frequency:g} periods): wrong frequency, orientation or calibration?")
+    return coord
+
+
+def points_from_phase(system, phase, frequency, orientation: str = "v", method: str = "distortion-aware"):
     """World points of every camera pixel with a valid absolute phase.
 
     ARGUMENTS
-    - system: calib.SystemModel; phase: (H, W) absolute phase (rad) of fringes with ``frequency``
-      periods across the projector, NaN (or inf) where invalid, the camera's image size.
-    - orientation: "v" (fringes along projector columns: u_p) or "h" (rows: v_p).
+    - system: calib.SystemModel.
+    - phase: (H, W) absolute phase (rad), NaN (or inf) where invalid, the camera's image size; or
+      ``{"v": map, "h": map}`` (either or both) for fringes along columns and along rows.
+    - frequency: periods across the projector pattern (float), or ``{"v": f, "h": f}``.
+    - orientation: "v" (u_p), "h" (v_p), "both" (:func:`triangulate_both`, the pixels valid in
+      both maps) or "auto" (a dict holding both maps: "both"; one map: that one, with a warning
+      when it is the ill-conditioned coordinate, :mod:`calib.coordinate_choice`).
     - method: "distortion-aware" (:func:`triangulate`) or "linear" (:func:`triangulate_linear`).
     RETURNED VALUE: (points_world (N, 3) mm, q_cam (N, 2) px, ok (N,)) over the N valid pixels,
     row-major; points are NaN where not ok.
@@ -133,32 +226,30 @@ def points_from_phase(system, phase, frequency: float, orientation: str = "v", m
     a frequency stretches the coordinates beyond the pattern); the few such pixels of an accepted
     map are not ok.
     """
-    from unwrap.patterns import projector_coordinate
-
     fn = _method(method)
-    phase = np.asarray(phase, dtype=np.float64)
-    if phase.shape != (system.camera.height, system.camera.width):
-        raise TriangulationError(f"phase map {phase.shape[1]}x{phase.shape[0]} (W x H) does not match the camera "
-                                 f"image {system.camera.width}x{system.camera.height}")
-    if orientation not in ("v", "h"):
-        raise TriangulationError(f"orientation: expected 'v' or 'h', got {orientation!r}")
-    if not (np.isfinite(frequency) and frequency > 0):
-        raise TriangulationError(f"frequency: expected periods across the projector > 0, got {frequency!r}")
-    valid = np.isfinite(phase)
-    if not valid.any():
-        raise TriangulationError("the phase map has no valid pixel (all NaN, inf or 0)")
+    maps = dict(phase) if isinstance(phase, dict) else {"v" if orientation in ("auto", "both") else orientation: phase}
+    freqs = dict(frequency) if isinstance(frequency, dict) else {o: frequency for o in maps}
+    bad = [o for o in maps if o not in ("v", "h")] + ([] if orientation in ("v", "h", "both", "auto") else [orientation])
+    if bad:
+        raise TriangulationError(f"orientation: expected 'v', 'h', 'both' or 'auto', got {bad[0]!r}")
+    if orientation == "auto":
+        orientation = choose_orientation(system, tuple(maps))
+    needed = ("v", "h") if orientation == "both" else (orientation,)
+    missing = [o for o in needed if o not in maps or o not in freqs]
+    if missing:
+        raise TriangulationError(f"orientation {orientation!r} needs the phase map and frequency of {missing}; "
+                                 f"given maps {sorted(maps)}, frequencies {sorted(freqs)}")
+    coords = {o: _coordinate_map(system, maps[o], freqs[o], o) for o in needed}
+    valid = np.all([np.isfinite(c) for c in coords.values()], axis=0)
     v, u = np.nonzero(valid)
     q_cam = np.stack([u, v], axis=1).astype(np.float64)
-    extent = system.projector.width if orientation == "v" else system.projector.height
-    coord = projector_coordinate(phase[valid], frequency, extent)
-    inside = (coord >= -0.5 - OUTSIDE_MARGIN_PX) & (coord < extent - 0.5 + OUTSIDE_MARGIN_PX)
-    if np.mean(~inside) > MAX_OUTSIDE:
-        raise TriangulationError(
-            f"{100 * np.mean(~inside):.1f} % of the valid pixels map outside the projector (coordinates "
-            f"{coord.min():.1f} .. {coord.max():.1f} px, the projector spans -0.5 .. {extent - 0.5} px at "
-            f"{frequency:g} periods): wrong frequency, orientation or calibration?")
-    points, ok = fn(system, q_cam, coord, orientation)
-    ok = ok & inside
+    if orientation == "both":
+        q_prj = np.stack([coords["v"][valid], coords["h"][valid]], axis=1)
+        points, ok = triangulate_both(system, q_cam, q_prj, undistort=fn is triangulate)
+    else:
+        points, ok = fn(system, q_cam, coords[orientation][valid], orientation)
+    for o in needed:       # the few pixels outside the projector of an accepted map
+        ok = ok & _inside(coords[o][valid], _extent(system, o))
     points[~ok] = np.nan
     return points, q_cam, ok
 

@@ -2,6 +2,10 @@
 the 9x11 circle board (20 mm pitch, 5 / 2 mm circles) at 9 poses tilted within +-10 deg about x
 and +-20 deg about y, horizontal and vertical fringes with 12 steps at frequencies 1, 8 and 48,
 plus a white frame, written in the capture layout of DESIGN.md with ``truth.json`` beside it.
+``pattern="graycode"`` renders a Gray-code calibration session instead (OpenCV's GrayCodePattern:
+column and row bits with their inverses, a white and a black frame; ``capture.toml`` with
+``[pattern] kind = "graycode"``, the layout of :mod:`unwrap.graycode_capture`), as labs that
+calibrate with Moreno & Taubin's method capture it.
 
 The world frame is the board at its reference (untilted) pose, so pose 0 has ``R = R_cam``,
 ``t = t_cam`` and the board centre stays at the world origin for every pose. A system whose world
@@ -26,7 +30,7 @@ from .output import write_pngs, write_truth_h5
 from .poses import rotation_xyz_deg
 from .render import render
 from .scene import Scene
-from .sequence import PatternSpec, phase_sequence
+from .sequence import PatternSpec, gray_sequence, phase_sequence
 
 #: (rx, ry) tilts in degrees: the 3 x 3 grid of the paper's (0 +- 10, 0 +- 20, 0).
 log = logging.getLogger(__name__)
@@ -55,12 +59,13 @@ def _toml_value(v) -> str:
     return repr(v)
 
 
-def capture_toml(board, steps, frequencies, camera_size, projector_size, extra=None,
+def capture_toml(board, steps, frequencies, camera_size, projector_size, extra=None, pattern=None,
                  source: str = "calib render-board") -> str:
     """The text of capture.toml (DESIGN.md) for ``board`` (``calib.board.Board``, or None for a
-    capture without a board) and the pattern."""
+    capture without a board) and the pattern (``pattern``: the ``[pattern]`` table instead of
+    steps and frequencies, e.g. a Gray-code one); ``source``: the command named in its header."""
     tables = {"board": board.to_dict()} if board is not None else {}
-    tables.update({"pattern": {"steps": list(steps), "frequencies": list(frequencies)},
+    tables.update({"pattern": pattern or {"steps": list(steps), "frequencies": list(frequencies)},
                    "camera": {"size": list(camera_size)}, "projector": {"size": list(projector_size)}})
     if extra:
         tables["render"] = extra
@@ -72,11 +77,33 @@ def capture_toml(board, steps, frequencies, camera_size, projector_size, extra=N
     return "\n".join(lines)
 
 
+def _gray_pattern_table(scene) -> dict | None:
+    """The ``[pattern]`` table of a scene that renders a Gray-code-only session in the layout of
+    :mod:`unwrap.graycode_capture` (every bit of one block size, with inverses for all or none,
+    white and black where there are no inverses, no fringes), else None."""
+    gray = [p for p in scene.patterns if p.kind == "gray"]
+    if not gray or any(p.kind == "fringe" for p in scene.patterns) or len({p.block for p in gray}) != 1:
+        return None
+    block, inverse = gray[0].block, any(p.inverse for p in gray)
+    expected = {p.name for o in {p.orientation for p in gray}
+                for p in gray_sequence(o, scene.system.projector.size, inverse=inverse, block=block)}
+    names = {p.name for p in scene.patterns}
+    if {p.name for p in gray} != expected or (not inverse and not {"white", "black"} <= names):
+        return None
+    return {"kind": "graycode", "block_px": int(block), "inverse": inverse}
+
+
 def scene_capture_toml(scene) -> str | None:
-    """capture.toml text (DESIGN.md) describing the phase-shift frames a scene renders, so that
-    ``calib unwrap`` reads ``calib render``'s output as it is; None when the fringes do not form
-    one DESIGN.md ladder (orientations with different frequencies or steps, non-integer
-    frequencies, which the frame names cannot hold)."""
+    """capture.toml text (DESIGN.md) describing the frames a scene renders, so that ``calib unwrap``
+    reads ``calib render``'s output as it is: the phase-shift ladder, or a Gray-code-only session
+    (:func:`_gray_pattern_table`); None when the frames form neither (orientations with different
+    frequencies or steps, non-integer frequencies, which the frame names cannot hold, partial or
+    mixed Gray code)."""
+    extra = {"scene": scene.name, "software": "sltwin synth"}
+    sizes = (scene.system.camera.size, scene.system.projector.size)
+    gray = _gray_pattern_table(scene)
+    if gray is not None:
+        return capture_toml(None, [], [], *sizes, extra, pattern=gray, source="calib render")
     ladders = {}
     for p in scene.patterns:
         if p.kind == "fringe" and p.step == 0:
@@ -86,8 +113,7 @@ def scene_capture_toml(scene) -> str | None:
     ladder = next(iter(ladders.values()))
     if any(not float(f).is_integer() for f, _ in ladder):
         return None
-    return capture_toml(None, [n for _, n in ladder], [int(f) for f, _ in ladder], scene.system.camera.size,
-                        scene.system.projector.size, {"scene": scene.name, "software": "sltwin synth"},
+    return capture_toml(None, [n for _, n in ladder], [int(f) for f, _ in ladder], *sizes, extra,
                         source="calib render")
 
 
@@ -149,13 +175,28 @@ def board_reference_pose(system, board) -> tuple[np.ndarray, np.ndarray]:
     return R_world_board, c_cam + depth * a_cam
 
 
+def session_patterns(system, pattern: str, steps, frequencies, gray_block_px: int = 1) -> tuple[list, dict | None]:
+    """(PatternSpecs, the ``[pattern]`` table or None) of a session: ``"phase-shift"`` (a white
+    frame + fringes) or ``"graycode"`` (white, black, column and row Gray code with inverses)."""
+    if pattern == "graycode":
+        specs = [PatternSpec("white", "white"), PatternSpec("black", "black")]
+        for o in ("v", "h"):
+            specs += gray_sequence(o, system.projector.size, inverse=True, block=int(gray_block_px))
+        return specs, {"kind": "graycode", "block_px": int(gray_block_px), "inverse": True}
+    if pattern != "phase-shift":
+        raise SynthError(f"pattern: expected 'phase-shift' or 'graycode', got {pattern!r}")
+    return [PatternSpec("white", "white")] + phase_sequence(("v", "h"), frequencies, int(steps)), None
+
+
 def render_board_session(out_dir, system=None, *, steps: int = 12, frequencies=(1, 8, 48), n_poses: int = 9,
                          bits: int = 8, seed: int = 0, noise: Noise | None = Noise(), board=None,
                          effects: Effects | None = None, truth_h5: bool = False, jitter=None,
-                         progress=None) -> dict:
+                         pattern: str = "phase-shift", gray_block_px: int = 1, progress=None) -> dict:
     """Render the session into ``out_dir`` (capture.toml, pose_XX/*.png, truth.json); returns
     the truth dictionary. ``board``: a :class:`synth.boards.BoardTexture` or a ``calib.board.Board``
     (default: the paper's board). ``noise`` None renders noise-free; its seed is offset per pose.
+    ``pattern``: ``"phase-shift"`` (steps, frequencies) or ``"graycode"`` (Gray code in blocks of
+    ``gray_block_px`` projector pixels; :func:`session_patterns`).
     ``jitter`` ``(rotation_deg, translation_mm)`` perturbs every board pose at random
     (``pose_jitter``, drawn from ``seed``): a repeated session with the board placed again.
     One progress line per pose goes to the ``synth`` logger (or to ``progress``, a callable)."""
@@ -164,7 +205,7 @@ def render_board_session(out_dir, system=None, *, steps: int = 12, frequencies=(
 
     system = system or default_system()
     freqs = [int(f) if float(f).is_integer() else float(f) for f in frequencies]
-    patterns = [PatternSpec("white", "white")] + phase_sequence(("v", "h"), freqs, int(steps))
+    patterns, pattern_table = session_patterns(system, pattern, steps, freqs, gray_block_px)
     base = effects or Effects()
     base = replace(base, bits=int(bits))
     out_dir = Path(out_dir)
@@ -212,10 +253,12 @@ def render_board_session(out_dir, system=None, *, steps: int = 12, frequencies=(
                                + "): a calibration whose model contains the truth estimates it (calib run --skew)")
     (out_dir / "capture.toml").write_text(capture_toml(
         texture.board, [int(steps)] * len(freqs), freqs, system.camera.size, system.projector.size,
-        {"bits": int(bits), "seed": int(seed), "noise": noise is not None, "software": "sltwin synth"}))
+        {"bits": int(bits), "seed": int(seed), "noise": noise is not None, "software": "sltwin synth"},
+        pattern=pattern_table))
     truth = system_to_dict(system)
     truth.update({"board_poses": poses, "board": texture.board.to_dict(),
-                  "board_points_in_view": visible, "pattern": {"steps": int(steps), "frequencies": freqs},
+                  "board_points_in_view": visible,
+                  "pattern": pattern_table or {"steps": int(steps), "frequencies": freqs},
                   "effects": base.to_dict(), "noise": None if noise is None else vars(noise) if hasattr(noise, "__dict__") else str(noise),
                   "seed": int(seed), "jitter": None if jitter is None else [float(j) for j in jitter],
                   "render_seconds": timings})

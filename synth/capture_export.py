@@ -90,6 +90,9 @@ def _capture_sample(folder, preset, reference, cloud, system):
     shape = None
     for o, oc in sorted(cap.orientations.items()):
         sets = sorted(oc.sets, key=lambda s: s.frequency)
+        if not sets:
+            raise ExportError(f"{folder}: orientation {o} holds Gray code only (no phase-shift frames): there is "
+                              "no wrapped phase to export")
         phases, mods, flags = [], [], []
         for s in sets:
             stack = read_stack(s.files)

@@ -31,6 +31,7 @@ class PatternSpec:
     bits: int = 0
     inverse: bool = False
     image: np.ndarray | None = None   # (H_p, W_p) float64 in [0, 1] for kind "image"
+    block: int = 1                    # gray: projector pixels per code step
 
     def projector_image(self, size, A: float, B: float) -> np.ndarray:
         """The (H_p, W_p) float64 image this pattern puts on the projector, in [0, 1]."""
@@ -43,7 +44,7 @@ class PatternSpec:
             return np.zeros((H, W))
         if self.kind == "gray":
             n = W if self.orientation == "v" else H
-            idx = np.arange(n)
+            idx = np.arange(n) // self.block
             code = ((idx ^ (idx >> 1)) >> (self.bits - 1 - self.bit)) & 1
             code = (1 - code) if self.inverse else code
             line = code.astype(np.float64)
@@ -79,14 +80,20 @@ def phase_sequence(orientations=("v", "h"), frequencies=(1, 8, 48), steps=12) ->
     return out
 
 
-def gray_sequence(orientation: str, size, bits: int | None = None, inverse: bool = False) -> list[PatternSpec]:
-    """Gray code bit planes (MSB first) of projector column (``v``) or row (``h``) indices."""
-    n = size[0] if orientation == "v" else size[1]
+def gray_sequence(orientation: str, size, bits: int | None = None, inverse: bool = False,
+                  block: int = 1) -> list[PatternSpec]:
+    """Gray code bit planes (MSB first) of projector column (``v``) or row (``h``) block indices
+    (``block`` projector pixels per code step; OpenCV's GrayCodePattern with block 1), named as the
+    Gray-code capture layout reads them (``v_gray_b03``, ``v_gray_b03_inv``)."""
+    if not (isinstance(block, int) and block >= 1):
+        raise SynthError(f"gray code block: expected an integer >= 1 (projector px), got {block!r}")
+    n = -(-(size[0] if orientation == "v" else size[1]) // block)
     bits = int(bits) if bits else max(1, math.ceil(math.log2(n)))
-    out = [PatternSpec(f"{orientation}_gray_b{b:02d}", "gray", orientation, bit=b, bits=bits) for b in range(bits)]
+    out = [PatternSpec(f"{orientation}_gray_b{b:02d}", "gray", orientation, bit=b, bits=bits, block=block)
+           for b in range(bits)]
     if inverse:
-        out += [PatternSpec(f"{orientation}_gray_b{b:02d}_inv", "gray", orientation, bit=b, bits=bits, inverse=True)
-                for b in range(bits)]
+        out += [PatternSpec(f"{orientation}_gray_b{b:02d}_inv", "gray", orientation, bit=b, bits=bits, inverse=True,
+                            block=block) for b in range(bits)]
     return out
 
 
@@ -109,7 +116,7 @@ def sequence_from_tables(entries, projector_size, base_dir: Path = Path(".")) ->
             raise SynthError(f"{key}: expected a table with a 'kind' ({', '.join(KINDS)})")
         kind = e["kind"]
         allowed = {"phase": {"kind", "orientation", "frequencies", "steps"},
-                   "gray": {"kind", "orientation", "bits", "inverse"},
+                   "gray": {"kind", "orientation", "bits", "inverse", "block_px"},
                    "white": {"kind", "name"}, "black": {"kind", "name"},
                    "image": {"kind", "file", "name"}}.get(kind)
         if allowed is None:
@@ -124,7 +131,8 @@ def sequence_from_tables(entries, projector_size, base_dir: Path = Path(".")) ->
                                   e.get("steps", 12))
         elif kind == "gray":
             for o in _orientations(e.get("orientation", "both"), key):
-                out += gray_sequence(o, projector_size, e.get("bits"), bool(e.get("inverse", False)))
+                out += gray_sequence(o, projector_size, e.get("bits"), bool(e.get("inverse", False)),
+                                     e.get("block_px", 1))
         elif kind in ("white", "black"):
             out.append(PatternSpec(e.get("name", kind), kind))
         else:

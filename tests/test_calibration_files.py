@@ -125,3 +125,58 @@ def test_cli_twin_prints_table_s3_and_refuses_bad_input_without_traceback(tmp_pa
                                "projector": {"size": [912, 1140], "K": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}}))
     assert main(["twin", str(bad), "-o", str(tmp_path / "t2.json")]) == 2
     assert "reflection" in capsys.readouterr().err
+
+
+def _write_storage(path, entries):
+    import cv2
+
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    for key, value in entries.items():
+        fs.write(key, np.asarray(value, dtype=np.float64) if not np.isscalar(value) else float(value))
+    fs.release()
+    return path
+
+
+PROCAM = {  # kamino410/procam-calibration's calibration_result.xml layout, values of its sample file
+    "img_shape": [[1024.0], [1280.0]], "rms": 0.425,
+    "cam_int": [[3452.39, 0, 587.17], [0, 3449.92, 521.45], [0, 0, 1]],
+    "cam_dist": [[-0.2223, -0.8664, -0.00073, -0.00169, 3.1325]],
+    "proj_int": [[1947.16, 0, 448.86], [0, 1933.99, 719.97], [0, 0, 1]],
+    "proj_dist": [[-0.0912, 1.1448, -0.00227, -0.00931, -7.798]],
+    "roration": [[0.99907286, 0.01455773, -0.04051535], [-0.01206627, 0.99806035, 0.06107332],
+                 [0.04132585, -0.06052783, 0.99731066]],
+    "translation": [[39.063], [-278.264], [-61.947]]}
+
+
+def test_procam_calibration_xml_with_its_rotation_typo_and_rows_cols_image_shape(tmp_path):
+    path = _write_storage(tmp_path / "calibration_result.xml", PROCAM)
+    with pytest.raises(FormatError, match="projector image size is not stored.*projector_size"):
+        load_system(path)
+    s = load_system(path, projector_size=(1024, 768))
+    assert s.camera.size == (1280, 1024) and s.projector.size == (1024, 768)    # img_shape is (rows, cols)
+    assert s.camera.fx == pytest.approx(3452.39) and s.projector.cy == pytest.approx(719.97)
+    np.testing.assert_allclose(s.projector.t, [39.063, -278.264, -61.947])
+    keys = s.meta["source"]["keys"]
+    assert keys["R_prj_cam"] == "roration" and keys["camera_size"] == "img_shape (rows, cols)"
+    assert s.meta["source"]["format"] == "opencv-filestorage (procam)"
+    fixed = dict(PROCAM, rotation=PROCAM["roration"])
+    del fixed["roration"]
+    s2 = load_system(_write_storage(tmp_path / "fixed.xml", fixed), projector_size=(1024, 768))
+    assert s2.meta["source"]["keys"]["R_prj_cam"] == "rotation"
+
+
+@pytest.mark.parametrize("order", ["rows_cols", "width_height"])
+def test_image_size_written_either_way_is_read_by_where_the_principal_point_lies(tmp_path, order):
+    entries = {k: v for k, v in PROCAM.items() if k not in ("img_shape", "roration")}
+    entries["rotation"] = PROCAM["roration"]
+    entries["imageSize"] = [1024, 1280] if order == "rows_cols" else [1280, 1024]
+    s = load_system(_write_storage(tmp_path / "c.yml", entries), projector_size=(1024, 768))
+    assert s.camera.size == (1280, 1024)
+    assert s.meta["source"]["keys"]["camera_size"].startswith(
+        "imageSize read as " + ("(rows, cols)" if order == "rows_cols" else "(width, height)"))
+
+
+def test_incomplete_key_sets_are_refused_naming_what_was_found_and_expected(tmp_path):
+    entries = {k: v for k, v in PROCAM.items() if k != "translation"}
+    with pytest.raises(FormatError, match=r"found keys \[.*cam_int.*\].*procam: cam_int.*rotation \| roration"):
+        load_system(_write_storage(tmp_path / "c.xml", entries), projector_size=(1024, 768))

@@ -4,7 +4,8 @@ no traceback (issue 15). Adding a command or a case is one row of ``CASES``:
     (case id, command line, text the error message must contain)
 
 Placeholders in the command line: ``{bad}`` (a folder of broken files, built below), ``{cap}``
-(a folder of small DESIGN.md captures, one good and one per defect), ``{out}`` (a fresh output
+(a folder of small DESIGN.md captures, phase-shift and Gray-code-only, one good and one per
+defect), ``{out}`` (a fresh output
 path of the case) and ``{dp}`` (the paper's dp-tpu data; the case is skipped without it).
 """
 import json
@@ -57,6 +58,41 @@ def _write_capture(folder, *, extra="", width=64, frames=None):
     return pose
 
 
+GRAY_TOML = """
+[pattern]
+kind = "graycode"
+block_px = {block}
+inverse = true
+
+[camera]
+size = [{w}, 32]
+
+[projector]
+size = [16, 8]
+"""
+
+
+def _write_gray_capture(folder, *, block=1, width=64, contrast=180):
+    """A Gray-code-only DESIGN.md capture of one pose: projector 16x8 seen at 4 camera px per
+    projector px (64x32), column and row bits with inverses, white, black; 8-bit."""
+    from unwrap.graycode import gray_code_bits
+    from unwrap.graycode_capture import gray_bits
+
+    pose = folder / "pose_00"
+    pose.mkdir(parents=True)
+    (folder / "capture.toml").write_text(GRAY_TOML.format(block=block, w=width))
+    cv2.imwrite(str(pose / "white.png"), np.full((32, 64), 30 + contrast, np.uint8))
+    cv2.imwrite(str(pose / "black.png"), np.full((32, 64), 30, np.uint8))
+    for o, extent in (("v", 16), ("h", 8)):
+        bits = gray_code_bits(np.arange(extent) // block, gray_bits(extent, block))     # (n, extent)
+        for b, row in enumerate(bits):
+            line = np.repeat(30 + contrast * row, 4).astype(np.uint8)
+            frame = np.broadcast_to(line[None, :] if o == "v" else line[:, None], (32, 64))
+            cv2.imwrite(str(pose / f"{o}_gray_b{b:02d}.png"), frame)
+            cv2.imwrite(str(pose / f"{o}_gray_b{b:02d}_inv.png"), (2 * 30 + contrast - frame).astype(np.uint8))
+    return pose
+
+
 def _our_frames(phase, n):
     return np.round(fringe_intensity(phase, n, 4, A=120, B=90)).astype(np.uint8)
 
@@ -105,6 +141,27 @@ def files(tmp_path_factory):
     _write_capture(cap / "bad_sign", extra="shift_sign = 2")
     _write_capture(cap / "bad_toml")
     (cap / "bad_toml" / "capture.toml").write_text("[pattern\nsteps = 4\n")
+    _write_capture(cap / "no_frequencies")
+    (cap / "no_frequencies" / "capture.toml").write_text("[pattern]\nsteps = 4\nfrequencies = []\n"
+                                                         "[projector]\nsize = [912, 1140]\n")
+    _write_capture(cap / "bad_kind", extra='kind = "speckle"')
+    # Gray-code-only captures: the same frame checks as phase-shift ones
+    _write_gray_capture(cap / "gray")
+    pose = _write_gray_capture(cap / "gray_mixed_depth")
+    cv2.imwrite(str(pose / "h_gray_b01.png"), cv2.imread(str(pose / "h_gray_b01.png"), -1).astype(np.uint16) * 257)
+    _write_gray_capture(cap / "gray_size_mismatch", width=100)
+    pose = _write_gray_capture(cap / "gray_extra_bit")
+    shutil.copy(pose / "v_gray_b03.png", pose / "v_gray_b04.png")
+    pose = _write_gray_capture(cap / "gray_with_fringes")
+    shutil.copy(pose / "white.png", pose / "v_f001_n00.png")
+    _write_gray_capture(cap / "gray_all_black", contrast=0)
+    _write_gray_capture(cap / "gray_block_0", block=1)
+    toml = cap / "gray_block_0" / "capture.toml"
+    toml.write_text(toml.read_text().replace("block_px = 1", "block_px = 0"))
+    procam = cap / "procam_no_toml" / "capture_0"
+    procam.mkdir(parents=True)
+    for i in range(18):
+        cv2.imwrite(str(procam / f"graycode_{i:02d}.png"), np.zeros((32, 64), np.uint8))
     return {"bad": bad, "cap": cap}
 
 
@@ -147,6 +204,12 @@ CASES = [
      "--calibration {dp}/CamCalibResult_real.mat {dp}/PrjCalibResult_real.mat -o {out}.ply", "outside the projector"),
     ("reconstruct-output-is-dir", "reconstruct --phase {bad}/all_nan.npy --frequency 96 --calibration "
      "{bad}/default.json -o {bad}/adir", "adir"),
+    ("reconstruct-both-of-one-map", "reconstruct --phase {bad}/all_nan.npy --frequency 96 --orientation both "
+     "--calibration {bad}/default.json -o {out}.ply", "all_nan.npy holds one phase map"),
+    ("reconstruct-orientation-not-stored", "reconstruct --phase {bad}/unwrap48.h5 --orientation h --calibration "
+     "{bad}/default.json -o {out}.ply", "unwrap48.h5 holds orientation(s) ['v']"),
+    ("reconstruct-orientation-unknown", "reconstruct --phase {bad}/unwrap48.h5 --orientation diagonal "
+     "--calibration {bad}/default.json -o {out}.ply", "--orientation"),
     # calib report
     ("report-text-mat-phase", "report --real {dp}/CamCalibResult_real.mat {dp}/PrjCalibResult_real.mat --twin "
      "{dp}/CamCalibResult_sim.mat {dp}/PrjCalibResult_sim.mat --phase-real {bad}/text.mat -o {out}", "text.mat"),
@@ -167,6 +230,20 @@ CASES = [
     ("unwrap-other-convention", "unwrap {cap}/pi_offset -o {out}", "phase_offset"),
     ("unwrap-bad-shift-sign", "unwrap {cap}/bad_sign -o {out}", "shift_sign"),
     ("unwrap-bad-toml", "unwrap {cap}/bad_toml -o {out}", "not valid TOML"),
+    ("unwrap-empty-frequencies", "unwrap {cap}/no_frequencies -o {out}", "frequencies = []"),
+    ("unwrap-unknown-kind", "unwrap {cap}/bad_kind -o {out}", "kind = 'speckle'"),
+    ("unwrap-unknown-preset", "unwrap {cap}/good --preset kaminski -o {out}", "--preset"),
+    # calib unwrap of Gray-code-only captures (issue 16's layout) under issue 15's checks
+    ("unwrap-gray-method-mf", "unwrap {cap}/gray --method mf -o {out}", "holds Gray code only"),
+    ("unwrap-gray-max-error-rate", "unwrap {cap}/gray --max-error-rate 1e-3 -o {out}", "Gray code without phase"),
+    ("unwrap-gray-min-modulation-absurd", "unwrap {cap}/gray --min-modulation 1e9 -o {out}", "exceeds the largest"),
+    ("unwrap-gray-mixed-bit-depth", "unwrap {cap}/gray_mixed_depth -o {out}", "h_gray_b01.png: uint16 frame"),
+    ("unwrap-gray-camera-size", "unwrap {cap}/gray_size_mismatch -o {out}", "[camera] size says 100x32"),
+    ("unwrap-gray-extra-bit", "unwrap {cap}/gray_extra_bit -o {out}", "v_gray_b04.png"),
+    ("unwrap-gray-stray-fringe-frame", "unwrap {cap}/gray_with_fringes -o {out}", "v_f001_n00.png"),
+    ("unwrap-gray-all-black", "unwrap {cap}/gray_all_black -o {out}", "no valid pixel"),
+    ("unwrap-gray-block-0", "unwrap {cap}/gray_block_0 -o {out}", "block_px"),
+    ("unwrap-procam-no-projector-size", "unwrap {cap}/procam_no_toml/capture_0 -o {out}", "projector size"),
     # calib plan-fringes: ladders calib unwrap refuses
     ("plan-mf-not-absolute", "plan-fringes --sets mf:8,48", "mf:8,48"),
     ("plan-mf-decreasing", "plan-fringes --sets mf:48,8,1", "mf:48,8,1"),
@@ -180,11 +257,16 @@ CASES = [
     ("render-board-output-is-file", "render-board -o {bad}/afile", "afile"),
     ("render-board-two-steps", "render-board --steps 2 -o {out}", "--steps"),
     ("render-board-broken-system", "render-board {bad}/truncated.xml -o {out}", "truncated.xml"),
+    ("render-board-gray-block-0", "render-board --pattern graycode --gray-block 0 -o {out}", "--gray-block"),
+    ("render-board-unknown-pattern", "render-board --pattern speckle -o {out}", "--pattern"),
     # calib run
     ("run-output-is-file", "run {cap}/good -o {bad}/afile", "afile"),
     ("run-no-folder", "run {cap}/nowhere -o {out}", "nowhere"),
     ("run-text-mat-observations", "run --observations {bad}/text.mat {bad}/text.mat -o {out}", "text.mat"),
     ("run-no-input", "run -o {out}", "CAPTURES"),
+    ("run-uncertainty-unknown", "run {cap}/good --uncertainty guess -o {out}", "--uncertainty"),
+    ("run-board-warp-unknown", "run {cap}/good --board-warp maybe -o {out}", "--board-warp"),
+    ("run-draws-2", "run {cap}/good --uncertainty bootstrap --draws 2 -o {out}", "--draws"),
     # calib export (issue 12's command)
     ("export-output-is-dir", "export --capture {cap}/good -o {bad}/adir", "adir"),
 ]
@@ -196,7 +278,10 @@ def test_bad_input_is_exit_2_with_a_message_naming_it_and_no_traceback(case, lin
     if "{dp}" in line and not (SHARED_DATA / "dp-tpu").exists():
         pytest.skip("the paper's dp-tpu data are not present")
     argv = line.format(bad=files["bad"], cap=files["cap"], dp=SHARED_DATA / "dp-tpu", out=tmp_path / case).split()
-    code = main(argv)
+    try:
+        code = main(argv)
+    except SystemExit as exc:       # argparse's usage errors (an unknown choice) exit from the parser
+        code = exc.code
     captured = capsys.readouterr()
     assert code == 2, (argv, captured.err)
     assert expected in captured.err, captured.err

@@ -123,6 +123,29 @@ def test_calib_render_output_is_read_by_calib_unwrap_as_it_is(tmp_path, capsys):
     assert "v: method mf, frequency 8" in capsys.readouterr().out
 
 
+def test_calib_render_of_a_gray_code_scene_is_read_by_calib_unwrap_as_it_is(tmp_path, capsys):
+    scene = """
+    name = "plane"
+    [[objects]]
+    kind = "plane"
+    [[patterns.sequence]]
+    kind = "white"
+    [[patterns.sequence]]
+    kind = "black"
+    [[patterns.sequence]]
+    kind = "gray"
+    orientation = "both"
+    inverse = true
+    block_px = 4
+    """
+    (tmp_path / "scene.toml").write_text("\n".join(line.strip() for line in scene.splitlines()))
+    assert main(["render", str(tmp_path / "scene.toml"), "-o", str(tmp_path / "out"), "-q", "--no-truth"]) == 0
+    assert 'kind = "graycode"' in (tmp_path / "out" / "capture.toml").read_text()
+    assert main(["unwrap", str(tmp_path / "out"), "-o", str(tmp_path / "u"), "-q", "--no-previews"]) == 0
+    out = capsys.readouterr().out
+    assert "v: method gray" in out and "quantised to 4 px" in out
+
+
 def test_the_compile_message_is_only_shown_when_the_kernel_is_not_cached():
     from unwrap.fused_mf import fast_available, mf_unwrap_stacks
     from unwrap.pipeline import _kernel_cold

@@ -10,7 +10,8 @@ Public surface:
   per frame from the fit residuals).
 - temporal unwrapping, each returning ``Unwrapped`` (phase, order, valid, the physics prior):
   ``mf_unwrap``, ``mw_unwrap``, ``nt_unwrap`` (``nt_lookup_table``), ``gray_unwrap``,
-  ``complementary_gray_unwrap``, ``gray_coarse_unwrap`` (``binarize``, ``gray_to_index``,
+  ``complementary_gray_unwrap``, ``gray_coarse_unwrap``, ``gray_code_unwrap`` (Gray code
+  alone; ``binarize``, ``gray_to_index``,
   ``gray_code_bits``); ``base_phase``, ``refine`` (one hierarchical step).
 - the in-memory decoder: ``mf_unwrap_stacks`` (phase-shift stacks of every frequency -> absolute
   phase, order, A and B; one fused pass for 8/16-bit frames).
@@ -26,8 +27,8 @@ Progress goes to the `unwrap` logger.
 from .consistency import prior_check
 from .errors import UnreliableFringesWarning, UnwrapError
 from .fused_mf import mf_unwrap_stacks
-from .graycode import (binarize, complementary_gray_unwrap, gray_coarse_unwrap, gray_code_bits, gray_to_index,
-                       gray_unwrap)
+from .graycode import (binarize, complementary_gray_unwrap, gray_coarse_unwrap, gray_code_bits, gray_code_unwrap,
+                       gray_to_index, gray_unwrap)
 from .monte_carlo import monte_carlo_error_rate
 from .patterns import absolute_phase, fringe_intensity, fringe_pattern, phase_shift, projector_coordinate
 from .phase_io import read_phase, write_phase_file
@@ -42,7 +43,7 @@ __all__ = [
     "fringe_pattern", "fringe_intensity", "phase_shift", "absolute_phase", "projector_coordinate",
     "wrapped_phase", "WrappedPhase", "equal_shifts", "least_squares_weights", "phase_noise_gain", "fit_noise_sigma",
     "Unwrapped", "mf_unwrap", "mw_unwrap", "nt_unwrap", "nt_lookup_table", "gray_unwrap",
-    "complementary_gray_unwrap", "gray_coarse_unwrap", "binarize", "gray_to_index", "gray_code_bits",
+    "complementary_gray_unwrap", "gray_coarse_unwrap", "gray_code_unwrap", "binarize", "gray_to_index", "gray_code_bits",
     "base_phase", "refine", "mf_unwrap_stacks",
     "error_rate", "phase_error_pdf", "phase_sigma", "plan_fringes", "monte_carlo_error_rate", "modulation_threshold",
     "prior_check",

@@ -19,9 +19,14 @@ frames. Layouts:
   complementary Gray code thresholded against the background A.
 
   Both read ``.bmp`` (what the two tools write) or ``.tif`` frames of the same names too.
-- ``kamino`` (kamino410/phase-shifting sample): ``pat00..31.png`` + ``config.xml``; 3-step at
-  periods 200/3 and 100 px (shifts +2pi/3, 0, -2pi/3), OpenCV Gray code (pattern, inverse) pairs
-  on 100-px blocks, white and black frames.
+- ``kamino-phaseshift`` (kamino410/phase-shifting sample; formerly ``kamino``, still accepted):
+  ``pat00..31.png`` + ``config.xml``; 3-step at periods 200/3 and 100 px (shifts +2pi/3, 0,
+  -2pi/3), OpenCV Gray code (pattern, inverse) pairs on 100-px blocks, white and black frames.
+- Gray code only (no phase shifting; :mod:`unwrap.graycode_capture`): the DESIGN.md layout with
+  ``[pattern] kind = "graycode"``, and ``procam-graycode`` (kamino410/procam-calibration's
+  ``capture_*/graycode_NN.png``, OpenCV's frame order; the projector size comes from the
+  ``description`` - the capture.toml - since the frame count does not fix it). Frames named like
+  the layout's that the description does not account for are refused here too.
 
 The preset is taken from ``capture.toml`` (``[capture] preset = "..."``), the ``preset``
 argument, or recognised from the files present.
@@ -37,8 +42,12 @@ from pathlib import Path
 import numpy as np
 
 from .errors import UnwrapError
+from .graycode_capture import GRAY_KIND, design_gray_orientations, procam_orientations, read_gray_pattern
 
-PRESETS = ("design", "slstudio", "slmaster", "kamino")
+PRESETS = ("design", "slstudio", "slmaster", "kamino-phaseshift", "procam-graycode")
+PRESET_ALIASES = {"kamino": "kamino-phaseshift"}
+"""Former preset names, still read: ``kamino`` named the author, not the layout (a phase-shift +
+Gray-block capture; the same author's Gray-code calibration tool is ``procam-graycode``)."""
 
 
 @dataclass
@@ -89,12 +98,44 @@ def read_image(path) -> np.ndarray:
     return img
 
 
+class FrameReader:
+    """Reads the frames of one capture, checking each against the first one read.
+
+    Refused (UnwrapError naming the frame): a frame of another bit depth (one 16-bit frame among
+    8-bit ones decodes to garbage) or size than the first, and a first frame whose size
+    contradicts ``camera_size`` (W, H) from the capture's description. Phase-shift, Gray-code,
+    white and black frames of a capture go through the same reader."""
+
+    def __init__(self, camera_size=None):
+        self.camera_size = None if camera_size is None else tuple(camera_size)
+        self.first = None   # (path, dtype, shape) of the first frame read
+
+    def image(self, path) -> np.ndarray:
+        img = read_image(path)
+        if self.first is None:
+            self.first = (path, img.dtype, img.shape)
+            if self.camera_size is not None and (img.shape[1], img.shape[0]) != self.camera_size:
+                raise UnwrapError(f"{path}: frame is {img.shape[1]}x{img.shape[0]}, capture.toml [camera] "
+                                  f"size says {self.camera_size[0]}x{self.camera_size[1]}")
+            return img
+        first, dtype, shape = self.first
+        if img.dtype != dtype:
+            raise UnwrapError(f"{path}: {img.dtype} frame among {dtype} frames (first: {first}): "
+                              "every frame of a capture must have the same bit depth")
+        if img.shape != shape:
+            raise UnwrapError(f"{path}: frame is {img.shape[1]}x{img.shape[0]}, {first} is "
+                              f"{shape[1]}x{shape[0]}: every frame must have the same size")
+        return img
+
+    def stack(self, files) -> np.ndarray:
+        """(N, H, W) stack of ``files``, each checked."""
+        return np.stack([self.image(f) for f in files])
+
+
 def read_stack(files) -> np.ndarray:
-    imgs = [read_image(f) for f in files]
-    shapes = {i.shape for i in imgs}
-    if len(shapes) != 1:
-        raise UnwrapError(f"frames {[str(f) for f in files]} differ in size: {sorted(shapes)}")
-    return np.stack(imgs)
+    """(N, H, W) stack of ``files`` in their own dtype; frames of mixed bit depth or size are
+    refused (:class:`FrameReader`)."""
+    return FrameReader().stack(files)
 
 
 def read_toml(path) -> dict:
@@ -123,7 +164,9 @@ def detect_preset(folder: Path) -> str:
         meta = read_toml(folder / "capture.toml")
         return meta.get("capture", {}).get("preset", "design")
     if (folder / "config.xml").exists() and (folder / "pat00.png").exists():
-        return "kamino"
+        return "kamino-phaseshift"
+    if frame_file(folder, "graycode_00").exists():
+        return "procam-graycode"
     if frame_file(folder / "L", "0").exists() or frame_file(folder, "0").exists():
         return "slmaster"
     if frame_file(folder, "frameSeq_00").exists():
@@ -132,16 +175,24 @@ def detect_preset(folder: Path) -> str:
                       f"(presets: {', '.join(PRESETS)})")
 
 
-def load_capture(folder, preset: str | None = None, pose: str | None = None) -> Capture:
-    """Describe the capture in ``folder`` (no pixels read yet). See the module docstring."""
+def load_capture(folder, preset: str | None = None, pose: str | None = None, *,
+                 description: dict | None = None) -> Capture:
+    """Describe the capture in ``folder`` (no pixels read yet). See the module docstring.
+
+    ``description``: the session's capture.toml as a dict, for layouts whose frames do not say
+    everything (``procam-graycode``: the projector size); default: ``capture.toml`` in the folder
+    or, for a pose folder, in its parent."""
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"capture folder not found: {folder}")
     preset = preset or detect_preset(folder)
+    preset = PRESET_ALIASES.get(preset, preset)
     if preset not in PRESETS:
         raise UnwrapError(f"unknown capture preset {preset!r}: expected one of {PRESETS}")
+    if preset == "procam-graycode":
+        return _procam(folder, description)
     return {"design": _design, "slstudio": _slstudio, "slmaster": _slmaster,
-            "kamino": _kamino}[preset](folder, pose)
+            "kamino-phaseshift": _kamino}[preset](folder, pose)
 
 
 def design_frame_stem(orientation: str, frequency: float, step: int) -> str:
@@ -157,6 +208,20 @@ def read_design_pattern(toml) -> tuple:
     if not toml.exists():
         raise FileNotFoundError(f"{toml.parent}: capture.toml missing (DESIGN.md layout)")
     meta = read_toml(toml)
+    kind = meta.get("pattern", {}).get("kind", "phase-shift")
+    if kind == GRAY_KIND:
+        raise UnwrapError(f"{toml}: [pattern] kind = \"graycode\": a Gray-code-only session has no phase-shift "
+                          "frequencies; decode it with method 'gray'")
+    if kind != "phase-shift":
+        raise UnwrapError(f"{toml}: [pattern] kind = {kind!r}: expected \"phase-shift\" (steps, frequencies; "
+                          f"the default) or \"{GRAY_KIND}\" (Gray code only: block_px, inverse)")
+    if "frequencies" not in meta.get("pattern", {}):
+        raise UnwrapError(f"{toml}: [pattern] has no 'frequencies': a phase-shift session lists its fringe "
+                          f"frequencies (and steps); a session of Gray code only says kind = \"{GRAY_KIND}\" "
+                          "(docs/unwrap.md, Gray-code sessions)")
+    if not meta["pattern"]["frequencies"]:
+        raise UnwrapError(f"{toml}: [pattern] frequencies = []: a phase-shift session needs at least one "
+                          f"frequency; a session of Gray code only says kind = \"{GRAY_KIND}\"")
     try:
         freqs = [float(v) for v in meta["pattern"]["frequencies"]]
         steps = meta["pattern"]["steps"]
@@ -216,17 +281,6 @@ def design_shifts(pattern: dict, source, steps) -> list:
     return out
 
 
-def _design_frames_dir(folder: Path, pose) -> Path:
-    if pose is not None:
-        return folder / pose
-    if not list(folder.glob("[vh]_f*_n*.*")):
-        poses = sorted(p for p in folder.iterdir() if p.is_dir() and p.name.startswith("pose_"))
-        if not poses:
-            raise UnwrapError(f"{folder}: no frames v_fFFF_nNN.png and no pose_* folders")
-        return poses[0]
-    return folder
-
-
 def _check_no_extra_frames(cap: Capture, frames_dir: Path, steps) -> None:
     """Refuse frames named like the layout's that the description does not account for: a frame
     ``v_f048_n12.png`` beside ``steps = 12`` means the step count is wrong, and decoding would
@@ -239,12 +293,71 @@ def _check_no_extra_frames(cap: Capture, frames_dir: Path, steps) -> None:
                           "or frequencies?")
 
 
+def check_design_description(toml) -> dict:
+    """Validate a DESIGN.md ``capture.toml`` of either kind (phase shift: :func:`read_design_pattern`;
+    Gray code only: :func:`unwrap.graycode_capture.read_gray_pattern`); returns it as a dict."""
+    toml = Path(toml)
+    if not toml.exists():
+        raise FileNotFoundError(f"{toml.parent}: capture.toml missing (DESIGN.md layout)")
+    meta = read_toml(toml)
+    if meta.get("pattern", {}).get("kind") == GRAY_KIND:
+        read_gray_pattern(meta, toml)
+    else:
+        read_design_pattern(toml)
+    return meta
+
+
+def _frames_dir(folder: Path, pose, frame_glob: str) -> Path:
+    if pose is not None:
+        return folder / pose
+    if list(folder.glob(frame_glob)):
+        return folder
+    poses = sorted(p for p in folder.iterdir() if p.is_dir() and p.name.startswith("pose_"))
+    if not poses:
+        raise UnwrapError(f"{folder}: no frames {frame_glob} and no pose_* folders")
+    return poses[0]
+
+
+def _gray_capture(folder: Path, preset: str, orientations: dict) -> Capture:
+    cap = Capture(folder, preset, default_method="gray")
+    for o, spec in orientations.items():
+        cap.orientations[o] = OrientationCapture(o, spec["width"], [], gray=spec["gray"], white=spec["white"],
+                                                 black=spec["black"])
+    return cap
+
+
+def _procam(folder: Path, description) -> Capture:
+    if description is None:
+        for toml in (folder / "capture.toml", folder.parent / "capture.toml"):
+            if toml.exists():
+                description, source = read_toml(toml), toml
+                break
+        else:
+            raise UnwrapError(f"{folder}: procam-graycode frames do not say how many bits are columns: give the "
+                              "projector size in a capture.toml ([projector] size; in the folder, its parent, "
+                              "or --capture-toml)")
+    else:
+        source = f"{folder} (capture description)"
+    cap = _gray_capture(folder, "procam-graycode", procam_orientations(folder, read_gray_pattern(description, source)))
+    cap.camera_size = camera_size(description, source)
+    return cap
+
+
 def _design(folder: Path, pose) -> Capture:
     toml = folder / "capture.toml"
+    meta = check_design_description(toml)
+    if meta.get("pattern", {}).get("kind") == GRAY_KIND:
+        frames_dir = _frames_dir(folder, pose, "[vh]_gray_b*.*")
+        stray = sorted(p.name for p in frames_dir.glob("[vh]_f*_n*.*"))
+        if stray:
+            raise UnwrapError(f"{frames_dir}: phase-shift frame(s) {stray[:4]}{' ...' if len(stray) > 4 else ''} beside "
+                              f"[pattern] kind = \"{GRAY_KIND}\", which decodes Gray code only: wrong kind?")
+        cap = _gray_capture(folder, "design", design_gray_orientations(frames_dir, read_gray_pattern(meta, toml)))
+        cap.camera_size = camera_size(meta, toml)
+        return cap
     freqs, steps, (W, H) = read_design_pattern(toml)
-    meta = read_toml(toml)
     shifts = design_shifts(meta.get("pattern", {}), toml, steps)
-    frames_dir = _design_frames_dir(folder, pose)
+    frames_dir = _frames_dir(folder, pose, "[vh]_f*_n*.*")
     cap = Capture(folder, "design", default_method=meta.get("capture", {}).get("method", "mf"),
                   camera_size=camera_size(meta, toml))
     for o, width in (("v", W), ("h", H)):
@@ -339,7 +452,7 @@ def _kamino(folder: Path, pose) -> Capture:
                           f"frames pat00..; found {len(files)}")
     shifts = np.array([2 * math.pi / 3, 0.0, -2 * math.pi / 3])  # cos(x w + (phs-2) 2pi/3), phs=1..3
     gray = files[12:12 + 2 * (n_col + n_row)]
-    cap = Capture(folder, "kamino", default_method="gray")
+    cap = Capture(folder, "kamino-phaseshift", default_method="gray")
     for o, width, first, bits in (("v", W, 0, gray[:2 * n_col]), ("h", H, 6, gray[2 * n_col:])):
         cap.orientations[o] = OrientationCapture(
             o, width,

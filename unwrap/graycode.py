@@ -15,6 +15,8 @@ fringe-order estimate whose Round[] is k):
 - :func:`gray_coarse_unwrap`: blocks smaller than the first fringe period (e.g. kamino410's
   100 px blocks with a 200 px beat): the block centre is a coarse coordinate refined by an MF
   ladder of wrapped phases; margin (period - block)/2 px.
+- :func:`gray_code_unwrap`: Gray code alone (no phase shifting): the projector coordinate is the
+  centre of the decoded block, a map quantised to the block size.
 """
 from __future__ import annotations
 
@@ -151,3 +153,36 @@ def gray_coarse_unwrap(code_index, block_px: float, width: float, phases, freque
         prior, k, Phi = refine(Phi, f[i] / f[i - 1], phis[i])
         levels.append((float(f[i]), prior, k))
     return finish_unwrapped(_NS, Phi, k, prior, ok, f[-1], "gray", levels)
+
+
+def gray_code_unwrap(code_index, block_px: float, width: float, *, reliable=None, valid=None) -> Unwrapped:
+    """Gray code alone: the projector coordinate of a pixel is the centre of its decoded block.
+
+    Block c covers projector pixels ``[c b, (c + 1) b)`` (``b = block_px``), centre
+    ``u_p = (c + 1/2) b - 1/2`` (pixel centres at integers). It is returned in the phase layout of
+    DESIGN.md with one period per block: frequency ``f = width / b``, absolute phase
+    ``Phi = 2 pi f u_p / width``, order ``k = c``, prior ``c`` (exact: no phase to round). The map
+    is quantised: within a block the true coordinate differs from the centre by up to ``b / 2``
+    (uniform, variance ``b^2 / 12``), an error that a local fit of many camera pixels does not
+    average away like noise (``calib.marker_phase`` models it). Where ``width`` is not a multiple
+    of ``b`` the last block is cut at the pattern's edge and its centre is that of its part inside,
+    ``(c b + width - 1) / 2``: like every decoder's, the coordinate lies inside the pattern (the
+    range constraint of :func:`unwrap.temporal.finish_unwrapped`). Codes beyond the pattern
+    (``c >= ceil(width / b)``) are invalid.
+    """
+    c = np.asarray(code_index)
+    if not np.issubdtype(c.dtype, np.integer):
+        raise UnwrapError(f"code_index must hold integers (decoded block indices), got {c.dtype}")
+    if not (np.isfinite(block_px) and block_px >= 1 and np.isfinite(width) and width >= block_px):
+        raise UnwrapError(f"block_px must be >= 1 and width >= block_px, got {block_px!r}, {width!r}")
+    ok = np.ones(c.shape, bool) if reliable is None else np.asarray(reliable, bool).copy()
+    if valid is not None:
+        ok &= np.asarray(valid, bool)
+    ok &= (c >= 0) & (c < math.ceil(width / block_px))
+    frequency = width / block_px
+    k = np.where(ok, c, 0).astype(np.float64)
+    # centre of the part of the block inside the pattern: a last, partial block (width not a
+    # multiple of block_px) ends at the pattern's edge, so no coordinate lies outside it
+    u_p = 0.5 * (k * block_px + np.minimum((k + 1) * block_px, width) - 1.0)
+    Phi = TWO_PI * u_p / block_px
+    return finish_unwrapped(_NS, Phi, k, k.copy(), ok, frequency, "gray", [], width=width)

@@ -9,6 +9,8 @@ Layout (DESIGN.md): one group per orientation, ``v`` (fringes along projector co
 - any further per-pixel datasets a writer adds (``prior``, ``modulation``, ``phase_f008`` ...);
 - attribute ``frequency`` (periods across the projector pattern) when known.
 
+``phase_orientations`` lists the orientations (and frequencies) an HDF5 file holds, ``phase_groups``
+their attributes.
 ``read_phase`` also reads the phase maps others publish: a MATLAB ``.mat`` (the dp-tpu ball
 phase: one 2-D array, e.g. ``phase3``) and ``.npy``. Pixels stored as 0, NaN or inf are invalid
 and come back as NaN.
@@ -67,22 +69,31 @@ def read_phase(path, key: str | None = None, orientation: str = "v") -> np.ndarr
     return phase
 
 
-def phase_attributes(path, orientation: str = "v") -> dict:
-    """What a phase file says about its phase map: the attributes of the HDF5 group ``orientation``
-    (``frequency``, ``width``, ``method``, ... as stored, e.g. by ``calib unwrap``), ``{}`` for a
-    ``.mat`` / ``.npy`` map, which stores none. Raises UnwrapError for an unreadable HDF5 file."""
+def phase_groups(path) -> dict:
+    """``{orientation: attributes}`` of the groups an HDF5 phase file holds (DESIGN.md layout:
+    ``v`` and/or ``h`` with a ``phase`` dataset; attributes as stored, e.g. ``frequency``,
+    ``width``, ``method`` by ``calib unwrap``); ``{}`` for ``.mat``/``.npy`` files, which hold one
+    map and no attributes. Raises UnwrapError for a missing or unreadable HDF5 file."""
     path = Path(path)
     if path.suffix.lower() not in (".h5", ".hdf5"):
         return {}
     import h5py
 
+    if not path.exists():
+        raise UnwrapError(f"{path}: no such phase file")
     try:
         with h5py.File(path, "r") as f:
-            if orientation not in f:
-                return {}
-            return {k: (v.item() if hasattr(v, "item") else v) for k, v in f[orientation].attrs.items()}
+            return {o: {k: (v.item() if hasattr(v, "item") else v) for k, v in f[o].attrs.items()}
+                    for o in ORIENTATIONS if o in f and "phase" in f[o]}
     except OSError as exc:
         raise UnwrapError(f"{path}: not a readable HDF5 file ({exc})") from None
+
+
+def phase_orientations(path) -> dict:
+    """``{orientation: frequency (float) or None}`` of the groups an HDF5 phase file holds
+    (:func:`phase_groups`); ``{}`` for ``.mat``/``.npy`` files, which hold one map of an
+    orientation they do not record."""
+    return {o: (float(a["frequency"]) if "frequency" in a else None) for o, a in phase_groups(path).items()}
 
 
 def _read_mat(path: Path, key):

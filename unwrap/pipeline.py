@@ -9,7 +9,8 @@ SYNOPSIS (Python)
 HDF5 layout (DESIGN.md): one group per orientation ``v``/``h`` with ``phase`` (float64 absolute
 phase of the highest frequency, NaN invalid), ``order`` (int32, -1 invalid), ``valid`` (bool),
 plus ``prior`` (float64 physics prior), ``modulation`` (float64 B of the highest frequency) and
-``projector_coordinate`` (float64 px); attributes: method, frequency, width, preset.
+``projector_coordinate`` (float64 px); attributes: method, frequency, width, preset, and
+``quantisation_px`` for a Gray-code-only capture (the projector coordinate is a block centre).
 """
 from __future__ import annotations
 
@@ -21,11 +22,11 @@ from pathlib import Path
 import numpy as np
 
 from ._xp import wrap
-from .capture import Capture, OrientationCapture, load_capture, read_image, read_stack
+from .capture import Capture, FrameReader, OrientationCapture, load_capture
 from .consistency import check_priors, prior_check
 from .errors import UnwrapError
 from .fused_mf import mf_unwrap_stacks
-from .graycode import (binarize, complementary_gray_unwrap, gray_coarse_unwrap, gray_to_index)
+from .graycode import binarize, complementary_gray_unwrap, gray_coarse_unwrap, gray_code_unwrap, gray_to_index
 from .patterns import projector_coordinate
 from .phase_io import write_phase_file
 from .phase_shift import fit_noise_sigma, wrapped_phase
@@ -39,17 +40,21 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class OrientationResult:
-    """One orientation decoded: the :class:`Unwrapped` result, the highest frequency's
-    modulation B and background A (input units), and what the decode assumed and predicts:
+    """One orientation decoded: ``result`` (the :class:`Unwrapped`: absolute phase, order, valid),
+    the pattern ``width`` (px), ``modulation`` (B of the highest frequency; Gray code only:
+    white - black) and ``background`` (A; Gray code only: (white + black) / 2), both (H, W) in
+    input units, and what the decode assumed and predicts:
 
     - ``min_modulation``: the modulation threshold used (input units);
     - ``noise_sigma``: intensity noise per frame (from the fit residuals, or given; None when
-      neither: 3-step frames carry no residual);
+      neither: 3-step frames carry no residual, Gray code has no fit);
     - ``predicted_error_rate``: upper bound of the predicted fraction of wrong fringe orders among
       the kept pixels (:func:`unwrap.reliability.predicted_error_rate`; None without a noise
       level or a reliability model for the method);
     - ``prior_check``: (frequency, fraction of kept pixels whose prior lies within 1/4 of an
-      integer) per rounding step (:mod:`unwrap.consistency`).
+      integer) per rounding step (:mod:`unwrap.consistency`);
+    - ``quantisation_px``: None, or the block size when the projector coordinate is a Gray block
+      centre (no phase shifting).
     """
     orientation: str
     width: float
@@ -60,6 +65,7 @@ class OrientationResult:
     noise_sigma: float | None = None
     predicted_error_rate: float | None = None
     prior_check: list = field(default_factory=list)
+    quantisation_px: float | None = None
 
 
 def _default_min_modulation(dtype) -> float:
@@ -102,35 +108,16 @@ def _log(progress, msg):
     log.log(logging.INFO if progress else logging.DEBUG, msg)
 
 
-def read_orientation(oc: OrientationCapture, camera_size=None, progress: bool = False) -> list:
-    """The phase-shift stacks of one orientation, lowest frequency first (every frame read).
-
-    Refused (UnwrapError naming the frame): frames of different bit depth (one 16-bit frame
-    among 8-bit ones decodes to garbage) or size, and frames whose size contradicts
-    ``camera_size`` (W, H) from the capture's description."""
+def read_orientation(oc: OrientationCapture, reader: FrameReader, progress: bool = False) -> list:
+    """The phase-shift stacks of one orientation, lowest frequency first (every frame read, each
+    checked by ``reader``: :class:`unwrap.capture.FrameReader` refuses mixed bit depth or size and
+    frames whose size contradicts the description's camera size)."""
     sets = sorted(oc.sets, key=lambda s: s.frequency)
-    stacks, first = [], None
+    stacks = []
     for i, s in enumerate(sets):
         _log(progress, f"  [{oc.orientation}] {i + 1}/{len(sets)}: f = {s.frequency:g}, {len(s.files)} frames")
-        for path in s.files:
-            img = read_image(path)
-            if first is None:
-                first = (path, img.dtype, img.shape)
-                if camera_size is not None and (img.shape[1], img.shape[0]) != tuple(camera_size):
-                    raise UnwrapError(f"{path}: frame is {img.shape[1]}x{img.shape[0]}, capture.toml [camera] "
-                                      f"size says {camera_size[0]}x{camera_size[1]}")
-            elif img.dtype != first[1]:
-                raise UnwrapError(f"{path}: {img.dtype} frame among {first[1]} frames (first: {first[0]}): "
-                                  "every frame of a capture must have the same bit depth")
-            elif img.shape != first[2]:
-                raise UnwrapError(f"{path}: frame is {img.shape[1]}x{img.shape[0]}, {first[0]} is "
-                                  f"{first[2][1]}x{first[2][0]}: every frame must have the same size")
-            stacks.append(img)
-    out, n = [], 0
-    for s in sets:
-        out.append(np.stack(stacks[n:n + len(s.files)]))
-        n += len(s.files)
-    return out
+        stacks.append(reader.stack(s.files))
+    return stacks
 
 
 def _reliability_model(oc: OrientationCapture, method: str):
@@ -171,14 +158,27 @@ def unwrap_orientation(oc: OrientationCapture, method: str, *, min_modulation=No
     - check_prior: refuse a decode whose priors are not clustered near integers
       (:func:`unwrap.consistency.check_priors`: wrong ladder or phase-shift convention).
     - camera_size: (W, H) the frames must have.
+    An orientation of Gray code only (no fringe sets) decodes with method "gray" alone (block
+    centres, ``quantisation_px``; no reliability model, so no ``max_error_rate``).
     Refused (UnwrapError): mixed bit depth or size, no valid pixel, inconsistent priors.
     """
     if method not in METHODS:
         raise UnwrapError(f"unknown method {method!r}: expected one of {METHODS}")
     if max_error_rate is not None and min_modulation is not None:
         raise UnwrapError("give min_modulation or max_error_rate, not both")
+    reader = FrameReader(camera_size)
+    if not oc.sets:
+        if method != "gray":
+            raise UnwrapError(f"orientation {oc.orientation}: this capture holds Gray code only (no phase-shift "
+                              f"frames), which method {method!r} cannot decode; use method 'gray'")
+        if max_error_rate is not None:
+            raise UnwrapError("max_error_rate: no reliability model for Gray code without phase shifting "
+                              "(a bit is right or wrong, not noisy in phase); give min_modulation")
+        out = _gray_only(oc, reader, min_modulation, gray_min_contrast, progress)
+        _check_some_valid(out, out.min_modulation)
+        return out
     sets = sorted(oc.sets, key=lambda s: s.frequency)
-    stacks = read_orientation(oc, camera_size, progress)
+    stacks = read_orientation(oc, reader, progress)
     model = _reliability_model(oc, method)
     sigma = _noise_sigma(stacks, sets, noise_sigma)
     if max_error_rate is not None:
@@ -195,7 +195,7 @@ def unwrap_orientation(oc: OrientationCapture, method: str, *, min_modulation=No
                        f"a predicted error rate <= {max_error_rate:g} ({model})")
     else:
         mm = check_min_modulation(min_modulation, stacks[0].dtype)
-    out = _decode(oc, sets, stacks, method, mm, gray_min_contrast, progress)
+    out = _decode(oc, sets, stacks, reader, method, mm, gray_min_contrast, progress)
     _check_some_valid(out, mm)
     out.min_modulation, out.noise_sigma = mm, sigma
     out.prior_check = prior_check(out.result) if method != "gray" else []
@@ -217,7 +217,7 @@ def _check_some_valid(out: OrientationResult, mm: float) -> None:
                       "saturated frames, or too high a threshold")
 
 
-def _decode(oc, sets, stacks, method, mm, gray_min_contrast, progress) -> OrientationResult:
+def _decode(oc, sets, stacks, reader, method, mm, gray_min_contrast, progress) -> OrientationResult:
     freqs = [s.frequency for s in sets]
     if method == "mf" and len(sets) >= 2:
         # one fused pass (unwrap.fused_mf) for 8/16-bit frames, the reference otherwise
@@ -240,16 +240,49 @@ def _decode(oc, sets, stacks, method, mm, gray_min_contrast, progress) -> Orient
     elif method == "nt":
         res = nt_unwrap(phases, freqs, width=oc.width, valid=valid)
     else:
-        res = _gray(oc, phases, freqs, valid, last, gray_min_contrast, progress)
+        res = _gray(oc, reader, phases, freqs, valid, last, gray_min_contrast, progress)
     return OrientationResult(oc.orientation, oc.width, res, last.B, last.A)
 
 
-def _gray(oc, phases, freqs, valid, last, min_contrast, progress) -> Unwrapped:
+def _gray_only(oc, reader, min_modulation, min_contrast, progress) -> OrientationResult:
+    """Gray code without phase shifting: block index -> block centre (``gray_code_unwrap``); valid
+    where every bit clears ``min_contrast`` against its inverse (or against (white + black) / 2)
+    and white - black clears ``min_modulation`` (default 2 % of full scale; checked as for phase
+    shifting). Every frame goes through ``reader`` (bit depth, size, camera size)."""
+    g = oc.gray
+    _log(progress, f"  [{oc.orientation}] Gray code only: {len(g['files'])} bits"
+                   f"{' with inverses' if g.get('inverse') else ''}, blocks of {g['block_px']} px")
+    frames = reader.stack(g["files"])
+    white = black = None
+    if oc.white is not None and oc.black is not None:
+        white, black = (reader.image(f).astype(np.float64) for f in (oc.white, oc.black))
+    if g.get("inverse"):
+        inverse = reader.stack(g["inverse"])
+        bits, reliable = binarize(frames, inverse, min_contrast=min_contrast)
+        mid = 0.5 * (frames.astype(np.float64) + inverse).mean(axis=0)
+    elif white is not None:
+        bits, reliable = binarize(frames, threshold=0.5 * (white + black), min_contrast=min_contrast)
+        mid = 0.5 * (white + black)
+    else:
+        raise UnwrapError(f"orientation {oc.orientation}: Gray code without inverse frames needs white and black "
+                          "frames to threshold against")
+    if white is not None:
+        contrast, background = white - black, 0.5 * (white + black)
+    else:
+        contrast, background = 2 * np.abs(frames.astype(np.float64) - mid).mean(axis=0), mid
+    mm = check_min_modulation(min_modulation, frames.dtype)
+    res = gray_code_unwrap(gray_to_index(bits), g["block_px"], oc.width, reliable=reliable, valid=contrast > mm)
+    return OrientationResult(oc.orientation, oc.width, res, contrast, background, mm,
+                             quantisation_px=float(g["block_px"]))
+
+
+def _gray(oc, reader, phases, freqs, valid, last, min_contrast, progress) -> Unwrapped:
     if oc.gray is None:
-        raise UnwrapError(f"orientation {oc.orientation}: this capture has no Gray-code frames")
+        raise UnwrapError(f"orientation {oc.orientation}: this capture has no Gray-code frames; its "
+                          "phase-shift frames decode with method mf, mw or nt")
     g = oc.gray
     _log(progress, f"  [{oc.orientation}] Gray code: {len(g['files'])} bits ({g['kind']})")
-    frames = read_stack(g["files"])
+    frames = reader.stack(g["files"])
     if g["kind"] == "complementary":
         bits, reliable = binarize(frames, threshold=last.A, min_contrast=min_contrast)
         n = g["n_bits"]
@@ -258,12 +291,12 @@ def _gray(oc, phases, freqs, valid, last, min_contrast, progress) -> Unwrapped:
         K2 = (G + 1) // 2
         return complementary_gray_unwrap(phases[-1], K1, K2, freqs[-1], reliable=reliable,
                                          valid=valid)
-    inverse = read_stack(g["inverse"])
+    inverse = reader.stack(g["inverse"])
     bits, reliable = binarize(frames, inverse, min_contrast=min_contrast)
     c = gray_to_index(bits)
     if oc.white is not None and oc.black is not None:
-        reliable &= (read_image(oc.white).astype(np.float64)
-                     - read_image(oc.black).astype(np.float64)) > min_contrast
+        reliable &= (reader.image(oc.white).astype(np.float64)
+                     - reader.image(oc.black).astype(np.float64)) > min_contrast
     # beat of the two fringe frequencies (period 2 blocks) then the finer fringe
     f_lo, f_hi = freqs[0], freqs[-1]
     beat = wrap(phases[-1] - phases[0])
@@ -298,7 +331,8 @@ def write_results(results: dict, out_dir, *, previews: bool = True, attrs: dict 
                                "modulation": np.asarray(r.modulation, np.float64),
                                "projector_coordinate": projector_coordinate(np.asarray(u.phase), u.frequency,
                                                                             r.width)},
-                     "attrs": {"method": u.method, "width": r.width, "valid_fraction": float(np.mean(u.valid))}}
+                     "attrs": {"method": u.method, "width": r.width, "valid_fraction": float(np.mean(u.valid)),
+                               **({} if r.quantisation_px is None else {"quantisation_px": r.quantisation_px})}}
     path = write_phase_file(Path(out_dir) / "unwrap.h5", groups, attrs=attrs)
     if previews:
         _previews(results, Path(out_dir))

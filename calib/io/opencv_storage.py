@@ -1,16 +1,29 @@
-"""OpenCV FileStorage (XML / YAML) calibrations of camera + projector rigs.
+"""OpenCV FileStorage (XML / YAML) calibrations of camera + projector rigs, from other tools.
 
-Recognised key sets (world = camera frame, so the camera has R = I, t = 0):
+Each tool names the same six quantities its own way; a file is read when one key set below is
+complete (world = camera frame, so the camera has R = I, t = 0, and ``x_prj = R x_cam + T``):
 
-- SLStudio ``calibration.xml``: Kc, kc, Kp, kp, Rp, Tp, frameWidth/Height, screenResX/Y;
-  ``x_prj = Rp x_cam + Tp``.
-- SLMaster ``caliInfo.yml``: M1, D1, S (camera size), M4, D4 (projector), Rlp, Tlp (camera ->
-  projector). The projector size is not stored: pass ``projector_size``.
-- ``cv2.stereoCalibrate`` style: cameraMatrix1/2 (or M1/M2), distCoeffs1/2 (D1/D2), R, T,
-  image sizes given by ``camera_size`` / ``projector_size`` when absent.
+| layout | camera K, dist | projector K, dist | R, T | image sizes |
+|---|---|---|---|---|
+| ``slstudio`` (SLStudio ``calibration.xml``) | Kc, kc | Kp, kp | Rp, Tp | frameWidth/Height, screenResX/Y |
+| ``slmaster`` (SLMaster ``caliInfo.yml``) | M1, D1 | M4, D4 | Rlp, Tlp | S (camera) |
+| ``procam`` (kamino410/procam-calibration ``calibration_result.xml``) | cam_int, cam_dist | proj_int, proj_dist | rotation (also its typo ``roration``), translation | img_shape (camera, rows x cols) |
+| ``stereo`` (``cv2.stereoCalibrate`` style) | cameraMatrix1, distCoeffs1 | cameraMatrix2, distCoeffs2 | R, T | |
+| ``stereo_m`` | M1, D1 | M2, D2 | R, T | |
+
+Image sizes: ``frameWidth``/``frameHeight``, ``screenResX``/``screenResY``, ``S`` and
+``projector_size``/``camera_size`` keys are (width, height); ``img_shape``/``image_shape`` are
+numpy shapes, (rows, cols); ``imageSize``/``image_size`` are written both ways in the wild (a
+``cv::Size`` is (width, height), a numpy shape (rows, cols)), so the order that puts the camera's
+principal point nearer the image centre is taken, and the choice is recorded. A size the file
+does not store is given by ``camera_size`` / ``projector_size`` (the refusal says so).
+
+The keys used are recorded in ``system.meta["source"]["keys"]`` (and logged at INFO on the
+``calib`` logger), so a user can see which entry became which quantity.
 """
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -19,12 +32,25 @@ from ..device import DeviceModel
 from ..errors import FormatError
 from ..system import SystemModel
 
+log = logging.getLogger(__name__)
+
+#: role -> accepted keys, per layout (the first key present is used)
 _LAYOUTS = {
-    "slstudio": dict(Kc="Kc", dc="kc", Kp="Kp", dp="kp", R="Rp", T="Tp"),
-    "slmaster": dict(Kc="M1", dc="D1", Kp="M4", dp="D4", R="Rlp", T="Tlp"),
-    "stereo": dict(Kc="cameraMatrix1", dc="distCoeffs1", Kp="cameraMatrix2", dp="distCoeffs2", R="R", T="T"),
-    "stereo_m": dict(Kc="M1", dc="D1", Kp="M2", dp="D2", R="R", T="T"),
+    "slstudio": dict(Kc=("Kc",), dc=("kc",), Kp=("Kp",), dp=("kp",), R=("Rp",), T=("Tp",)),
+    "slmaster": dict(Kc=("M1",), dc=("D1",), Kp=("M4",), dp=("D4",), R=("Rlp",), T=("Tlp",)),
+    "procam": dict(Kc=("cam_int",), dc=("cam_dist",), Kp=("proj_int",), dp=("proj_dist",),
+                   R=("rotation", "roration"), T=("translation",)),
+    "stereo": dict(Kc=("cameraMatrix1",), dc=("distCoeffs1",), Kp=("cameraMatrix2",), dp=("distCoeffs2",),
+                   R=("R",), T=("T",)),
+    "stereo_m": dict(Kc=("M1",), dc=("D1",), Kp=("M2",), dp=("D2",), R=("R",), T=("T",)),
 }
+#: (width key, height key) pairs and single (width, height) vectors, per device
+_SIZE_PAIRS = {"camera": (("frameWidth", "frameHeight"), ("camera_width", "camera_height")),
+               "projector": (("screenResX", "screenResY"), ("projector_width", "projector_height"),
+                             ("proj_width", "proj_height"))}
+_SIZE_WH = {"camera": ("S", "camera_size", "cam_size"), "projector": ("projector_size", "proj_size")}
+_SIZE_ROWS_COLS = ("img_shape", "image_shape")
+_SIZE_EITHER = ("imageSize", "image_size")
 
 
 def _read_nodes(path: Path) -> dict:
@@ -69,39 +95,94 @@ def _read_nodes(path: Path) -> dict:
     return out
 
 
+def _match_layout(nodes: dict, path: Path) -> tuple:
+    """(layout name, {role: key used}) of the first complete key set of ``_LAYOUTS``."""
+    for name, roles in _LAYOUTS.items():
+        used = {role: next((k for k in keys if k in nodes), None) for role, keys in roles.items()}
+        if all(used.values()):
+            return name, used
+    sets = {name: [" | ".join(keys) for keys in roles.values()] for name, roles in _LAYOUTS.items()}
+    raise FormatError(f"{path}: no known calibration key set; found keys {sorted(nodes)}; expected one of "
+                      + "; ".join(f"{n}: {', '.join(v)}" for n, v in sets.items()))
+
+
+def _size_vector(value, key, path):
+    v = np.asarray(value, dtype=np.float64).reshape(-1)
+    if v.size < 2 or not np.all(np.isfinite(v[:2])) or np.any(v[:2] <= 0):
+        raise FormatError(f"{path}: {key} = {v.tolist()} is not an image size (two positive numbers)")
+    return float(v[0]), float(v[1])
+
+
+def _centre_misfit(K, wh):
+    """How far the principal point of ``K`` lies from the centre of a (W, H) image, in image units."""
+    W, H = wh
+    return abs(K[0, 2] - (W - 1) / 2) / W + abs(K[1, 2] - (H - 1) / 2) / H
+
+
+def _stored_size(nodes: dict, device: str, K, path: Path):
+    """((W, H), key or description) of the device's image size as stored, or (None, None)."""
+    for wk, hk in _SIZE_PAIRS[device]:
+        if wk in nodes and hk in nodes:
+            return _size_vector([nodes[wk], nodes[hk]], f"{wk}/{hk}", path), f"{wk}/{hk} (width, height)"
+    for key in _SIZE_WH[device]:
+        if key in nodes:
+            return _size_vector(nodes[key], key, path), f"{key} (width, height)"
+    if device != "camera":
+        return None, None
+    for key in _SIZE_ROWS_COLS:
+        if key in nodes:
+            rows, cols = _size_vector(nodes[key], key, path)
+            return (cols, rows), f"{key} (rows, cols)"
+    for key in _SIZE_EITHER:
+        if key in nodes:
+            a, b = _size_vector(nodes[key], key, path)
+            if _centre_misfit(K, (b, a)) < _centre_misfit(K, (a, b)):
+                return (b, a), f"{key} read as (rows, cols): the principal point lies nearer that image's centre"
+            return (a, b), f"{key} read as (width, height): the principal point lies nearer that image's centre"
+    return None, None
+
+
 def read_opencv_storage(path, *, camera_size=None, projector_size=None,
                         repair_rotation: bool = False) -> SystemModel:
-    """Read a camera + projector rig from an OpenCV FileStorage file (layouts above)."""
+    """Read a camera + projector rig from an OpenCV FileStorage file (layouts in the module docstring).
+
+    ``camera_size`` / ``projector_size`` (W, H) override what the file stores. The keys used are in
+    ``meta["source"]["keys"]``. Raises FormatError naming the keys found and the sets expected.
+    """
     path = Path(path)
     nodes = _read_nodes(path)
-    for name, keys in _LAYOUTS.items():
-        if all(k in nodes for k in keys.values()):
-            layout, k = name, keys
-            break
-    else:
-        raise FormatError(f"{path}: no known calibration key set; found keys {sorted(nodes)}; "
-                          f"expected one of {[sorted(v.values()) for v in _LAYOUTS.values()]}")
-    if camera_size is None:
-        if "frameWidth" in nodes:
-            camera_size = (nodes["frameWidth"], nodes["frameHeight"])
-        elif "S" in nodes:
-            camera_size = tuple(nodes["S"].reshape(-1)[:2])
-    if projector_size is None and "screenResX" in nodes:
-        projector_size = (nodes["screenResX"], nodes["screenResY"])
-    for what, size in (("camera", camera_size), ("projector", projector_size)):
+    layout, used = _match_layout(nodes, path)
+    for role, key in used.items():
+        if not isinstance(nodes[key], np.ndarray):
+            raise FormatError(f"{path}: {key} is a scalar or string, expected a matrix ({role})")
+        if role in ("Kc", "Kp", "R") and nodes[key].size != 9:
+            raise FormatError(f"{path}: {key} has {nodes[key].size} entries, a 3 x 3 matrix has 9")
+    K_cam = nodes[used["Kc"]].reshape(3, 3)
+    sizes = {}
+    for what, given in (("camera", camera_size), ("projector", projector_size)):
+        if given is not None:
+            sizes[what] = (tuple(given), "given by the caller")
+            continue
+        size, how = _stored_size(nodes, what, K_cam, path)
         if size is None:
             raise FormatError(f"{path}: the {what} image size is not stored in this {layout} file; "
                               f"give it ({what}_size=(width, height), or --{what}-size W H)")
-    cam = DeviceModel(size=tuple(int(v) for v in camera_size), K=nodes[k["Kc"]],
-                      distortion=nodes[k["dc"]].reshape(-1), kind="camera", name="camera")
+        sizes[what] = (size, how)
+    cam = DeviceModel(size=tuple(int(v) for v in sizes["camera"][0]), K=nodes[used["Kc"]],
+                      distortion=nodes[used["dc"]].reshape(-1), kind="camera", name="camera")
     # FileStorage often stores float32 ("dt: f"): re-orthonormalise only when asked
-    prj = DeviceModel(size=tuple(int(v) for v in projector_size), K=nodes[k["Kp"]],
-                      distortion=nodes[k["dp"]].reshape(-1), R=nodes[k["R"]], t=nodes[k["T"]].reshape(-1),
-                      kind="projector", name="projector", repair_rotation=repair_rotation)
+    prj = DeviceModel(size=tuple(int(v) for v in sizes["projector"][0]), K=nodes[used["Kp"]],
+                      distortion=nodes[used["dp"]].reshape(-1), R=nodes[used["R"]],
+                      t=nodes[used["T"]].reshape(-1), kind="projector", name="projector",
+                      repair_rotation=repair_rotation)
+    keys = {"camera_K": used["Kc"], "camera_distortion": used["dc"], "projector_K": used["Kp"],
+            "projector_distortion": used["dp"], "R_prj_cam": used["R"], "t_prj_cam": used["T"],
+            "camera_size": sizes["camera"][1], "projector_size": sizes["projector"][1]}
+    log.info(f"{path.name}: {layout} layout; " + ", ".join(f"{k} <- {v}" for k, v in keys.items()))
     meta = {"source": {"format": f"opencv-filestorage ({layout})", "path": str(path),
-                       "world": "camera frame"}}
-    for key in ("cam_error", "proj_error", "stereo_error"):
-        if key in nodes:
+                       "world": "camera frame", "keys": keys}}
+    for key in ("cam_error", "proj_error", "stereo_error", "rms"):
+        if key in nodes and isinstance(nodes[key], float):
             meta.setdefault("source_errors_px", {})[key] = nodes[key]
     return SystemModel(cam, prj, meta)
 

@@ -63,7 +63,14 @@ def add_arguments(p):
     p.add_argument("--no-view-noise", action="store_true",
                    help="one noise level per device (default: a view whose residuals are more than twice the "
                         "median view's gets its own, and the adjustment runs again; docs/calib.md)")
-    p.add_argument("--board-warp", action="store_true", help="estimate a 2-parameter board warp (mrcal's)")
+    p.add_argument("--board-warp", nargs="?", choices=("auto", "on", "off"), const="on", default="auto",
+                   help="estimate the board's 2-parameter warp (mrcal's calobject_warp): auto (default: where the "
+                        "views allow it, 4 or more), on, off")
+    p.add_argument("--uncertainty", choices=("model", "jackknife", "bootstrap"), default="model",
+                   help="model (default): the per-pose error model's sigmas (the adjustment's independent-residual "
+                        "ones beside them); jackknife / bootstrap: also the spread over resampled poses, with a "
+                        "warning where it and the reported sigma disagree by more than 1.5x")
+    p.add_argument("--draws", type=int, default=30, help="bootstrap runs (default 30)")
     p.add_argument("--no-camera-error-transfer", action="store_true",
                    help="treat projector pixels as independent of the camera's detection errors (default: "
                         "model how a camera error moves the projector pixel read there, where the "
@@ -105,7 +112,7 @@ def ba_config(args):
         devices = {d: DeviceConfig(args.distortion if n_dist[d] is None else n_dist[d], args.skew,
                                    tuple(fixed[d]), tuple(values[d])) for d in ("camera", "projector")}
         return BAConfig(mode=args.mode, camera=devices["camera"], projector=devices["projector"],
-                        board_warp=args.board_warp, camera_error_transfer=not args.no_camera_error_transfer,
+                        camera_error_transfer=not args.no_camera_error_transfer,
                         loss=args.loss, loss_scale=args.loss_scale,
                         outlier_threshold=args.outlier_threshold or None)
     except BundleAdjustmentError as exc:      # an option, not the adjustment, is wrong: exit 2
@@ -132,20 +139,26 @@ def load_observations(paths):
 def run(args) -> int:
     from calib.calibration_report import summary_table
     from calib.pipeline import calibrate_captures, calibrate_observations
+    from calib.uncertainty import uncertainty_table
 
     if (args.captures is None) == (args.observations is None):
         raise CommandError("give either a CAPTURES folder or --observations FILE(S)")
     output_dir(args.output)
+    if args.draws < 3:
+        raise CommandError(f"--draws: expected >= 3 bootstrap runs, got {args.draws}")
     config = ba_config(args)
+    extra = {"board_warp": {"auto": "auto", "on": True, "off": False}[args.board_warp],
+             "resample": "none" if args.uncertainty == "model" else args.uncertainty, "draws": args.draws,
+             "skew_tol_px": args.skew_tol, "skew_check": not args.no_skew_check,
+             "view_noise": not args.no_view_noise}
     if args.captures is not None:
         result = calibrate_captures(args.captures, args.output, config, capture_toml=args.capture_toml,
-                                    method=args.method, strict=args.strict, degree=args.phase_fit_degree,
-                                    skew_tol_px=args.skew_tol, view_noise=not args.no_view_noise,
-                                    skew_check=not args.no_skew_check)
+                                    method=args.method, strict=args.strict, degree=args.phase_fit_degree, **extra)
     else:
-        result = calibrate_observations(load_observations(args.observations), args.output, config,
-                                        skew_tol_px=args.skew_tol, view_noise=not args.no_view_noise,
-                                        skew_check=not args.no_skew_check)
+        result = calibrate_observations(load_observations(args.observations), args.output, config, **extra)
     print(summary_table(result.calibration, result.observations,
                         result.captured.skipped if result.captured is not None else None))
+    if result.calibration.uncertainty is not None:
+        print()
+        print(uncertainty_table(result.calibration.uncertainty))
     return 0

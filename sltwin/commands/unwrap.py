@@ -11,6 +11,10 @@ from __future__ import annotations
 
 from ..outputs import output_dir
 
+PRESETS = ("design", "slstudio", "slmaster", "kamino-phaseshift", "procam-graycode", "kamino")
+"""unwrap.capture.PRESETS plus the former name ``kamino`` (kept literal: the parser is built without
+importing the library)."""
+
 HELP = "absolute phase, fringe order and masks of a fringe capture (HDF5 + PNG)"
 
 
@@ -18,9 +22,11 @@ def add_arguments(parser):
     parser.add_argument("capture_dir", help="capture folder (DESIGN.md layout or a scanner preset)")
     parser.add_argument("--method", choices=["mf", "mw", "nt", "gray"], default=None,
                         help="temporal unwrapping method (default: the capture's: mf for the "
-                             "DESIGN layout and slstudio, gray for slmaster and kamino)")
-    parser.add_argument("--preset", choices=["design", "slstudio", "slmaster", "kamino"], default=None,
-                        help="capture layout (default: capture.toml [capture] preset, else recognised)")
+                             "DESIGN layout and slstudio, gray for slmaster, kamino-phaseshift and Gray-code-only "
+                             "captures)")
+    parser.add_argument("--preset", choices=PRESETS, default=None,
+                        help="capture layout (default: capture.toml [capture] preset, else recognised); "
+                             "'kamino' is the former name of kamino-phaseshift")
     parser.add_argument("--pose", default=None, help="pose folder (DESIGN layout; default the first)")
     threshold = parser.add_mutually_exclusive_group()
     threshold.add_argument("--min-modulation", type=float, default=None,
@@ -40,14 +46,16 @@ def add_arguments(parser):
 
 
 def describe(o: str, r) -> str:
-    """One line per orientation: method, frequency, valid fraction, k range, threshold, noise,
-    predicted error rate of the kept pixels."""
+    """One line per orientation: method, frequency, valid fraction, k range, threshold, the Gray
+    block size of a Gray-code-only capture, noise, predicted error rate of the kept pixels."""
     import numpy as np
 
     u = r.result
     line = (f"{o}: method {u.method}, frequency {u.frequency:g}, valid {100 * np.mean(u.valid):.1f} %, "
             f"k in [{int(u.order[u.valid].min()) if u.valid.any() else -1}, {int(u.order.max())}], "
             f"modulation >= {r.min_modulation:.3g}")
+    if r.quantisation_px is not None:
+        line += f", Gray block centres (quantised to {r.quantisation_px:g} px)"
     if r.noise_sigma is not None:
         line += f", noise {r.noise_sigma:.3g}"
     if r.predicted_error_rate is not None:
