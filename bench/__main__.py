@@ -9,8 +9,8 @@ from __future__ import annotations
 import sys
 import time
 
-from . import (ba_scale, calib_accuracy, calib_captures, detect_accuracy, export_speed, learned_speed, synth_speed,
-               unwrap_speed)
+from . import (ba_scale, calib_accuracy, calib_captures, detect_accuracy, export_speed, learned_speed,
+               outlier_rule, synth_speed, unwrap_speed)
 
 #: (name, main(argv) of the benchmark, arguments of its quick mode)
 BENCHMARKS = [
@@ -20,6 +20,7 @@ BENCHMARKS = [
     ("calib_accuracy", calib_accuracy.main, ["--quick"]),
     ("ba_scale", ba_scale.main, ["--quick"]),
     ("calib_captures", calib_captures.main, ["--quick"]),
+    ("outlier_rule", outlier_rule.main, ["--quick"]),
     ("export_speed", export_speed.main, ["--quick"]),
     ("learned_speed", learned_speed.main, ["--quick"]),
 ]

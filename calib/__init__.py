@@ -4,14 +4,16 @@ from board captures or point observations, triangulation.
 Public surface:
 
 - models: ``DeviceModel``, ``SystemModel``, ``default_system`` (the paper's real system),
-  ``load_system`` (any supported calibration file or pair).
+  ``load_system`` (any supported calibration file or pair) and ``save_system`` (calibration.json,
+  OpenCV YAML/XML or a mrcal pair, by the file name).
 - boards: ``Board``, ``paper_board``; detection ``detect_board``.
 - observations: ``Observations``, ``ViewObservations``, ``observations_from_captures`` (board
   captures -> camera and projector pixels).
 - calibration: ``run_calibration`` -> ``Calibration`` (Zhang seeds + bundle adjustment, settings
-  ``BAConfig`` / ``DeviceConfig``); ``calibrate_captures`` and ``calibrate_observations``
-  (calibrate and write every output, as ``calib run``); ``assess_uncertainty`` (the reported
-  uncertainty: per-pose error model, resampling over poses, residual diagnostics).
+  ``BAConfig`` / ``DeviceConfig``; ``reweight_views`` gives noisy views their own noise level);
+  ``calibrate_captures`` and ``calibrate_observations`` (calibrate and write every output, as
+  ``calib run``); ``assess_uncertainty`` (the reported uncertainty: per-pose error model,
+  resampling over poses, residual diagnostics).
 - 3D: ``triangulate`` (distortion-aware), ``triangulate_linear`` (the paper's),
   ``triangulate_both`` (both projector coordinates), ``coordinate_conditioning`` (which
   coordinate a rig triangulates well), ``points_from_phase``, ``sphere_from_phase``, ``fit_sphere``.
@@ -24,7 +26,7 @@ Progress goes to the `calib` logger.
 """
 from .board import Board, paper_board
 from .bundle_adjustment import BAConfig, DeviceConfig
-from .calibrate import Calibration, run_calibration
+from .calibrate import Calibration, reweight_views, run_calibration
 from .coordinate_choice import coordinate_conditioning
 from .captures import observations_from_captures
 from .detect import detect_board
@@ -32,7 +34,7 @@ from .device import DeviceModel
 from .errors import (BoardError, BundleAdjustmentError, CalibError, CaptureError, DetectionError, FormatError,
                      InitError, MarkerPhaseError, ModelError, ObservationError, OutputError, TriangulationError,
                      UncertaintyError)
-from .io import load_system
+from .io import load_system, save_system
 from .observations import Observations, ViewObservations
 from .pipeline import calibrate_captures, calibrate_observations
 from .system import SystemModel, default_system
@@ -41,11 +43,11 @@ from .triangulate import (fit_sphere, points_from_phase, sphere_from_phase, tria
 from .uncertainty import assess_uncertainty
 
 __all__ = [
-    "DeviceModel", "SystemModel", "default_system", "load_system",
+    "DeviceModel", "SystemModel", "default_system", "load_system", "save_system",
     "Board", "paper_board", "detect_board",
     "Observations", "ViewObservations", "observations_from_captures",
-    "run_calibration", "Calibration", "BAConfig", "DeviceConfig", "calibrate_captures", "calibrate_observations",
-    "assess_uncertainty",
+    "run_calibration", "reweight_views", "Calibration", "BAConfig", "DeviceConfig", "calibrate_captures",
+    "calibrate_observations", "assess_uncertainty",
     "triangulate", "triangulate_linear", "triangulate_both", "coordinate_conditioning", "points_from_phase",
     "sphere_from_phase", "fit_sphere",
     "CalibError", "ModelError", "FormatError", "BoardError", "DetectionError", "MarkerPhaseError", "CaptureError",

@@ -74,6 +74,8 @@ def calibration_dict_extra(cal: Calibration, obs) -> dict:
         "covariance": covariance_of_system(cal),
         "residuals": {k: v for k, v in ba.stats.items()},
         "rejected_points": ba.rejected,
+        "outlier_rule": outlier_summary(cal, obs),
+        "view_noise": cal.view_noise,
         "board_poses": poses,
         "solver": {"mode": ba.mode, "iterations": ba.iterations, "converged": ba.converged,
                    "cost": ba.cost, "residual_variance": ba.sigma2,
@@ -97,21 +99,78 @@ def calibration_dict_extra(cal: Calibration, obs) -> dict:
     return extra
 
 
+def outlier_summary(cal: Calibration, obs) -> dict:
+    """The rejection rule beside what a Gaussian expects, per device.
+
+    The rule (:mod:`calib.ba_solver`): a point whose normalised residual norm |e| exceeds
+    ``threshold`` robust sigmas (sigma per coordinate from the median of |e|^2 over the kept
+    points, iterated) is rejected. At that sigma a Gaussian gives ``|e| / sigma`` a Rayleigh
+    distribution, so ``n exp(-threshold^2 / 2)`` of n points are expected beyond the threshold.
+    Returns {device: {"points", "rejected", "threshold_sigma", "robust_sigma_px", "expected",
+    "quantiles" (50/90/99/100 % of |e| / sigma), "rejected_by_view"}} ({} without rejection)."""
+    from .calibrate import sigma_of_points
+
+    ba, t = cal.ba, cal.outlier_threshold
+    if t is None:
+        return {}
+    e_all = np.linalg.norm(ba.residuals_px, axis=1) / sigma_of_points(obs, ba)
+    out = {}
+    for d in ("camera", "projector"):
+        m = ba.point_device == d
+        if not m.any():
+            continue
+        e, kept = e_all[m], ba.inlier[m]
+        sigma = float(np.sqrt(np.median(e[kept] ** 2) / (2 * np.log(2))))
+        views = ba.point_view[m][~kept]
+        out[d] = {"points": int(m.sum()), "rejected": int((~kept).sum()), "threshold_sigma": float(t),
+                  "robust_sigma_px": sigma, "expected": float(m.sum() * np.exp(-t * t / 2)),
+                  "quantiles": np.quantile(e / sigma, [0.5, 0.9, 0.99, 1.0]).round(3).tolist(),
+                  "rejected_by_view": {int(v) + 1: int((views == v).sum()) for v in np.unique(views)}}
+    return out
+
+
+def _plot_distribution(ax, cal, obs, d) -> None:
+    """Histogram of |e| / robust sigma of one device beside the Rayleigh density, threshold marked."""
+    from .calibrate import sigma_of_points
+
+    ba = cal.ba
+    m = ba.point_device == d
+    e = np.linalg.norm(ba.residuals_px[m], axis=1) / sigma_of_points(obs, ba)[m]
+    sigma = np.sqrt(np.median(e[ba.inlier[m]] ** 2) / (2 * np.log(2)))
+    z = e / sigma
+    top = max(float(z.max()), (cal.outlier_threshold or 0) + 1)
+    bins = np.linspace(0, top, 40)
+    ax.hist(z[ba.inlier[m]], bins, color="C0", label="kept")
+    if (~ba.inlier[m]).any():
+        ax.hist(z[~ba.inlier[m]], bins, color="red", label="rejected")
+    x = np.linspace(0, top, 400)
+    ax.plot(x, len(z) * (bins[1] - bins[0]) * x * np.exp(-x * x / 2), "k-", label="Gaussian (Rayleigh)")
+    if cal.outlier_threshold is not None:
+        ax.axvline(cal.outlier_threshold, color="red", ls="--")
+    ax.set_yscale("log")
+    ax.set_ylim(0.5, 2.0 * len(z))
+    ax.set_xlabel("|residual| / robust sigma")
+    ax.set_ylabel("points")
+    ax.set_title(f"{d}: residual distribution")
+    ax.legend(fontsize=8)
+
+
 def plot_residuals(cal: Calibration, obs, path) -> Path:
-    """Residual scatter per device and per-view RMS bars (PNG)."""
+    """Residual scatter per device, per-view RMS bars and the residual distribution beside a
+    Gaussian's, with the rejection threshold (PNG)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure   # no pyplot: no global state, a faster import
 
     ba = cal.ba
     devices = [d for d in ("camera", "projector") if d in ba.stats]
-    fig = Figure(figsize=(5.5 * len(devices), 9))
+    fig = Figure(figsize=(5.5 * len(devices), 13))
     FigureCanvasAgg(fig)
-    axes = fig.subplots(2, len(devices), squeeze=False)
+    axes = fig.subplots(3, len(devices), squeeze=False)
     for k, d in enumerate(devices):
         m = ba.point_device == d
         ax = axes[0, k]
         sc = ax.scatter(ba.residuals_px[m & ba.inlier, 0], ba.residuals_px[m & ba.inlier, 1], s=6,
-                        c=ba.point_view[m & ba.inlier], cmap="viridis")
+                        c=ba.point_view[m & ba.inlier] + 1, cmap="viridis")
         if (m & ~ba.inlier).any():
             ax.scatter(ba.residuals_px[m & ~ba.inlier, 0], ba.residuals_px[m & ~ba.inlier, 1], s=18,
                        marker="x", c="red", label="rejected")
@@ -123,19 +182,22 @@ def plot_residuals(cal: Calibration, obs, path) -> Path:
         fig.colorbar(sc, ax=ax, label="view")
         ax = axes[1, k]
         rms = [v[d]["rms_px"] or 0.0 for v in ba.stats["views"]]
-        ax.bar(np.arange(len(rms)), rms)
+        ax.bar(np.arange(1, len(rms) + 1), rms)
         ax.set_xlabel("view")
         ax.set_ylabel("RMS residual (px)")
         ax.set_title(f"{d}: per-view RMS")
+        _plot_distribution(axes[2, k], cal, obs, d)
     # fixed margins: tight_layout would draw the figure once more to measure it (a third of the time)
-    fig.subplots_adjust(left=0.08, right=0.97, bottom=0.06, top=0.96, wspace=0.3, hspace=0.25)
+    fig.subplots_adjust(left=0.08, right=0.97, bottom=0.05, top=0.97, wspace=0.3, hspace=0.3)
     path = Path(path)
     fig.savefig(path, dpi=100)
     return path
 
 
-def summary_table(cal: Calibration) -> str:
-    """Plain-text table: parameter, value, 1-sigma, per device; residuals; timings."""
+def summary_table(cal: Calibration, obs=None, skipped=None) -> str:
+    """Plain-text table: parameter, value, 1-sigma, per device; residuals (with the outlier rule
+    beside a Gaussian's expectation when ``obs`` is given); the views used (and ``skipped``
+    {name: reason}); timings."""
     lines = [f"{'parameter':<22}{'value':>16}{'std (1 sigma)':>16}"]
     unc = uncertainties(cal)
     flagged = {f["name"]: f for f in getattr(cal.ba, "poorly_determined", [])}
@@ -166,16 +228,30 @@ def summary_table(cal: Calibration) -> str:
                      "or more / wider views):")
         lines += [f"    {n}: {'; '.join(f['reasons'])}" for n, f in flagged.items()]
     lines.append("")
-    lines.append(f"{'residuals':<12}{'points':>8}{'RMS px':>10}{'max px':>10}{'rejected':>10}")
+    lines.append(f"{'residuals':<12}{'points':>8}{'RMS px':>10}{'max px':>10}{'rejected':>10}{'Gaussian expects':>18}")
+    rule = outlier_summary(cal, obs) if obs is not None else {}
     for d in ("camera", "projector"):
         if d in cal.ba.stats:
             s = cal.ba.stats[d]
             nrej = sum(1 for r in cal.ba.rejected if r["device"] == d)
-            lines.append(f"{d:<12}{s['n']:>8}{s['rms_px']:>10.4f}{s['max_px']:>10.4f}{nrej:>10}")
+            expect = f"{rule[d]['expected']:.2g}" if d in rule else "-"
+            lines.append(f"{d:<12}{s['n']:>8}{s['rms_px']:>10.4f}{s['max_px']:>10.4f}{nrej:>10}{expect:>18}")
+    if rule:
+        t = next(iter(rule.values()))["threshold_sigma"]
+        lines.append(f"outlier rule: |residual| > {t:g} robust sigma (iterated); the last column is what a Gaussian "
+                     "at that sigma puts beyond it" + "".join(
+                         f"; {d} rejections by view {r['rejected_by_view']}" for d, r in rule.items() if r["rejected"]))
+    if cal.view_noise:
+        lines.append("views weighted by their own noise: " + "; ".join(
+            f"{d} " + ", ".join(f"view {v + 1} x{f:.2f}" for v, f in fv.items()) for d, fv in cal.view_noise.items()))
     g = cal.ba.stats.get("projector", {}).get("rms_given_camera_px")
     if g is not None:
         lines.append(f"projector pixels given the camera's (camera error transfer, "
                      f"{cal.ba.stats['projector']['n_transferred']} points): RMS {g:.4f} px")
+    if obs is not None:
+        used = len(obs.views)
+        lines.append(f"views used: {used}" + (f" of {used + len(skipped)}; skipped: " + "; ".join(
+            f"{k}: {v}" for k, v in skipped.items()) if skipped else ""))
     t = cal.timings
     lines.append("")
     lines.append(f"time: init {t['init_s']:.3f} s, build {t['build_s']:.3f} s, solve {t['solve_s']:.3f} s, "

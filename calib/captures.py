@@ -141,20 +141,6 @@ def read_session(folder, capture_toml=None) -> CaptureSession:
                           _size(meta, "camera", toml), _size(meta, "projector", toml), sources, meta)
 
 
-def check_frames(cap, pose_dir: Path) -> None:
-    """Refuse frames that the description does not account for (DESIGN.md layout): a frame
-    ``v_f048_n12.png`` beside ``steps = 12`` means the step count is wrong, and decoding would
-    silently use the wrong shifts. ``cap``: the pose's :class:`unwrap.capture.Capture`."""
-    if cap.preset != "design":
-        return
-    expected = {Path(f).stem for oc in cap.orientations.values() for s in oc.sets for f in s.files}
-    extra = sorted(p.name for p in pose_dir.glob("[vh]_f*_n*.*") if p.stem not in expected)
-    if extra:
-        steps = [len(s.files) for s in cap.orientations[next(iter(cap.orientations))].sets]
-        raise CaptureError(f"{pose_dir}: frame(s) {extra[:4]}{' ...' if len(extra) > 4 else ''} are not "
-                           f"described by capture.toml's [pattern] (steps = {steps}): wrong step count?")
-
-
 @dataclass
 class PoseObservation:
     """One pose: the detection, the projector fit and what was used.
@@ -211,7 +197,6 @@ def observe_pose(session: CaptureSession, name: str, pose_dir: Path, *, method: 
         cap = load_capture(session.folder, "design", pose=name)
     else:
         cap = load_capture(pose_dir, session.preset, description=session.description)
-    check_frames(cap, pose_dir)
     method = method or session.method or cap.default_method
     missing = [o for o in ("v", "h") if o not in cap.orientations]
     if missing:
@@ -318,7 +303,7 @@ def observations_from_captures(folder, *, capture_toml=None, method=None, strict
             if strict:
                 raise CaptureError(f"pose {name}: {exc}") from None
             skipped[name] = str(exc)
-            say(f"  {name}: skipped: {exc}")
+            (progress or log.warning)(f"  {name}: skipped: {exc}")   # a warning: -q still shows it
     if len(poses) < min_poses:
         why = "; ".join(f"{k}: {v}" for k, v in skipped.items())
         raise ObservationError(f"{session.folder}: {len(poses)} usable pose(s), need >= {min_poses}"

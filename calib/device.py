@@ -30,7 +30,20 @@ from .rotation import validate_rotation
 KINDS = ("camera", "projector")
 
 
+def _refuse_text(value, name: str) -> None:
+    """numpy reads the text "2592.2" as a number; a quoted value is an error in the file: refuse it."""
+    if value is None or (isinstance(value, np.ndarray) and value.dtype.kind in "fiub"):
+        return
+    try:
+        text = any(isinstance(v, (str, bytes)) for v in np.asarray(value, dtype=object).reshape(-1))
+    except (TypeError, ValueError) as exc:   # ragged nesting
+        raise ModelError(f"{name}: cannot be read as numbers ({exc})") from None
+    if text:
+        raise ModelError(f"{name}: holds text, not numbers: {value!r} (write numbers without quotes)")
+
+
 def _finite_array(value, shape, name: str) -> np.ndarray:
+    _refuse_text(value, name)
     try:
         a = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -75,6 +88,8 @@ class DeviceModel:
         label = self.name or self.kind
         if self.kind not in KINDS:
             raise ModelError(f"{label}: kind must be one of {KINDS}, got {self.kind!r}")
+        _refuse_text(self.size, f"{label}.size")
+        _refuse_text(self.distortion, f"{label}.distortion")
         try:
             w, h = (int(v) for v in self.size)
             ok = (w, h) == tuple(float(v) for v in self.size)

@@ -4,7 +4,8 @@ and ``calib demo`` do, one function each.
 1. captures -> observations (:func:`calib.captures.observations_from_captures`: unwrapping, board
    detection, projector pixels from a local phase fit);
 2. observations -> calibration (:func:`calib.calibrate.run_calibration`: Zhang seeds, joint
-   bundle adjustment);
+   bundle adjustment; again with per-view noise levels where views stand out,
+   :func:`calib.calibrate.reweight_views`);
 3. where skew is held at 0, a refit with skew free (:mod:`calib.skew_check`), which warns when
    the data need a skew (a zero-skew model of a skewed system is biased);
 4. the uncertainty it reports (:func:`calib.uncertainty.assess_uncertainty`: the per-pose error
@@ -34,7 +35,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from .bundle_adjustment import BAConfig
-from .calibrate import Calibration, run_calibration
+from .calibrate import Calibration, reweight_views, run_calibration, with_view_noise
 from .calibration_report import write_outputs
 from .capture_outputs import write_capture_outputs
 from .captures import CaptureObservations, observations_from_captures
@@ -98,12 +99,15 @@ def skew_check_outputs(obs: Observations, cal: Calibration, config: BAConfig) ->
 
 def calibrate_observations(obs: Observations, out, config: BAConfig | None = None, *,
                            skew_tol_px: float = 0.01, captured: CaptureObservations | None = None,
-                           skew_check: bool = True, board_warp="auto", resample: str = "none",
-                           draws: int = 30) -> CalibrationRun:
+                           view_noise: bool = True, skew_check: bool = True, board_warp="auto",
+                           resample: str = "none", draws: int = 30) -> CalibrationRun:
     """Calibrate from point observations and write the outputs into ``out`` (module docstring).
 
     A joint ``config`` with only one device observed falls back to single-device mode (logged).
     ``captured``: the capture folder's facts, written beside the calibration when given.
+    ``view_noise``: give a view whose residuals stand out its own noise level and adjust again
+    (:func:`calib.calibrate.reweight_views`; on the paper's real observations two views carry 3-4x
+    the projector noise of the others, docs/calib.md); False: one noise level per device.
     ``skew_check``: where skew is held at 0, refit with it free and warn when the data need it
     (:func:`skew_check_outputs`; the result goes into ``calibration.json``).
     ``board_warp``: see :func:`resolve_board_warp`; ``resample``: "none", "jackknife" or
@@ -115,27 +119,40 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
         log.info(f"only {devices} observed: calibrating in single-device mode")
         config = replace(config, mode="single")
     log.info(f"{len(obs.views)} view(s) from {obs.source}; devices {devices}; mode {config.mode}")
-    cal = run_calibration(obs, config)
+    cal = reweight_views(obs, config) if view_noise else run_calibration(obs, config)
+    if not cal.ba.converged:
+        rms = ", ".join(f"{d} {cal.ba.stats[d]['rms_px']:.3g} px" for d in ("camera", "projector")
+                        if cal.ba.stats.get(d, {}).get("rms_px") is not None)
+        log.warning(f"the adjustment did not converge in {cal.ba.iterations} iterations (residual RMS {rms}): the "
+                    "estimate is not a minimum; observations that no camera + projector rig explains (e.g. one "
+                    "orientation decoded with the wrong phase-shift sign) do this")
+    fitted = with_view_noise(obs, cal.view_noise) if cal.view_noise else obs   # as the adjustment saw them
     extra = {} if captured is None else {"captures": captured.summary()}
     if skew_check:
-        extra.update(skew_check_outputs(obs, cal, config))
-    cal.uncertainty = assess_uncertainty(cal, obs, resample=resample, draws=draws)
+        extra.update(skew_check_outputs(fitted, cal, config))
+    # The error model (and any resampling) is estimated on the final fit: after reweight_views,
+    # with the observations weighted as that adjustment weighted them (the rebuilt Jacobian checks
+    # itself against the adjustment's sigmas, so it must see the same point sigmas).
+    cal.uncertainty = assess_uncertainty(cal, fitted, resample=resample, draws=draws)
     try:
-        written = write_outputs(cal, obs, out, skew_tol_px=skew_tol_px, extra=extra or None)
-        written.update(plot_residual_diagnostics(cal, obs, cal.uncertainty.diagnostics, out))
+        written = write_outputs(cal, fitted, out, skew_tol_px=skew_tol_px, extra=extra or None)
+        written.update(plot_residual_diagnostics(cal, fitted, cal.uncertainty.diagnostics, out))
         if captured is not None:
             written.update(write_capture_outputs(captured, out))
     except OSError as exc:
         raise OutputError(f"cannot write outputs to {out}: {exc}") from None
     for name, path in written.items():
-        log.info(f"wrote {name}: {path}")
+        if isinstance(path, str) and path.startswith("not written: "):
+            log.warning(f"{name} not written: {path[len('not written: '):]}")
+        else:
+            log.info(f"wrote {name}: {path}")
     return CalibrationRun(cal, obs, captured, written)
 
 
 def calibrate_captures(folder, out, config: BAConfig | None = None, *, capture_toml=None, method=None,
                        strict: bool = False, degree: int = 2, skew_tol_px: float = 0.01,
-                       skew_check: bool = True, board_warp="auto", resample: str = "none",
-                       draws: int = 30) -> CalibrationRun:
+                       view_noise: bool = True, skew_check: bool = True, board_warp="auto",
+                       resample: str = "none", draws: int = 30) -> CalibrationRun:
     """Calibrate from the board captures in ``folder`` and write the outputs into ``out``.
 
     ARGUMENTS
@@ -147,11 +164,11 @@ def calibrate_captures(folder, out, config: BAConfig | None = None, *, capture_t
       pose cannot be used (default: skip it, and say so in the summary); degree: local polynomial
       degree of the projector-pixel fit (1 or 2).
     - skew_tol_px: see :func:`calib.io.mrcal_model.write_cameramodel`.
-    - skew_check, board_warp, resample, draws: see :func:`calibrate_observations`.
+    - view_noise, skew_check, board_warp, resample, draws: see :func:`calibrate_observations`.
     RETURNED VALUE: :class:`CalibrationRun`.
     """
     captured = observations_from_captures(folder, capture_toml=capture_toml, method=method, strict=strict,
                                           degree=degree, keep_images=True)
     return calibrate_observations(captured.observations, Path(out), config, skew_tol_px=skew_tol_px,
-                                  captured=captured, skew_check=skew_check, board_warp=board_warp,
-                                  resample=resample, draws=draws)
+                                  captured=captured, view_noise=view_noise, skew_check=skew_check,
+                                  board_warp=board_warp, resample=resample, draws=draws)

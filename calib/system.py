@@ -77,6 +77,41 @@ class SystemModel:
                            dict(self.meta) if meta is None else dict(meta))
 
 
+#: Image sizes (W, H) of DLP micromirror arrays that no camera has: TI DLP4500 (912 x 1140,
+#: DLPS028 datasheet) and DLP3000 (608 x 684), both diamond arrays. A "camera" of such a size
+#: beside a "projector" of another is a pair of files given in the wrong order.
+DMD_SIZES = {(912, 1140): "TI DLP4500", (608, 684): "TI DLP3000"}
+
+#: A baseline (distance between the optical centres) at most this fraction of the devices'
+#: distance from the world origin counts as zero: nothing can be triangulated.
+MIN_BASELINE_FRACTION = 1e-6
+
+
+def check_rig(system: SystemModel, source: str = "system") -> None:
+    """Refuse a camera + projector pair that cannot be a structured-light rig (CalibError naming
+    ``source``): the optical centres at one place (zero baseline: every ray pair is parallel), or
+    a camera with the size of a projector's micromirror array (``DMD_SIZES``) beside a projector
+    that has none (the two files swapped)."""
+    import numpy as np
+
+    from .errors import ModelError
+
+    c_cam, c_prj = system.camera.center_world, system.projector.center_world
+    baseline = float(np.linalg.norm(c_prj - c_cam))
+    scale = max(float(np.linalg.norm(c_cam)), float(np.linalg.norm(c_prj)))
+    if baseline <= MIN_BASELINE_FRACTION * scale or baseline == 0.0:
+        only = system.meta.get("only_device")
+        raise ModelError(f"{source}: camera and projector centres coincide (baseline {baseline:.3g} mm at "
+                         f"{scale:.4g} mm from the world origin): a structured-light rig needs a baseline to "
+                         "triangulate" + (f" (this is a calibration of the {only} alone, single-device mode)"
+                                          if only else ""))
+    cam, prj = tuple(system.camera.size), tuple(system.projector.size)
+    if cam in DMD_SIZES and prj not in DMD_SIZES:
+        raise ModelError(f"{source}: the camera is {cam[0]}x{cam[1]}, the size of a {DMD_SIZES[cam]} "
+                         f"micromirror array, and the projector {prj[0]}x{prj[1]}: camera and projector "
+                         "swapped? Give the camera's file first")
+
+
 def default_system() -> SystemModel:
     """The paper's real system at full precision (see the module docstring)."""
     text = resources.files("calib").joinpath("data/default_system.json").read_text()

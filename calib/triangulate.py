@@ -167,18 +167,41 @@ def _method(method: str):
     return triangulate if name == "distortion-aware" else triangulate_linear
 
 
+def _extent(system, orientation) -> int:
+    return system.projector.width if orientation == "v" else system.projector.height
+
+
+def _inside(coord, extent) -> np.ndarray:
+    """Projector coordinates (px) no more than ``OUTSIDE_MARGIN_PX`` outside [-0.5, extent - 0.5)."""
+    return (coord >= -0.5 - OUTSIDE_MARGIN_PX) & (coord < extent - 0.5 + OUTSIDE_MARGIN_PX)
+
+
 def _coordinate_map(system, phase, frequency, orientation):
-    """Projector coordinate (H, W) px of an absolute phase map (NaN where invalid)."""
+    """Projector coordinate (H, W) px of an absolute phase map (NaN where the phase is invalid).
+
+    Refused (TriangulationError): a map that is not the camera's size, a frequency that is not
+    > 0, a map with no valid pixel, and one of which more than ``MAX_OUTSIDE`` of the valid
+    pixels map outside the projector (:func:`points_from_phase`)."""
     from unwrap.patterns import projector_coordinate
 
     phase = np.asarray(phase, dtype=np.float64)
     if phase.shape != (system.camera.height, system.camera.width):
         raise TriangulationError(f"phase map {phase.shape[1]}x{phase.shape[0]} (W x H) does not match the camera "
                                  f"image {system.camera.width}x{system.camera.height}")
-    extent = system.projector.width if orientation == "v" else system.projector.height
-    coord = np.full(phase.shape, np.nan)
+    if frequency is None or not (np.isfinite(frequency) and frequency > 0):
+        raise TriangulationError(f"frequency: expected periods across the projector > 0, got {frequency!r}")
     valid = np.isfinite(phase)
+    if not valid.any():
+        raise TriangulationError(f"the phase map ({orientation}) has no valid pixel (all NaN, inf or 0)")
+    extent = _extent(system, orientation)
+    coord = np.full(phase.shape, np.nan)
     coord[valid] = projector_coordinate(phase[valid], frequency, extent)
+    outside = np.mean(~_inside(coord[valid], extent))
+    if outside > MAX_OUTSIDE:
+        raise TriangulationError(
+            f"{100 * outside:.1f} % of the valid pixels map outside the projector ({orientation}: coordinates "
+            f"{np.nanmin(coord):.1f} .. {np.nanmax(coord):.1f} px, the projector spans -0.5 .. {extent - 0.5} px at "
+            f"{frequency:g} periods): wrong frequency, orientation or calibration?")
     return coord
 
 
@@ -196,6 +219,12 @@ def points_from_phase(system, phase, frequency, orientation: str = "v", method: 
     - method: "distortion-aware" (:func:`triangulate`) or "linear" (:func:`triangulate_linear`).
     RETURNED VALUE: (points_world (N, 3) mm, q_cam (N, 2) px, ok (N,)) over the N valid pixels,
     row-major; points are NaN where not ok.
+
+    Refused (TriangulationError): a map with no valid pixel, a frequency that is not > 0, and a
+    map of which more than ``MAX_OUTSIDE`` of the pixels give projector coordinates more than
+    ``OUTSIDE_MARGIN_PX`` outside the projector's [-0.5, extent - 0.5) (a wrong frequency: too low
+    a frequency stretches the coordinates beyond the pattern); the few such pixels of an accepted
+    map are not ok.
     """
     fn = _method(method)
     maps = dict(phase) if isinstance(phase, dict) else {"v" if orientation in ("auto", "both") else orientation: phase}
@@ -219,7 +248,16 @@ def points_from_phase(system, phase, frequency, orientation: str = "v", method: 
         points, ok = triangulate_both(system, q_cam, q_prj, undistort=fn is triangulate)
     else:
         points, ok = fn(system, q_cam, coords[orientation][valid], orientation)
+    for o in needed:       # the few pixels outside the projector of an accepted map
+        ok = ok & _inside(coords[o][valid], _extent(system, o))
+    points[~ok] = np.nan
     return points, q_cam, ok
+
+
+#: Projector coordinates this far (px) outside the projector count as outside (points_from_phase).
+OUTSIDE_MARGIN_PX = 1.0
+#: Largest fraction of a phase map's pixels outside the projector that points_from_phase accepts.
+MAX_OUTSIDE = 0.01
 
 
 def sphere_from_phase(system, phase, frequency: float, orientation: str = "v", method: str = "linear",

@@ -73,8 +73,12 @@ def z_scores(rows) -> bytes:
     fig, ax = plt.subplots(figsize=(10, 3.2))
     labels = [f"{r['device'][:3]}.{r['parameter']}" for r in rows]
     z = [r["z"] for r in rows]
-    colors = ["tab:red" if abs(v) > 3 else "tab:orange" if abs(v) > 2 else "tab:green" for v in z]
+    colors = ["tab:gray" if r.get("expected") else "tab:red" if abs(v) > 3 else "tab:orange" if abs(v) > 2
+              else "tab:green" for r, v in zip(rows, z)]
     ax.bar(range(len(z)), z, color=colors)
+    if any(r.get("expected") for r in rows):
+        ax.text(0.01, 0.97, "grey: skew / distortion the twin does not have (Blender renders ideal pinholes)",
+                transform=ax.transAxes, va="top", fontsize=8, color="tab:gray")
     for lim in (-3, 3):
         ax.axhline(lim, color="grey", lw=0.8, ls="--")
     ax.set_xticks(range(len(z)), labels, rotation=60, ha="right", fontsize=8)
@@ -84,11 +88,17 @@ def z_scores(rows) -> bytes:
 
 
 def sphere_matrix(matrix: dict) -> bytes:
-    """Bar chart of sphere-fit RMS (um) per (calibration, phase) cell."""
+    """Horizontal bar chart of sphere-fit RMS (um) per (phase, calibration, method) cell: one row
+    per cell, its label beside the bar and its value at the bar's end (long labels never overlap)."""
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(6, 3))
     labels = list(matrix)
-    ax.bar(range(len(labels)), [matrix[k] for k in labels], color="tab:blue")
-    ax.set_xticks(range(len(labels)), labels, rotation=20, ha="right", fontsize=8)
-    ax.set_ylabel("sphere-fit RMS (um)")
+    values = [matrix[k] for k in labels]
+    fig, ax = plt.subplots(figsize=(8, 0.9 + 0.32 * len(labels)))
+    y = np.arange(len(labels))[::-1]
+    ax.barh(y, values, color="tab:blue")
+    ax.set_yticks(y, labels, fontsize=8)
+    for yi, v in zip(y, values):
+        ax.text(v, yi, f" {v:.1f}", va="center", fontsize=8)
+    ax.set_xlim(0, 1.15 * max(values) if values else 1)
+    ax.set_xlabel("sphere-fit RMS (um)")
     return _fig_png(fig)

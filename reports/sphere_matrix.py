@@ -61,7 +61,7 @@ def sphere_section(systems: dict, phases: dict, frequency: float, extra_rows=())
               r["ratio"] if r.get("ratio") else "-",
               "! more than 20 % from the paper" if r.get("ratio") and abs(r["ratio"] - 1) > 0.2 else "",
               r["radius_mm"], r["points"]] for r in rows]
-    fig = sphere_matrix({f"{r['phase']} phase / {r['calibration']} cal / {r['method'][:6]}": r["rms_um"] for r in rows})
+    fig = sphere_matrix({f"{r['phase']} phase / {r['calibration']} cal / {r['method']}": r["rms_um"] for r in rows})
     header, grid = fig3_grid([r for r in rows if r["calibration"] in systems])
     return rows, [("p", f"Sphere-fit RMS of the reconstructed ball (f = {frequency:g} periods), for every pair of "
                         "phase map and calibration; 'linear' is the paper's method (K[R|T], no distortion), "

@@ -5,8 +5,9 @@ Adding a command: write a module in ``sltwin/commands/`` with
 - ``HELP``: one line of help;
 - ``add_arguments(parser)``: its options (argparse);
 - ``run(args) -> int``: parse nothing, call library functions, print results, return the exit code;
-- optionally ``EXIT_CODES``: ``[(error type, exit code, message prefix), ...]`` for errors that
-  deserve their own exit code (``calib run``), and ``LOG_FORMAT`` (how progress lines look);
+- optionally ``exit_codes()``: ``[(error type, exit code, message prefix), ...]`` for errors that
+  deserve their own exit code (``calib run``; a function, so that the error types are imported
+  only when an error happens), and ``LOG_FORMAT`` (how progress lines look);
 
 then import it below and add ``("name", module)`` to ``COMMANDS``. A command module imports only
 light modules at top level (numpy, error types) and the heavy ones (torch, cv2, casadi) inside
@@ -15,8 +16,11 @@ light modules at top level (numpy, error types) and the heavy ones (torch, cv2, 
 Errors: every package's errors derive from one root per package (``calib.errors.CalibError``,
 ``unwrap.errors.UnwrapError``, ``twin_mapping.errors.TwinError``, ``synth.errors.SynthError``,
 ``reports.errors.ReportError``, ``sltwin.errors.CommandError``), all ``ValueError`` subclasses.
-``main`` maps them, here and only here, to exit code 2 (or the command's ``EXIT_CODES``) with the
-message on stderr, never a traceback; Ctrl-C ends with 130.
+``main`` maps them, here and only here, to exit code 2 (or the command's ``exit_codes()``) with the
+message on stderr, never a traceback; so do file-system errors (``OSError``: the message names the
+path). Anything else is a bug: exit code 1 and a one-line message asking for ``--debug``, which
+shows the traceback (of every error) for a bug report. Ctrl-C ends with 130. Outputs are checked
+before any work (:mod:`sltwin.outputs`).
 
 Progress: library packages log through one logger each (``calib``, ``unwrap``, ``twin_mapping``,
 ``synth``, ``reports``); ``main`` shows their INFO lines on stderr for the duration of the command
@@ -26,16 +30,19 @@ from __future__ import annotations
 
 import argparse
 import logging
+import platform
 import sys
+import traceback
 
-from .commands import (demo, evaluate, export, plan_fringes, reconstruct, render, render_board, report, run,
-                       train, twin, unwrap)
+from .commands import (convert, demo, evaluate, export, plan_fringes, reconstruct, render, render_board,
+                       report, run, train, twin, unwrap)
 
 #: (sub-command, module), in the order ``calib --help`` lists them.
 COMMANDS = [
     ("run", run),
     ("reconstruct", reconstruct),
     ("twin", twin),
+    ("convert", convert),
     ("report", report),
     ("demo", demo),
     ("unwrap", unwrap),
@@ -51,23 +58,40 @@ COMMANDS = [
 LOGGERS = ("calib", "unwrap", "twin_mapping", "synth", "reports", "sltwin")
 
 
+def version() -> str:
+    """The installed sltwin version (``setup.cfg``), or "unknown" when it is not installed."""
+    from importlib import metadata
+
+    try:
+        return metadata.version("sltwin")
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def _add_debug(parser, default) -> None:
+    parser.add_argument("-v", "--debug", action="store_true", default=default,
+                        help="debug messages of every package, and the traceback of an error (for bug reports)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="calib", description="sltwin: structured-light calibration, digital "
                                      "twin, renderer and phase unwrapping")
-    parser.add_argument("--debug", action="store_true", help="show debug messages of every package")
+    parser.add_argument("--version", action="version", version=f"calib (sltwin) {version()}")
+    _add_debug(parser, False)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name, module in COMMANDS:
         p = sub.add_parser(name, help=module.HELP, description=module.HELP)
         p.set_defaults(_module=module)
+        _add_debug(p, argparse.SUPPRESS)   # ``calib run ... --debug`` works as ``calib --debug run ...``
         module.add_arguments(p)
     return parser
 
 
 def exit_code(module, exc: Exception) -> tuple[int, str]:
     """(exit code, message prefix) of a toolkit error raised by a command: the command's own
-    ``EXIT_CODES`` entry for the error's type, else 2."""
-    for error_type, code, prefix in getattr(module, "EXIT_CODES", ()):
+    ``exit_codes()`` entry for the error's type, else 2."""
+    for error_type, code, prefix in getattr(module, "exit_codes", list)():
         if isinstance(exc, error_type):
             return code, prefix
     return 2, ""
@@ -88,15 +112,34 @@ def _show_progress(args) -> tuple[logging.Handler, dict]:
     return handler, saved
 
 
+def _versions() -> str:
+    """One line for a bug report: sltwin, Python, numpy and the platform."""
+    import numpy
+
+    return (f"sltwin {version()}, Python {platform.python_version()}, numpy {numpy.__version__}, "
+            f"{platform.platform()}")
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     handler, levels = _show_progress(args)
+    if args.debug:
+        logging.getLogger("sltwin").debug(f"calib {args.command}: {_versions()}")
     try:
         return int(args._module.run(args) or 0)
-    except (ValueError, FileNotFoundError) as exc:   # toolkit errors are ValueErrors (module docstring)
+    except (ValueError, OSError) as exc:   # toolkit errors are ValueErrors; OSError names its path
+        if args.debug:
+            traceback.print_exc()
         code, prefix = exit_code(args._module, exc)
         print(f"calib {args.command}: error: {prefix}{exc}", file=sys.stderr)
         return code
+    except Exception as exc:                # a bug: one line, the traceback with --debug
+        if args.debug:
+            raise
+        print(f"calib {args.command}: internal error: {type(exc).__name__}: {exc}\n"
+              f"  This is a bug in sltwin: run the same command with --debug for the traceback and "
+              "report it.", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"calib {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -8,7 +8,9 @@ column and row bits with their inverses, a white and a black frame; ``capture.to
 calibrate with Moreno & Taubin's method capture it.
 
 The world frame is the board at its reference (untilted) pose, so pose 0 has ``R = R_cam``,
-``t = t_cam`` and the board centre stays at the world origin for every pose.
+``t = t_cam`` and the board centre stays at the world origin for every pose. A system whose world
+is elsewhere (an OpenCV rig's world is its camera) gets the board placed in its view instead
+(:func:`board_reference_pose`); a session whose board either device barely sees is refused.
 """
 from __future__ import annotations
 
@@ -57,20 +59,62 @@ def _toml_value(v) -> str:
     return repr(v)
 
 
-def capture_toml(board, steps, frequencies, camera_size, projector_size, extra=None, pattern=None) -> str:
-    """The text of capture.toml (DESIGN.md) for ``board`` (``calib.board.Board``) and the pattern
-    (``pattern``: the ``[pattern]`` table instead of steps and frequencies, e.g. a Gray-code one)."""
-    tables = {"board": board.to_dict(),
-              "pattern": pattern or {"steps": list(steps), "frequencies": list(frequencies)},
-              "camera": {"size": list(camera_size)}, "projector": {"size": list(projector_size)}}
+def capture_toml(board, steps, frequencies, camera_size, projector_size, extra=None, pattern=None,
+                 source: str = "calib render-board") -> str:
+    """The text of capture.toml (DESIGN.md) for ``board`` (``calib.board.Board``, or None for a
+    capture without a board) and the pattern (``pattern``: the ``[pattern]`` table instead of
+    steps and frequencies, e.g. a Gray-code one); ``source``: the command named in its header."""
+    tables = {"board": board.to_dict()} if board is not None else {}
+    tables.update({"pattern": pattern or {"steps": list(steps), "frequencies": list(frequencies)},
+                   "camera": {"size": list(camera_size)}, "projector": {"size": list(projector_size)}})
     if extra:
         tables["render"] = extra
-    lines = ["# Rendered by sltwin synth (calib render-board); layout of DESIGN.md", ""]
+    lines = [f"# Rendered by sltwin synth ({source}); layout of DESIGN.md", ""]
     for name, t in tables.items():
         lines.append(f"[{name}]")
         lines += [f"{k} = {_toml_value(v)}" for k, v in t.items()]
         lines.append("")
     return "\n".join(lines)
+
+
+def _gray_pattern_table(scene) -> dict | None:
+    """The ``[pattern]`` table of a scene that renders a Gray-code-only session in the layout of
+    :mod:`unwrap.graycode_capture` (every bit of one block size, with inverses for all or none,
+    white and black where there are no inverses, no fringes), else None."""
+    gray = [p for p in scene.patterns if p.kind == "gray"]
+    if not gray or any(p.kind == "fringe" for p in scene.patterns) or len({p.block for p in gray}) != 1:
+        return None
+    block, inverse = gray[0].block, any(p.inverse for p in gray)
+    expected = {p.name for o in {p.orientation for p in gray}
+                for p in gray_sequence(o, scene.system.projector.size, inverse=inverse, block=block)}
+    names = {p.name for p in scene.patterns}
+    if {p.name for p in gray} != expected or (not inverse and not {"white", "black"} <= names):
+        return None
+    return {"kind": "graycode", "block_px": int(block), "inverse": inverse}
+
+
+def scene_capture_toml(scene) -> str | None:
+    """capture.toml text (DESIGN.md) describing the frames a scene renders, so that ``calib unwrap``
+    reads ``calib render``'s output as it is: the phase-shift ladder, or a Gray-code-only session
+    (:func:`_gray_pattern_table`); None when the frames form neither (orientations with different
+    frequencies or steps, non-integer frequencies, which the frame names cannot hold, partial or
+    mixed Gray code)."""
+    extra = {"scene": scene.name, "software": "sltwin synth"}
+    sizes = (scene.system.camera.size, scene.system.projector.size)
+    gray = _gray_pattern_table(scene)
+    if gray is not None:
+        return capture_toml(None, [], [], *sizes, extra, pattern=gray, source="calib render")
+    ladders = {}
+    for p in scene.patterns:
+        if p.kind == "fringe" and p.step == 0:
+            ladders.setdefault(p.orientation, []).append((p.frequency, p.steps))
+    if not ladders or len({tuple(v) for v in ladders.values()}) != 1:
+        return None
+    ladder = next(iter(ladders.values()))
+    if any(not float(f).is_integer() for f, _ in ladder):
+        return None
+    return capture_toml(None, [n for _, n in ladder], [int(f) for f, _ in ladder], *sizes, extra,
+                        source="calib render")
 
 
 def pose_jitter(n_poses: int, rotation_deg: float, translation_mm: float, seed: int) -> list:
@@ -91,6 +135,44 @@ def pose_jitter(n_poses: int, rotation_deg: float, translation_mm: float, seed: 
         angle = np.radians(rng.uniform(0.0, rotation_deg))
         out.append((matrix_from_rotvec(axis * angle), rng.uniform(-translation_mm, translation_mm, 3)))
     return out
+
+
+#: Fewer than this fraction of the board's points in view of the camera or the projector in a
+#: pose, and the session is refused (nothing to calibrate from).
+MIN_POINTS_IN_VIEW = 0.25
+
+
+def _in_view(device, points_world) -> int:
+    q = device.project(points_world)
+    W, H = device.size
+    return int(np.sum((q[:, 0] >= 0) & (q[:, 0] <= W - 1) & (q[:, 1] >= 0) & (q[:, 1] <= H - 1)))
+
+
+def board_reference_pose(system, board) -> tuple[np.ndarray, np.ndarray]:
+    """Where the session's untilted board sits: ``(R_world_board, t_world_board)``.
+
+    The world origin with the identity rotation when the board placed there faces the camera and
+    the camera and the projector both see most of it (the built-in system, whose world is the
+    paper's board at pose 1). Otherwise (a system whose world is, e.g., the camera frame) the
+    board faces the camera (its z axis towards it, x right, y up in the image), centred where
+    the camera's and the projector's optical axes pass closest, moved back along the camera's
+    axis until it spans at most 60 % of the image."""
+    pts = board.points_board()
+    if (_in_view(system.camera, pts) >= 0.75 * len(pts) and _in_view(system.projector, pts) >= 0.75 * len(pts)
+            and (system.camera.R @ np.array([0.0, 0.0, 1.0]))[2] < 0):
+        return np.eye(3), np.zeros(3)
+    cam, prj = system.camera, system.projector
+    c_cam, c_prj = cam.center_world, prj.center_world
+    a_cam, a_prj = cam.R[2], prj.R[2]                 # optical axes (device z) in world
+    b = a_cam @ a_prj
+    w = c_cam - c_prj
+    denom = 1.0 - b * b
+    depth = (b * (a_prj @ w) - (a_cam @ w)) / denom if denom > 1e-9 else 0.0
+    extent = np.ptp(pts[:, :2], axis=0).max()
+    fit = extent * max(cam.fx / cam.width, cam.fy / cam.height) / 0.6   # board spans 60 % of the image
+    depth = max(depth, fit)
+    R_world_board = cam.R.T @ np.diag([1.0, -1.0, -1.0])
+    return R_world_board, c_cam + depth * a_cam
 
 
 def session_patterns(system, pattern: str, steps, frequencies, gray_block_px: int = 1) -> tuple[list, dict | None]:
@@ -133,12 +215,24 @@ def render_board_session(out_dir, system=None, *, steps: int = 12, frequencies=(
     texture = board if isinstance(board, BoardTexture) else BoardTexture() if board is None else BoardTexture(board)
     pts = texture.board.points_board()
     perturb = pose_jitter(n_poses, *jitter, seed) if jitter is not None else None
+    R0, t0_world = board_reference_pose(system, texture.board)
+    if base.reference_distance_mm is None:   # exposed for the board, wherever it was placed
+        base = replace(base, reference_distance_mm=float(np.linalg.norm(t0_world - system.projector.center_world)))
+    placed = []
     for i, (rx, ry) in enumerate(session_tilts(n_poses, seed)):
-        t0 = time.perf_counter()
-        R_world_board = rotation_xyz_deg([rx, ry, 0.0])
-        t_world_board = np.zeros(3)
+        R_world_board = R0 @ rotation_xyz_deg([rx, ry, 0.0])
+        t_world_board = t0_world.copy()
         if perturb is not None:
-            R_world_board, t_world_board = perturb[i][0] @ R_world_board, perturb[i][1].copy()
+            R_world_board, t_world_board = perturb[i][0] @ R_world_board, t0_world + perturb[i][1]
+        Xw = pts @ R_world_board.T + t_world_board
+        seen = {d: _in_view(getattr(system, d), Xw) for d in ("camera", "projector")}
+        if min(seen.values()) < MIN_POINTS_IN_VIEW * len(pts):
+            raise SynthError(f"pose {i + 1} (tilt {rx:+.0f}, {ry:+.0f} deg): the camera sees {seen['camera']} and "
+                             f"the projector {seen['projector']} of the board's {len(pts)} points: this system does "
+                             "not view the board where the session places it")
+        placed.append((R_world_board, t_world_board))
+    for i, ((rx, ry), (R_world_board, t_world_board)) in enumerate(zip(session_tilts(n_poses, seed), placed)):
+        t0 = time.perf_counter()
         eff = replace(base, noise=replace(noise, seed=int(noise.seed) + 1000 * int(seed) + i) if noise else None)
         scene = Scene(system, [Board("board", R_world_board, t_world_board, texture)], patterns, eff,
                       name=f"pose_{i:02d}")
@@ -149,9 +243,7 @@ def render_board_session(out_dir, system=None, *, steps: int = 12, frequencies=(
             write_truth_h5(result, scene, pose_dir / "truth.h5")
         R_cam_board = Rc @ R_world_board
         poses.append({"R": R_cam_board.tolist(), "t": (Rc @ t_world_board + tc).tolist(), "tilt_deg": [rx, ry, 0.0]})
-        q = system.camera.project(pts @ R_world_board.T + t_world_board)
-        W, H = system.camera.size
-        visible.append(int(np.sum((q[:, 0] >= 0) & (q[:, 0] <= W - 1) & (q[:, 1] >= 0) & (q[:, 1] <= H - 1))))
+        visible.append(_in_view(system.camera, pts @ R_world_board.T + t_world_board))
         timings.append(time.perf_counter() - t0)
         (progress or log.info)(f"pose {i + 1}/{n_poses}: tilt ({rx:+.1f}, {ry:+.1f}) deg, {len(patterns)} images, "
                                  f"{visible[-1]}/{len(pts)} board points in view, {timings[-1]:.1f} s")
@@ -162,7 +254,7 @@ def render_board_session(out_dir, system=None, *, steps: int = 12, frequencies=(
     (out_dir / "capture.toml").write_text(capture_toml(
         texture.board, [int(steps)] * len(freqs), freqs, system.camera.size, system.projector.size,
         {"bits": int(bits), "seed": int(seed), "noise": noise is not None, "software": "sltwin synth"},
-        pattern_table))
+        pattern=pattern_table))
     truth = system_to_dict(system)
     truth.update({"board_poses": poses, "board": texture.board.to_dict(),
                   "board_points_in_view": visible,

@@ -227,6 +227,18 @@ def test_camera_detection_error_carries_into_the_projector_pixel_as_the_fit_grad
     assert rms(explained) < 1.6 * rms(sig), (rms(explained), rms(sig))  # and the gradient explains it
 
 
+def test_a_skipped_pose_is_a_warning_so_quiet_runs_still_show_it(session, tmp_path, caplog):
+    import logging
+
+    folder = copy_session(session, tmp_path / "c")
+    (folder / "pose_01" / "v_f048_n05.png").unlink()
+    detect, *_ = truth_detector(folder)
+    with caplog.at_level(logging.WARNING, logger="calib"):   # what calib run -q shows
+        co = observations_from_captures(folder, detector=detect, min_poses=1)
+    assert [r.getMessage() for r in caplog.records if "pose_01: skipped" in r.getMessage()]
+    assert list(co.skipped) == ["pose_01"]
+
+
 def test_a_camera_model_switches_the_detector_to_the_lens_aware_centre_correction(session):
     """observations_from_captures(camera=...) detects with the lens-aware correction; with the twin's
     distortion-free lens it equals the perspective correction, so the centres stay on the truth."""

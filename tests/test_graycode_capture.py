@@ -50,8 +50,10 @@ def _write_design(folder, block=1, inverse=True, pattern_extra=""):
 
 def _true_centre(o, block):
     W, H = PRJ
-    x = np.arange(W if o == "v" else H)
-    centre = (x // block + 0.5) * block - 0.5
+    extent = W if o == "v" else H
+    x = np.arange(extent)
+    start = x // block * block
+    centre = 0.5 * (start + np.minimum(start + block, extent) - 1)   # a last, partial block: its part inside
     line = np.repeat(centre, SCALE)
     return np.broadcast_to(line[None, :] if o == "v" else line[:, None], (H * SCALE, W * SCALE))
 

@@ -148,3 +148,15 @@ def test_phase_map_of_the_wrong_size_is_refused(tmp_path):
     from calib.triangulate import sphere_from_phase
     with pytest.raises(TriangulationError, match="does not match the camera image"):
         sphere_from_phase(default_system(), np.ones((100, 100)), 96.0)
+
+
+def test_skew_and_distortion_the_twin_cannot_have_are_expected_differences_not_flags(tmp_path):
+    s = default_system()
+    std = {d: {p: 0.01 for p in ("skew", "k1", "k2", "p1", "p2", "k3")} for d in ("camera", "projector")}
+    real = _write_json(tmp_path / "real.json", s, uncertainties_1sigma=std)
+    twin = _write_json(tmp_path / "twin.json", s.ideal(), uncertainties_1sigma=std)   # Blender: ideal pinholes
+    summary = write_twin_report([real], [twin], tmp_path / "rep")
+    assert summary["beyond_3_sigma"] == []
+    assert "camera.k1" in summary["expected_differences"] and "projector.skew" in summary["expected_differences"]
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert "expected: the twin has none" in md and "ideal pinholes" in md

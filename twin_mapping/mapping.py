@@ -55,7 +55,8 @@ def distortion_effect_px(device: DeviceModel) -> float:
         raise TwinError(f"{device.name or device.kind}: the distortion model cannot be inverted at image "
                         f"corners {corners[~ok].tolist()}; its effect there is undefined")
     ideal = device.normalized_to_pixels(xy)
-    return float(np.max(np.linalg.norm(ideal - corners, axis=1)))
+    with np.errstate(over="ignore", invalid="ignore"):   # an absurd model gives inf: to_twin refuses it
+        return float(np.max(np.linalg.norm(ideal - corners, axis=1)))
 
 
 def _frustum_tangents(device: DeviceModel) -> np.ndarray:

@@ -14,6 +14,7 @@ SYNOPSIS
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 from calib.system import SystemModel
@@ -33,7 +34,23 @@ def to_twin(system: SystemModel, datasheets: dict | None = None) -> dict:
             "projector": device_to_twin(system.projector, sheets["projector"])}
     if system.repairs:
         twin["repairs"] = list(system.repairs)
+    bad = _non_finite(twin)
+    if bad:
+        raise TwinError(f"the twin of this calibration is not finite at {', '.join(bad[:4])} (camera fx = "
+                        f"{system.camera.fx:g}, projector fx = {system.projector.fx:g} px): the calibration is "
+                        "not a usable camera + projector model")
     return twin
+
+
+def _non_finite(value, where: str = "") -> list[str]:
+    """Key paths (``camera.location_mm[0] = inf``) of the non-finite numbers in a JSON-ready value."""
+    if isinstance(value, dict):
+        return [b for k, v in value.items() for b in _non_finite(v, f"{where}.{k}" if where else str(k))]
+    if isinstance(value, (list, tuple)):
+        return [b for i, v in enumerate(value) for b in _non_finite(v, f"{where}[{i}]")]
+    if isinstance(value, float) and not math.isfinite(value):
+        return [f"{where} = {value}"]
+    return []
 
 
 def from_twin(twin: dict) -> SystemModel:
@@ -48,7 +65,10 @@ def from_twin(twin: dict) -> SystemModel:
 def write_twin_json(twin: dict, path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(twin, indent=2) + "\n")
+    bad = _non_finite(twin)
+    if bad:   # JSON has no inf / NaN: json.dumps would write the invalid tokens Infinity / NaN
+        raise TwinError(f"{path}: not written: non-finite value(s) {', '.join(bad[:4])}")
+    path.write_text(json.dumps(twin, indent=2, allow_nan=False) + "\n")
     return path
 
 

@@ -263,26 +263,41 @@ def _refine(p_i, ratio, Phi_s, pr_s, k_s):
 
 
 @nb.njit(**_JIT)
-def _final(ok, k_s, Phi_s, pr_s, kmax, phase, order, valid, prior):
+def _in_pattern(Phi, k, g, kmax, p_lo, p_hi, wrap):
+    """unwrap.temporal.constrain_to_pattern for one pixel: (Phi, k, valid)."""
+    if g and wrap > 0.0:
+        if Phi < p_lo:
+            Phi = Phi + _TWO_PI * wrap
+            k = k + wrap
+        elif Phi >= p_hi:
+            Phi = Phi - _TWO_PI * wrap
+            k = k - wrap
+    g = g & (Phi >= p_lo) & (Phi < p_hi) & (k >= 0.0) & (k <= kmax)
+    return Phi, k, g
+
+
+@nb.njit(**_JIT)
+def _final(ok, k_s, Phi_s, pr_s, kmax, p_lo, p_hi, wrap, phase, order, valid, prior):
     """unwrap.temporal.finish_unwrapped for one block (output slices)."""
     for j in range(ok.size):
         k = k_s[j]
         g = ok[j] & (k >= 0.0) & (k <= kmax)
-        phase[j] = Phi_s[j] if g else np.nan
+        Phi, k, g = _in_pattern(Phi_s[j], k, g, kmax, p_lo, p_hi, wrap)
+        phase[j] = Phi if g else np.nan
         order[j] = np.int32(k if g else -1.0)
         valid[j] = g
         prior[j] = pr_s[j] if ok[j] else np.nan
 
 
 @nb.njit(**_JIT)
-def _refine_final(p_i, ratio, Phi_s, ok, kmax, phase, order, valid, prior):
+def _refine_final(p_i, ratio, Phi_s, ok, kmax, p_lo, p_hi, wrap, phase, order, valid, prior):
     """The last :func:`_refine` step fused with :func:`_final` (no intermediate arrays)."""
     for j in range(p_i.size):
         phi = p_i[j]
         pr = (ratio * Phi_s[j] - phi) / _TWO_PI
         k = np.ceil(pr - _HALF_TIE)
-        Phi = phi + _TWO_PI * k
         g = ok[j] & (k >= 0.0) & (k <= kmax)
+        Phi, k, g = _in_pattern(phi + _TWO_PI * k, k, g, kmax, p_lo, p_hi, wrap)
         phase[j] = Phi if g else np.nan
         order[j] = np.int32(k if g else -1.0)
         valid[j] = g
@@ -297,7 +312,7 @@ def _copy(src, dst):
 
 @nb.njit(parallel=True, **_JIT)
 def mf_kernel(stacks, sum_type, W, goff, grp_start, ent_n, ent_s, sum_all, ratios, cut, sat, lo, hi,
-              min_mod, kmax, phase, order, valid, prior, A_out, B_out, lev_prior, lev_k):
+              min_mod, kmax, p_lo, p_hi, wrap, phase, order, valid, prior, A_out, B_out, lev_prior, lev_k):
     """Fused wrapped phase (every stack) + MF unwrapping.
 
     stacks: tuple of F (N_f, n_pix) uint8/uint16 C-contiguous arrays; sum_type: an empty array
@@ -308,7 +323,9 @@ def mf_kernel(stacks, sum_type, W, goff, grp_start, ent_n, ent_s, sum_all, ratio
     e in grp_start[g] .. grp_start[g+1]-1; W (3, G) float64; sum_all[f]: stack f's group that
     sums all frames with sign +1 (its pass also finds the maximum), or -1. ratios[i] =
     f_i / f_{i-1} (ratios[0] unused); cut: base-phase cut (rad); sat: saturation level (inf: none);
-    lo, hi: valid range (+-inf: none); min_mod: low-modulation threshold; kmax: largest order.
+    lo, hi: valid range (+-inf: none); min_mod: low-modulation threshold; kmax: largest order;
+    p_lo, p_hi: the pattern's absolute-phase range and wrap: orders one base period moves the
+    result (0: none) (unwrap.temporal.constrain_to_pattern).
     Outputs (n_pix,): phase, order, valid, prior, A_out, B_out (highest frequency);
     lev_prior, lev_k: (F-1, n_pix) or (0, 0) when not wanted.
     """
@@ -365,11 +382,12 @@ def mf_kernel(stacks, sum_type, W, goff, grp_start, ent_n, ent_s, sum_all, ratio
                 _refine(phis[i], ratios[i], Phi_s, pr_s, k_s)
                 _copy(pr_s, lev_prior[i - 1, s0:e])
                 _copy(k_s, lev_k[i - 1, s0:e])
-            _final(ok, k_s, Phi_s, pr_s, kmax, phase[s0:e], order[s0:e], valid[s0:e], prior[s0:e])
+            _final(ok, k_s, Phi_s, pr_s, kmax, p_lo, p_hi, wrap, phase[s0:e], order[s0:e], valid[s0:e],
+                   prior[s0:e])
         else:
             pr_s = np.empty(m, np.float64)
             k_s = np.empty(m, np.float64)
             for i in range(1, F - 1):
                 _refine(phis[i], ratios[i], Phi_s, pr_s, k_s)
-            _refine_final(phis[F - 1], ratios[F - 1], Phi_s, ok, kmax, phase[s0:e], order[s0:e],
-                          valid[s0:e], prior[s0:e])
+            _refine_final(phis[F - 1], ratios[F - 1], Phi_s, ok, kmax, p_lo, p_hi, wrap, phase[s0:e],
+                          order[s0:e], valid[s0:e], prior[s0:e])

@@ -6,19 +6,27 @@ frames. Layouts:
 
 - ``design`` (DESIGN.md): ``capture.toml`` with ``[pattern] steps, frequencies`` and
   ``[projector] size``; frames ``{v|h}_f{FFF}_n{NN}.png`` in the folder (or in its first pose
-  folder ``pose_00``; ``pose=`` picks another).
+  folder ``pose_00``; ``pose=`` picks another). A frame of that naming which the description does
+  not account for (``v_f048_n12.png`` beside ``steps = 12``) is refused: the step count is wrong.
+  Captures written in another convention declare it in ``[pattern]`` (:func:`design_shifts`):
+  ``shift_sign = -1`` for ``A + B cos(Phi + 2 pi n/N)``, ``phase_offset`` (rad) for frames
+  ``A + B cos(Phi + phase_offset - delta_n)`` (pi: the pattern starts dark), or explicit
+  ``shifts`` (rad, one list per frequency).
 - ``slstudio`` (jakobwilm/slstudio example data): ``frameSeq_00..11.png``; 3-step, 16 periods +
   1-period cue per orientation, projector 1824 x 1140 (6 frames: columns only).
 - ``slmaster`` (Practice3DVision/SLMaster monocular data): ``L/0..17.png``; 12-step, 32 periods
   of 60 px on a 1920-px DMD, shifts ``pi - 2 pi n/12`` in our convention, then 5+1 bits of
   complementary Gray code thresholded against the background A.
+
+  Both read ``.bmp`` (what the two tools write) or ``.tif`` frames of the same names too.
 - ``kamino-phaseshift`` (kamino410/phase-shifting sample; formerly ``kamino``, still accepted):
   ``pat00..31.png`` + ``config.xml``; 3-step at periods 200/3 and 100 px (shifts +2pi/3, 0,
   -2pi/3), OpenCV Gray code (pattern, inverse) pairs on 100-px blocks, white and black frames.
 - Gray code only (no phase shifting; :mod:`unwrap.graycode_capture`): the DESIGN.md layout with
   ``[pattern] kind = "graycode"``, and ``procam-graycode`` (kamino410/procam-calibration's
   ``capture_*/graycode_NN.png``, OpenCV's frame order; the projector size comes from the
-  ``description`` - the capture.toml - since the frame count does not fix it).
+  ``description`` - the capture.toml - since the frame count does not fix it). Frames named like
+  the layout's that the description does not account for are refused here too.
 
 The preset is taken from ``capture.toml`` (``[capture] preset = "..."``), the ``preset``
 argument, or recognised from the files present.
@@ -67,10 +75,13 @@ class OrientationCapture:
 
 @dataclass
 class Capture:
+    """A capture folder: its layout (``preset``), orientations, default method and, where its
+    description states it, the camera image size (W, H) the frames must have."""
     folder: Path
     preset: str
     orientations: dict = field(default_factory=dict)
     default_method: str = "mf"
+    camera_size: tuple | None = None
 
 
 def read_image(path) -> np.ndarray:
@@ -87,25 +98,78 @@ def read_image(path) -> np.ndarray:
     return img
 
 
+class FrameReader:
+    """Reads the frames of one capture, checking each against the first one read.
+
+    Refused (UnwrapError naming the frame): a frame of another bit depth (one 16-bit frame among
+    8-bit ones decodes to garbage) or size than the first, and a first frame whose size
+    contradicts ``camera_size`` (W, H) from the capture's description. Phase-shift, Gray-code,
+    white and black frames of a capture go through the same reader."""
+
+    def __init__(self, camera_size=None):
+        self.camera_size = None if camera_size is None else tuple(camera_size)
+        self.first = None   # (path, dtype, shape) of the first frame read
+
+    def image(self, path) -> np.ndarray:
+        img = read_image(path)
+        if self.first is None:
+            self.first = (path, img.dtype, img.shape)
+            if self.camera_size is not None and (img.shape[1], img.shape[0]) != self.camera_size:
+                raise UnwrapError(f"{path}: frame is {img.shape[1]}x{img.shape[0]}, capture.toml [camera] "
+                                  f"size says {self.camera_size[0]}x{self.camera_size[1]}")
+            return img
+        first, dtype, shape = self.first
+        if img.dtype != dtype:
+            raise UnwrapError(f"{path}: {img.dtype} frame among {dtype} frames (first: {first}): "
+                              "every frame of a capture must have the same bit depth")
+        if img.shape != shape:
+            raise UnwrapError(f"{path}: frame is {img.shape[1]}x{img.shape[0]}, {first} is "
+                              f"{shape[1]}x{shape[0]}: every frame must have the same size")
+        return img
+
+    def stack(self, files) -> np.ndarray:
+        """(N, H, W) stack of ``files``, each checked."""
+        return np.stack([self.image(f) for f in files])
+
+
 def read_stack(files) -> np.ndarray:
-    imgs = [read_image(f) for f in files]
-    shapes = {i.shape for i in imgs}
-    if len(shapes) != 1:
-        raise UnwrapError(f"frames {[str(f) for f in files]} differ in size: {sorted(shapes)}")
-    return np.stack(imgs)
+    """(N, H, W) stack of ``files`` in their own dtype; frames of mixed bit depth or size are
+    refused (:class:`FrameReader`)."""
+    return FrameReader().stack(files)
+
+
+def read_toml(path) -> dict:
+    """A capture description as a dict; UnwrapError naming the file when it is not valid TOML."""
+    try:
+        return tomllib.loads(Path(path).read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise UnwrapError(f"{path}: not valid TOML ({exc})") from None
+
+
+#: Lossless image formats a scanner's own layout may use (SLStudio and SLMaster write BMP).
+FRAME_SUFFIXES = (".png", ".bmp", ".tif", ".tiff")
+
+
+def frame_file(folder: Path, stem: str) -> Path:
+    """``folder/stem`` with the first suffix of :data:`FRAME_SUFFIXES` that exists (``.png`` when
+    none does, so that a missing frame is reported by its usual name)."""
+    for suffix in FRAME_SUFFIXES:
+        if (folder / f"{stem}{suffix}").exists():
+            return folder / f"{stem}{suffix}"
+    return folder / f"{stem}.png"
 
 
 def detect_preset(folder: Path) -> str:
     if (folder / "capture.toml").exists():
-        meta = tomllib.loads((folder / "capture.toml").read_text())
+        meta = read_toml(folder / "capture.toml")
         return meta.get("capture", {}).get("preset", "design")
     if (folder / "config.xml").exists() and (folder / "pat00.png").exists():
         return "kamino-phaseshift"
-    if (folder / "graycode_00.png").exists():
+    if frame_file(folder, "graycode_00").exists():
         return "procam-graycode"
-    if (folder / "L" / "0.png").exists() or (folder / "0.png").exists():
+    if frame_file(folder / "L", "0").exists() or frame_file(folder, "0").exists():
         return "slmaster"
-    if (folder / "frameSeq_00.png").exists():
+    if frame_file(folder, "frameSeq_00").exists():
         return "slstudio"
     raise UnwrapError(f"{folder}: no capture.toml and not a known scanner layout "
                       f"(presets: {', '.join(PRESETS)})")
@@ -143,7 +207,7 @@ def read_design_pattern(toml) -> tuple:
     toml = Path(toml)
     if not toml.exists():
         raise FileNotFoundError(f"{toml.parent}: capture.toml missing (DESIGN.md layout)")
-    meta = tomllib.loads(toml.read_text())
+    meta = read_toml(toml)
     kind = meta.get("pattern", {}).get("kind", "phase-shift")
     if kind == GRAY_KIND:
         raise UnwrapError(f"{toml}: [pattern] kind = \"graycode\": a Gray-code-only session has no phase-shift "
@@ -162,15 +226,71 @@ def read_design_pattern(toml) -> tuple:
         freqs = [float(v) for v in meta["pattern"]["frequencies"]]
         steps = meta["pattern"]["steps"]
         W, H = (int(v) for v in meta["projector"]["size"])
+        steps = [int(steps)] * len(freqs) if isinstance(steps, int) else [int(s) for s in steps]
     except KeyError as exc:
         raise UnwrapError(f"{toml}: missing key {exc} ([pattern] frequencies, steps; "
                           "[projector] size)") from None
-    steps = [int(steps)] * len(freqs) if isinstance(steps, int) else [int(s) for s in steps]
+    except (TypeError, ValueError) as exc:
+        raise UnwrapError(f"{toml}: [pattern] frequencies / steps and [projector] size must be numbers "
+                          f"({exc})") from None
+    if not freqs or not all(math.isfinite(f) and f > 0 for f in freqs) or W <= 0 or H <= 0:
+        raise UnwrapError(f"{toml}: frequencies must be > 0 and the projector size positive, got "
+                          f"frequencies {freqs}, size [{W}, {H}]")
     if len(steps) != len(freqs):
         raise UnwrapError(f"{toml}: {len(steps)} step counts for {len(freqs)} frequencies")
     if any(n < 3 for n in steps):
         raise UnwrapError(f"{toml}: [pattern] steps must be >= 3 each, got {steps}")
+    design_shifts(meta["pattern"], toml, steps)   # refuse bad shift keys with the rest of [pattern]
     return freqs, steps, (W, H)
+
+
+def design_shifts(pattern: dict, source, steps) -> list:
+    """Decoding shifts (rad), one (N_i,) array per frequency, from a ``capture.toml`` ``[pattern]``.
+
+    The frames are ``I_n = A + B cos(Phi + phase_offset - delta_n)`` with ``delta_n = shifts[i][n]``
+    when ``shifts`` is given (one list per frequency, or one list for every frequency), else
+    ``shift_sign * 2 pi n / N`` (``shift_sign`` 1, DESIGN.md's convention, or -1 for captures
+    written as ``A + B cos(Phi + 2 pi n/N)``); ``phase_offset`` defaults to 0. The decoder uses
+    ``delta_n - phase_offset``, so the phase it returns is ``Phi``. UnwrapError names a bad key.
+
+    >>> [np.round(d, 4).tolist() for d in design_shifts({"shift_sign": -1, "phase_offset": math.pi}, "t", [4])]
+    [[-3.1416, -4.7124, -6.2832, -7.854]]
+    """
+    sign = pattern.get("shift_sign", 1)
+    if isinstance(sign, bool) or sign not in (1, -1):
+        raise UnwrapError(f"{source}: [pattern] shift_sign must be 1 (A + B cos(Phi - 2 pi n/N), DESIGN.md) "
+                          f"or -1 (A + B cos(Phi + 2 pi n/N)), got {sign!r}")
+    offset = pattern.get("phase_offset", 0.0)
+    if isinstance(offset, bool) or not isinstance(offset, (int, float)) or not math.isfinite(offset):
+        raise UnwrapError(f"{source}: [pattern] phase_offset must be a finite number (rad), got {offset!r}")
+    if "shifts" not in pattern:
+        return [sign * 2 * math.pi * np.arange(n) / n - offset for n in steps]
+    given = pattern["shifts"]
+    if isinstance(given, list) and given and not isinstance(given[0], list):
+        given = [given] * len(steps)
+    if not isinstance(given, list) or len(given) != len(steps):
+        raise UnwrapError(f"{source}: [pattern] shifts must be one list of shifts (rad) per frequency "
+                          f"({len(steps)}), or one list for all, got {pattern['shifts']!r}")
+    out = []
+    for i, (row, n) in enumerate(zip(given, steps)):
+        if (not isinstance(row, list) or len(row) != n
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in row)):
+            raise UnwrapError(f"{source}: [pattern] shifts[{i}] must hold {n} finite numbers (rad, one per step), "
+                              f"got {row!r}")
+        out.append(np.asarray(row, dtype=np.float64) - offset)
+    return out
+
+
+def _check_no_extra_frames(cap: Capture, frames_dir: Path, steps) -> None:
+    """Refuse frames named like the layout's that the description does not account for: a frame
+    ``v_f048_n12.png`` beside ``steps = 12`` means the step count is wrong, and decoding would
+    silently use the wrong shifts."""
+    expected = {Path(f).stem for oc in cap.orientations.values() for s in oc.sets for f in s.files}
+    extra = sorted(p.name for p in frames_dir.glob("[vh]_f*_n*.*") if p.stem not in expected)
+    if extra:
+        raise UnwrapError(f"{frames_dir}: frame(s) {extra[:4]}{' ...' if len(extra) > 4 else ''} are not "
+                          f"described by capture.toml's [pattern] (steps = {list(steps)}): wrong step count "
+                          "or frequencies?")
 
 
 def check_design_description(toml) -> dict:
@@ -179,7 +299,7 @@ def check_design_description(toml) -> dict:
     toml = Path(toml)
     if not toml.exists():
         raise FileNotFoundError(f"{toml.parent}: capture.toml missing (DESIGN.md layout)")
-    meta = tomllib.loads(toml.read_text())
+    meta = read_toml(toml)
     if meta.get("pattern", {}).get("kind") == GRAY_KIND:
         read_gray_pattern(meta, toml)
     else:
@@ -210,7 +330,7 @@ def _procam(folder: Path, description) -> Capture:
     if description is None:
         for toml in (folder / "capture.toml", folder.parent / "capture.toml"):
             if toml.exists():
-                description, source = tomllib.loads(toml.read_text()), toml
+                description, source = read_toml(toml), toml
                 break
         else:
             raise UnwrapError(f"{folder}: procam-graycode frames do not say how many bits are columns: give the "
@@ -218,7 +338,9 @@ def _procam(folder: Path, description) -> Capture:
                               "or --capture-toml)")
     else:
         source = f"{folder} (capture description)"
-    return _gray_capture(folder, "procam-graycode", procam_orientations(folder, read_gray_pattern(description, source)))
+    cap = _gray_capture(folder, "procam-graycode", procam_orientations(folder, read_gray_pattern(description, source)))
+    cap.camera_size = camera_size(description, source)
+    return cap
 
 
 def _design(folder: Path, pose) -> Capture:
@@ -226,13 +348,21 @@ def _design(folder: Path, pose) -> Capture:
     meta = check_design_description(toml)
     if meta.get("pattern", {}).get("kind") == GRAY_KIND:
         frames_dir = _frames_dir(folder, pose, "[vh]_gray_b*.*")
-        return _gray_capture(folder, "design", design_gray_orientations(frames_dir, read_gray_pattern(meta, toml)))
+        stray = sorted(p.name for p in frames_dir.glob("[vh]_f*_n*.*"))
+        if stray:
+            raise UnwrapError(f"{frames_dir}: phase-shift frame(s) {stray[:4]}{' ...' if len(stray) > 4 else ''} beside "
+                              f"[pattern] kind = \"{GRAY_KIND}\", which decodes Gray code only: wrong kind?")
+        cap = _gray_capture(folder, "design", design_gray_orientations(frames_dir, read_gray_pattern(meta, toml)))
+        cap.camera_size = camera_size(meta, toml)
+        return cap
     freqs, steps, (W, H) = read_design_pattern(toml)
+    shifts = design_shifts(meta.get("pattern", {}), toml, steps)
     frames_dir = _frames_dir(folder, pose, "[vh]_f*_n*.*")
-    cap = Capture(folder, "design", default_method=meta.get("capture", {}).get("method", "mf"))
+    cap = Capture(folder, "design", default_method=meta.get("capture", {}).get("method", "mf"),
+                  camera_size=camera_size(meta, toml))
     for o, width in (("v", W), ("h", H)):
         sets = []
-        for f, n in zip(freqs, steps):
+        for f, n, delta in zip(freqs, steps, shifts):
             files, missing = [], []
             for j in range(n):
                 stem = design_frame_stem(o, f, j)
@@ -246,7 +376,7 @@ def _design(folder: Path, pose) -> Capture:
             if missing:
                 raise UnwrapError(f"{frames_dir}: orientation {o}, frequency {f:g}: found {len(files)} "
                                   f"of {n} frames {o}_f{int(round(f)):03d}_nNN; missing {missing}")
-            sets.append(FringeSet(f, files, 2 * math.pi * np.arange(n) / n))
+            sets.append(FringeSet(f, files, delta))
         if sets:
             if len(sets) != len(freqs):
                 raise UnwrapError(f"{frames_dir}: orientation {o} has {len(sets)} of {len(freqs)} frequencies")
@@ -255,11 +385,23 @@ def _design(folder: Path, pose) -> Capture:
                                                      white=white if white.exists() else None)
     if not cap.orientations:
         raise UnwrapError(f"{frames_dir}: no frames named like v_f{int(freqs[0]):03d}_n00.png")
+    _check_no_extra_frames(cap, frames_dir, steps)
     return cap
 
 
+def camera_size(meta: dict, source) -> tuple | None:
+    """``[camera] size`` (W, H) of a ``capture.toml`` (None when absent); UnwrapError if malformed."""
+    size = meta.get("camera", {}).get("size")
+    if size is None:
+        return None
+    if (not isinstance(size, list) or len(size) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
+        raise UnwrapError(f"{source}: [camera] size must be [width, height] in pixels, got {size!r}")
+    return (size[0], size[1])
+
+
 def _slstudio(folder: Path, pose) -> Capture:
-    files = [folder / f"frameSeq_{i:02d}.png" for i in range(12)]
+    files = [frame_file(folder, f"frameSeq_{i:02d}") for i in range(12)]
     n = sum(f.exists() for f in files)
     if n not in (6, 12):
         raise UnwrapError(f"{folder}: slstudio layout needs frameSeq_00..05 or 00..11, found {n} frames")
@@ -274,10 +416,10 @@ def _slstudio(folder: Path, pose) -> Capture:
 
 def _slmaster(folder: Path, pose) -> Capture:
     d = folder / "L" if (folder / "L").is_dir() else folder
-    files = [d / f"{i}.png" for i in range(18)]
+    files = [frame_file(d, str(i)) for i in range(18)]
     missing = [f.name for f in files if not f.exists()]
     if missing:
-        raise UnwrapError(f"{d}: slmaster layout needs 0.png .. 17.png; missing {missing}")
+        raise UnwrapError(f"{d}: slmaster layout needs 0.png .. 17.png (or .bmp); missing {missing}")
     shifts = math.pi - 2 * math.pi * np.arange(12) / 12
     cap = Capture(folder, "slmaster", default_method="gray")
     cap.orientations["v"] = OrientationCapture(

@@ -46,7 +46,7 @@ import numpy as np
 from ._xp import TWO_PI
 from .errors import UnwrapError
 from .phase_shift import equal_shifts, least_squares_weights, wrapped_phase
-from .temporal import Unwrapped, base_cut, mf_unwrap
+from .temporal import Unwrapped, base_cut, ladder_wrap_orders, mf_unwrap, pattern_range
 
 #: integer dtypes the kernel reads directly
 FAST_DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16))
@@ -293,8 +293,10 @@ def _fused(stacks, f, shift_list, width, min_modulation, saturation, valid_range
     lev_prior = np.empty((n_lev, n_pix if levels else 0), np.float64)
     lev_k = np.empty_like(lev_prior)
     sum_type = np.empty(0, np.int16 if n_max * max_value < 2 ** 15 else np.int32)
+    p_lo, p_hi = pattern_range(float(f[-1]), width)
+    wrap = float(ladder_wrap_orders(f, f[0]) or 0)
     K.mf_kernel(flat, sum_type, W, goff, grp_start, ent_n, ent_s, sum_all, ratios,
-                base_cut(f[0], width), sat, lo, hi, float(min_modulation or 0.0), kmax,
+                base_cut(f[0], width), sat, lo, hi, float(min_modulation or 0.0), kmax, p_lo, p_hi, wrap,
                 phase, order, valid, prior, A, B, lev_prior, lev_k)
     r = lambda x: x.reshape(pix_shape)  # noqa: E731
     lev = [(float(f[i + 1]), r(lev_prior[i]), r(lev_k[i])) for i in range(n_lev)]

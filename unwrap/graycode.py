@@ -164,7 +164,10 @@ def gray_code_unwrap(code_index, block_px: float, width: float, *, reliable=None
     ``Phi = 2 pi f u_p / width``, order ``k = c``, prior ``c`` (exact: no phase to round). The map
     is quantised: within a block the true coordinate differs from the centre by up to ``b / 2``
     (uniform, variance ``b^2 / 12``), an error that a local fit of many camera pixels does not
-    average away like noise (``calib.marker_phase`` models it). Codes beyond the pattern
+    average away like noise (``calib.marker_phase`` models it). Where ``width`` is not a multiple
+    of ``b`` the last block is cut at the pattern's edge and its centre is that of its part inside,
+    ``(c b + width - 1) / 2``: like every decoder's, the coordinate lies inside the pattern (the
+    range constraint of :func:`unwrap.temporal.finish_unwrapped`). Codes beyond the pattern
     (``c >= ceil(width / b)``) are invalid.
     """
     c = np.asarray(code_index)
@@ -178,5 +181,8 @@ def gray_code_unwrap(code_index, block_px: float, width: float, *, reliable=None
     ok &= (c >= 0) & (c < math.ceil(width / block_px))
     frequency = width / block_px
     k = np.where(ok, c, 0).astype(np.float64)
-    Phi = TWO_PI * (k + 0.5 - 0.5 / block_px)
-    return finish_unwrapped(_NS, Phi, k, k.copy(), ok, frequency, "gray", [])
+    # centre of the part of the block inside the pattern: a last, partial block (width not a
+    # multiple of block_px) ends at the pattern's edge, so no coordinate lies outside it
+    u_p = 0.5 * (k * block_px + np.minimum((k + 1) * block_px, width) - 1.0)
+    Phi = TWO_PI * u_p / block_px
+    return finish_unwrapped(_NS, Phi, k, k.copy(), ok, frequency, "gray", [], width=width)

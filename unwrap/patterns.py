@@ -39,13 +39,21 @@ def phase_shift(step: int, steps: int) -> float:
     return 2.0 * math.pi * step / steps
 
 
+def _check_scale(frequency, extent) -> None:
+    if not (math.isfinite(frequency) and frequency > 0 and math.isfinite(extent) and extent > 0):
+        raise UnwrapError(f"frequency (periods across the pattern) and extent (projector pixels) must be "
+                          f"finite and > 0, got {frequency!r} and {extent!r}")
+
+
 def absolute_phase(coordinate, frequency: float, extent: float):
     """Projector coordinate (px) -> absolute phase ``2*pi*f*coordinate/extent`` (rad)."""
+    _check_scale(frequency, extent)
     return coordinate * (2.0 * math.pi * frequency / extent)
 
 
 def projector_coordinate(phase, frequency: float, extent: float):
     """Absolute phase (rad) -> projector coordinate ``phase*extent/(2*pi*f)`` (px)."""
+    _check_scale(frequency, extent)
     return phase * (extent / (2.0 * math.pi * frequency))
 
 

@@ -9,7 +9,8 @@ Layout (DESIGN.md): one group per orientation, ``v`` (fringes along projector co
 - any further per-pixel datasets a writer adds (``prior``, ``modulation``, ``phase_f008`` ...);
 - attribute ``frequency`` (periods across the projector pattern) when known.
 
-``phase_orientations`` lists the orientations (and frequencies) an HDF5 file holds.
+``phase_orientations`` lists the orientations (and frequencies) an HDF5 file holds, ``phase_groups``
+their attributes.
 ``read_phase`` also reads the phase maps others publish: a MATLAB ``.mat`` (the dp-tpu ball
 phase: one 2-D array, e.g. ``phase3``) and ``.npy``. Pixels stored as 0, NaN or inf are invalid
 and come back as NaN.
@@ -50,22 +51,29 @@ def read_phase(path, key: str | None = None, orientation: str = "v") -> np.ndarr
     if suffix == ".mat":
         phase = _read_mat(path, key)
     elif suffix == ".npy":
-        phase = np.load(path)
+        try:
+            phase = np.load(path, allow_pickle=False)
+        except (ValueError, OSError, EOFError) as exc:
+            raise UnwrapError(f"{path}: not a readable .npy array ({exc})") from None
     elif suffix in (".h5", ".hdf5"):
         phase = _read_h5(path, key or f"{orientation}/phase")
     else:
         raise UnwrapError(f"{path}: unknown phase format (expected .h5, .mat or .npy)")
-    phase = np.array(phase, dtype=np.float64)
+    try:
+        phase = np.array(phase, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise UnwrapError(f"{path}: the phase map holds {np.asarray(phase).dtype} values, not numbers") from None
     if phase.ndim != 2:
         raise UnwrapError(f"{path}: a phase map is 2-D, got shape {phase.shape}")
     phase[~np.isfinite(phase) | (phase == 0)] = np.nan
     return phase
 
 
-def phase_orientations(path) -> dict:
-    """``{orientation: frequency (float) or None}`` of the groups an HDF5 phase file holds
-    (DESIGN.md layout: ``v`` and/or ``h`` with a ``phase`` dataset); ``{}`` for ``.mat``/``.npy``
-    files, which hold one map of an orientation they do not record."""
+def phase_groups(path) -> dict:
+    """``{orientation: attributes}`` of the groups an HDF5 phase file holds (DESIGN.md layout:
+    ``v`` and/or ``h`` with a ``phase`` dataset; attributes as stored, e.g. ``frequency``,
+    ``width``, ``method`` by ``calib unwrap``); ``{}`` for ``.mat``/``.npy`` files, which hold one
+    map and no attributes. Raises UnwrapError for a missing or unreadable HDF5 file."""
     path = Path(path)
     if path.suffix.lower() not in (".h5", ".hdf5"):
         return {}
@@ -75,10 +83,17 @@ def phase_orientations(path) -> dict:
         raise UnwrapError(f"{path}: no such phase file")
     try:
         with h5py.File(path, "r") as f:
-            return {o: (float(f[o].attrs["frequency"]) if "frequency" in f[o].attrs else None)
+            return {o: {k: (v.item() if hasattr(v, "item") else v) for k, v in f[o].attrs.items()}
                     for o in ORIENTATIONS if o in f and "phase" in f[o]}
     except OSError as exc:
         raise UnwrapError(f"{path}: not a readable HDF5 file ({exc})") from None
+
+
+def phase_orientations(path) -> dict:
+    """``{orientation: frequency (float) or None}`` of the groups an HDF5 phase file holds
+    (:func:`phase_groups`); ``{}`` for ``.mat``/``.npy`` files, which hold one map of an
+    orientation they do not record."""
+    return {o: (float(a["frequency"]) if "frequency" in a else None) for o, a in phase_groups(path).items()}
 
 
 def _read_mat(path: Path, key):
@@ -86,7 +101,7 @@ def _read_mat(path: Path, key):
 
     try:
         m = {k: v for k, v in scipy.io.loadmat(str(path)).items() if not k.startswith("__")}
-    except (ValueError, OSError) as exc:
+    except Exception as exc:   # scipy raises MatReadError, ValueError, OSError, ... for a broken file
         raise UnwrapError(f"{path}: not a readable MATLAB file ({exc})") from None
     arrays = [k for k, v in m.items() if isinstance(v, np.ndarray) and v.ndim == 2]
     if key is None:

@@ -13,28 +13,48 @@ import math
 
 from .errors import UnwrapError
 from .reliability import error_rate, phase_sigma
+from .temporal import check_mf_ladder, check_mw_set, check_nt_pair
 
 #: Candidate sets shown by default (the paper's 1, 8, 48 ladder and common alternatives).
 DEFAULT_SETS = ("mf:1,8,48", "mf:1,4,16,64", "mf:1,12,96", "mf:1,96", "mw:48,47", "mw:96,95",
-                "mw:70,64,59", "nt:47,48", "nt:95,96", "cgray:32", "cgray:64")
+                "mw:70,64,59", "nt:47,48", "nt:95,96", "gray:32", "gray:64")
+
+#: Method names, as ``calib unwrap --method`` spells them; ``gray`` is complementary Gray code
+#: (one code period per fringe period plus a half-period bit, SLMaster's), whose reliability
+#: model exists. ``cgray`` is accepted for it, as earlier versions printed it.
+METHODS = ("mf", "mw", "nt", "gray")
 
 
 def parse_set(text: str):
-    """``"mf:1,8,48"`` -> ("mf", [1.0, 8.0, 48.0])."""
+    """``"mf:1,8,48"`` -> ("mf", [1.0, 8.0, 48.0]); refused (UnwrapError) exactly when ``calib unwrap``
+    would refuse the ladder (:func:`unwrap.temporal.check_mf_ladder`, ``check_mw_set``,
+    ``check_nt_pair``; Gray code: one frequency > 0)."""
     try:
         method, freqs = text.split(":")
         f = [float(v) for v in freqs.split(",")]
     except ValueError:
         raise UnwrapError(f"frequency set {text!r}: expected METHOD:F1,F2,... "
-                          "(e.g. mf:1,8,48, mw:70,64,59, nt:47,48, cgray:32)") from None
-    if method not in ("mf", "mw", "nt", "cgray"):
-        raise UnwrapError(f"frequency set {text!r}: method must be mf, mw, nt or cgray")
+                          "(e.g. mf:1,8,48, mw:70,64,59, nt:47,48, gray:32)") from None
+    method = "gray" if method == "cgray" else method
+    if method not in METHODS:
+        raise UnwrapError(f"frequency set {text!r}: method must be one of {', '.join(METHODS)}")
+    try:
+        if method == "mf":
+            check_mf_ladder(f)
+        elif method == "mw":
+            check_mw_set(f)
+        elif method == "nt":
+            check_nt_pair(f)
+        elif len(f) != 1 or not f[0] > 0:
+            raise UnwrapError(f"Gray code takes one fringe frequency > 0, got {f}")
+    except UnwrapError as exc:
+        raise UnwrapError(f"frequency set {text!r}: {exc}") from None
     return method, f
 
 
 def images_needed(method: str, freqs, steps: int) -> int:
     """Frames to capture per orientation (complementary Gray code: log2(f) + 1 code frames)."""
-    if method == "cgray":
+    if method == "gray":
         return steps + int(math.ceil(math.log2(max(freqs)))) + 1
     return steps * len(freqs)
 
@@ -48,7 +68,7 @@ def plan_fringes(sets=DEFAULT_SETS, steps=(3, 4, 6, 12), *, sigma: float, modula
             s_phi = phase_sigma(sigma, n, modulation)
             rows.append({"set": text, "method": method, "frequencies": f, "steps": n,
                          "images": images_needed(method, f, n), "sigma_phi": s_phi,
-                         "error_rate": error_rate(method, f, s_phi)})
+                         "error_rate": error_rate("cgray" if method == "gray" else method, f, s_phi)})
     return rows
 
 

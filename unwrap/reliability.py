@@ -204,3 +204,71 @@ def error_rate(method: str, frequencies, sigma_phi) -> float:
     if method == "cgray":
         return complementary_gray_error_rate(np.max(sigma_phi))
     raise UnwrapError(f"unknown method {method!r}: expected mf, mw, nt or cgray")
+
+
+def _model_rate(method: str, frequencies, steps, sigma: float, B: float) -> float:
+    """Predicted error rate with modulation ``B`` at every frequency (``steps[i]`` frames each)."""
+    s_phi = [phase_sigma(sigma, int(n), B) for n in steps]
+    return error_rate(method, frequencies, np.asarray(s_phi))
+
+
+def modulation_threshold(method: str, frequencies, steps, sigma: float, max_error_rate: float,
+                         *, rel_tol: float = 0.01) -> float:
+    """Smallest modulation B (intensity units) at which ``method`` keeps its predicted
+    fringe-order error rate at or below ``max_error_rate``.
+
+    ARGUMENTS: method "mf", "mw", "nt" or "cgray"; frequencies (periods across the pattern);
+    steps (frames per frequency, one per frequency or one for all); sigma = intensity noise per
+    frame (same units as B); max_error_rate in (0, 0.5). B is taken equal at every frequency
+    (the highest frequency's B is usually the lowest, so a pixel whose every B passes the
+    threshold does at least this well). Bisection in log B to ``rel_tol``.
+
+    >>> round(modulation_threshold("mf", (1, 8, 48), 12, 2.0, 1e-3), 1)
+    7.1
+    """
+    f = np.asarray(frequencies, dtype=np.float64).reshape(-1)
+    steps = np.broadcast_to(np.asarray(steps, dtype=np.int64).reshape(-1), f.shape)
+    if not (0.0 < max_error_rate < 0.5):
+        raise UnwrapError(f"max_error_rate must lie in (0, 0.5), got {max_error_rate!r}")
+    if not (math.isfinite(sigma) and sigma > 0):
+        raise UnwrapError(f"noise sigma must be finite and > 0, got {sigma!r}")
+    lo, hi = 1e-3 * sigma, 1e6 * sigma
+    if _model_rate(method, f, steps, sigma, hi) > max_error_rate:
+        raise UnwrapError(f"{method} {f.tolist()}: no modulation reaches the error rate {max_error_rate:g}")
+    while hi / lo > 1.0 + rel_tol:
+        mid = math.sqrt(lo * hi)
+        if _model_rate(method, f, steps, sigma, mid) > max_error_rate:
+            lo = mid
+        else:
+            hi = mid
+    return hi
+
+
+def predicted_error_rate(method: str, frequencies, steps, sigma: float, modulation, *, bins: int = 16) -> float:
+    """Upper bound of the mean predicted error rate over pixels of the given modulations B.
+
+    The pixels are binned by B (log-spaced between the smallest and the largest) and each bin
+    counted at its lower edge (the error rate falls as B grows), so the result bounds the mean
+    from above; once the pixels left would add less than 5 % they are all counted at the current
+    edge (still a bound; the model is evaluated a few times, not once per bin). ``modulation``
+    (n,) in the units of ``sigma``, > 0. B equal at every frequency as in :func:`modulation_threshold`.
+    """
+    f = np.asarray(frequencies, dtype=np.float64).reshape(-1)
+    steps = np.broadcast_to(np.asarray(steps, dtype=np.int64).reshape(-1), f.shape)
+    B = np.asarray(modulation, dtype=np.float64).reshape(-1)
+    B = B[np.isfinite(B) & (B > 0)]
+    if B.size == 0:
+        return float("nan")
+    edges = np.geomspace(B.min(), max(B.max(), B.min() * (1 + 1e-9)), bins + 1)
+    counts, _ = np.histogram(B, edges)
+    total, left = 0.0, int(counts.sum())
+    for edge, count in zip(edges[:-1], counts):
+        if not count:
+            continue
+        rate = _model_rate(method, f, steps, sigma, edge)
+        if rate * left <= 0.05 * (total + rate * count):   # the rest is negligible: bound it at this edge
+            total += rate * left
+            break
+        total += rate * count
+        left -= int(count)
+    return float(total / B.size)

@@ -138,12 +138,55 @@ def refine(Phi_coarse, ratio: float, phi):
     return prior, k, phi + TWO_PI * k
 
 
-def finish_unwrapped(xp, Phi, k, prior, ok, frequency, method, levels) -> Unwrapped:
-    """The :class:`Unwrapped` every method returns: orders outside [0, round(f)] and pixels not
-    ``ok`` are invalid (phase NaN, order -1); the prior is NaN where the inputs were invalid."""
+def constrain_to_pattern(xp, Phi, k, valid, frequency: float, width=None, wrap_orders=None):
+    """The range constraint: an absolute phase must lie inside the pattern.
+
+    The pattern covers projector coordinates [-0.5, W - 0.5) px, i.e. absolute phases
+    [lo, lo + 2 pi f) with ``lo = -2 pi f * edge_fraction(width)`` (the base phase's cut). A pixel
+    lit by the last half pixel of the pattern whose coarsest phase the noise carries across the
+    cut decodes one ladder period too low (coordinate -0.5 px instead of W - 0.5). Where the
+    decoder is periodic (``wrap_orders``: the number of orders by which a whole base period moves
+    the result, an integer; None when the decode is not periodic, e.g. Gray code) such a phase is
+    moved by that period when this lands inside the pattern; every phase still outside is invalid.
+    Returns (Phi, k, valid); works on numpy arrays and torch tensors.
+    """
+    lo, hi = pattern_range(frequency, width)
+    if wrap_orders:
+        below = valid & (Phi < lo)
+        above = valid & (Phi >= hi)
+        Phi = xp.where(below, Phi + TWO_PI * wrap_orders, xp.where(above, Phi - TWO_PI * wrap_orders, Phi))
+        k = xp.where(below, k + wrap_orders, xp.where(above, k - wrap_orders, k))
+    return Phi, k, valid & (Phi >= lo) & (Phi < hi)
+
+
+def pattern_range(frequency: float, width=None) -> tuple[float, float]:
+    """Absolute phases (rad) of the pattern's extent [-0.5, W - 0.5) px: ``[lo, lo + 2 pi f)``,
+    ``lo = -2 pi f * edge_fraction(width)`` (:func:`constrain_to_pattern`; the fused kernel uses
+    the same two numbers)."""
+    e = edge_fraction(width)
+    return -TWO_PI * frequency * e, TWO_PI * frequency * (1.0 - e)
+
+
+def ladder_wrap_orders(frequencies, base_frequency: float):
+    """Orders by which one period of the base phase (frequency ``base_frequency`` <= 1) moves the
+    final phase, when every frequency of the ladder is an integer multiple of the base's (the
+    wrapped phases then repeat exactly); else None."""
+    ratios = np.asarray(frequencies, dtype=np.float64) / float(base_frequency)
+    if np.all(np.abs(ratios - np.round(ratios)) < 1e-9):
+        return int(round(float(ratios.max())))
+    return None
+
+
+def finish_unwrapped(xp, Phi, k, prior, ok, frequency, method, levels, *, width=None,
+                     wrap_orders=None) -> Unwrapped:
+    """The :class:`Unwrapped` every method returns: orders outside [0, round(f)], pixels not
+    ``ok`` and phases outside the pattern (:func:`constrain_to_pattern`, with ``width`` and
+    ``wrap_orders``) are invalid (phase NaN, order -1); the prior is NaN where the inputs were
+    invalid."""
     kmax = math.floor(frequency + 0.5)
-    in_range = (k >= 0) & (k <= kmax)
-    valid = ok & in_range
+    valid = ok & (k >= 0) & (k <= kmax)
+    Phi, k, valid = constrain_to_pattern(xp, Phi, k, valid, frequency, width, wrap_orders)
+    valid = valid & (k >= 0) & (k <= kmax)
     nan = math.nan
     phase = xp.where(valid, Phi, nan)
     order = xp.to_int32(xp.where(valid, k, -1.0))
@@ -178,12 +221,7 @@ def mf_unwrap(phases, frequencies, *, width=None, valid=None, phase_sigma=None, 
     """
     if len(phases) < 2:
         raise UnwrapError(f"MF needs at least two wrapped phases, got {len(phases)}")
-    f = _check_frequencies(frequencies, len(phases), "frequencies")
-    if np.any(np.diff(f) <= 0):
-        raise UnwrapError(f"MF frequencies must increase strictly, got {f.tolist()}")
-    if f[0] > 1.0 + 1e-12:
-        raise UnwrapError(f"MF needs a lowest frequency <= 1 period (absolute), got {f[0]}: "
-                          "add a 1-period pattern or use MW/NT/Gray code")
+    f = check_mf_ladder(_check_frequencies(frequencies, len(phases), "frequencies"))
     shape = tuple(phases[0].shape)
     phis = [_check_phase(p, f"wrapped phase {i} (f={f[i]:g})", shape) for i, p in enumerate(phases)]
     if phase_sigma is not None:
@@ -199,7 +237,69 @@ def mf_unwrap(phases, frequencies, *, width=None, valid=None, phase_sigma=None, 
     for i in range(1, len(f)):
         prior, k, Phi = refine(Phi, f[i] / f[i - 1], phis[i])
         levels.append((float(f[i]), prior, k))
-    return finish_unwrapped(xp, Phi, k, prior, ok, f[-1], "mf", levels)
+    return finish_unwrapped(xp, Phi, k, prior, ok, f[-1], "mf", levels, width=width,
+                            wrap_orders=ladder_wrap_orders(f, f[0]))
+
+
+def check_mf_ladder(f) -> np.ndarray:
+    """An MF ladder as float64: at least two frequencies, strictly increasing, the first <= 1
+    period (absolute); UnwrapError otherwise (what :func:`mf_unwrap` and ``calib plan-fringes`` accept)."""
+    f = np.asarray(f, dtype=np.float64).reshape(-1)
+    if f.size < 2 or not np.all(np.isfinite(f)) or np.any(f <= 0):
+        raise UnwrapError(f"MF needs at least two frequencies, finite and > 0, got {f.tolist()}")
+    if np.any(np.diff(f) <= 0):
+        raise UnwrapError(f"MF frequencies must increase strictly, got {f.tolist()}")
+    if f[0] > 1.0 + 1e-12:
+        raise UnwrapError(f"MF needs a lowest frequency <= 1 period (absolute), got {f[0]}: "
+                          "add a 1-period pattern or use MW/NT/Gray code")
+    return f
+
+
+def check_mw_set(f):
+    """A two- or three-wavelength MW set: (frequencies highest first, beats); UnwrapError when the
+    wavelengths repeat or the final beat is not absolute (what :func:`mw_unwrap` accepts)."""
+    f = np.asarray(f, dtype=np.float64).reshape(-1)
+    n = f.size
+    if n not in (2, 3):
+        raise UnwrapError(f"MW takes two or three wavelengths, got {n}")
+    if not np.all(np.isfinite(f)) or np.any(f <= 0):
+        raise UnwrapError(f"MW frequencies must be finite and > 0, got {f.tolist()}")
+    if len(set(np.round(f, 12).tolist())) != n:
+        raise UnwrapError(f"MW wavelengths must differ, got frequencies {f.tolist()}")
+    f = np.sort(f)[::-1]
+    beats = heterodyne_frequencies(f)
+    if beats[-1] > 1.0 + 1e-9:
+        raise UnwrapError(f"MW frequencies {f.tolist()}: the final beat frequency is {beats[-1]:g} "
+                          "periods > 1, so the heterodyne phase is not absolute; choose wavelengths "
+                          "whose beat spans the whole pattern")
+    if n == 3 and (beats[0] <= 0 or beats[1] <= 0 or beats[2] <= 0):
+        raise UnwrapError(f"MW frequencies {f.tolist()}: beats {beats} must be > 0 "
+                          "(f1 - f2 must differ from f2 - f3)")
+    return f, beats
+
+
+def check_nt_pair(f) -> tuple[int, int]:
+    """Two different coprime integer frequencies (what :func:`nt_unwrap` accepts), as ints."""
+    f = np.asarray(f, dtype=np.float64).reshape(-1)
+    if f.size != 2:
+        raise UnwrapError(f"NT takes two frequencies, got {f.size}")
+    if not np.all(np.isfinite(f)) or np.any(f <= 0):
+        raise UnwrapError(f"NT frequencies must be finite and > 0, got {f.tolist()}")
+    if np.any(f != np.round(f)):
+        raise UnwrapError(f"NT frequencies must be integers (periods across the pattern), got {f.tolist()}")
+    f1, f2 = (int(v) for v in f)
+    if f1 == f2:
+        raise UnwrapError(f"NT frequencies must differ, got {f1} and {f2}")
+    _check_coprime(f1, f2)
+    return f1, f2
+
+
+def _check_coprime(f1: int, f2: int) -> None:
+    g = math.gcd(f1, f2)
+    if g != 1:
+        raise UnwrapError(f"NT frequencies {f1} and {f2} share the factor {g}: the pair repeats "
+                          f"{g} times across the pattern, so k is ambiguous; choose coprime "
+                          f"frequencies (e.g. {f1} and {f2 + 1 if math.gcd(f1, f2 + 1) == 1 else f2 - 1})")
 
 
 def _frequencies_from(frequencies, pitches, width, n):
@@ -244,20 +344,10 @@ def mw_unwrap(phases, frequencies=None, *, pitches=None, width=None, valid=None,
     if n not in (2, 3):
         raise UnwrapError(f"MW takes two or three wavelengths, got {n}")
     f = _frequencies_from(frequencies, pitches, width, n)
-    if len(set(np.round(f, 12).tolist())) != n:
-        raise UnwrapError(f"MW wavelengths must differ, got frequencies {f.tolist()}")
-    order = np.argsort(-f)
-    f = f[order]
+    order = np.argsort(-f, kind="stable")
+    f, beats = check_mw_set(f)
     shape = tuple(phases[0].shape)
     phis = [_check_phase(phases[i], f"wrapped phase {i}", shape) for i in order]
-    beats = heterodyne_frequencies(f)
-    if beats[-1] > 1.0 + 1e-9:
-        raise UnwrapError(f"MW frequencies {f.tolist()}: the final beat frequency is {beats[-1]:g} "
-                          "periods > 1, so the heterodyne phase is not absolute; choose wavelengths "
-                          "whose beat spans the whole pattern")
-    if n == 3 and (beats[0] <= 0 or beats[1] <= 0 or beats[2] <= 0):
-        raise UnwrapError(f"MW frequencies {f.tolist()}: beats {beats} must be > 0 "
-                          "(f1 - f2 must differ from f2 - f3)")
     if phase_sigma is not None:
         from .reliability import mw_error_rate
         sig = np.broadcast_to(np.asarray(phase_sigma, dtype=np.float64), f.shape)
@@ -280,7 +370,8 @@ def mw_unwrap(phases, frequencies=None, *, pitches=None, width=None, valid=None,
         f_eq = f12
     prior, k, Phi = refine(Phi_eq, f[0] / f_eq, phis[0])
     levels.append((float(f[0]), prior, k))
-    return finish_unwrapped(xp, Phi, k, prior, ok, f[0], "mw", levels)
+    return finish_unwrapped(xp, Phi, k, prior, ok, f[0], "mw", levels, width=width,
+                            wrap_orders=ladder_wrap_orders(list(f) + list(beats), beats[-1]))
 
 
 @lru_cache(maxsize=128)
@@ -290,11 +381,7 @@ def nt_lookup_table(f1: int, f2: int):
     For the integer residue ``m = f2*k1 - f1*k2`` (``Round[(f1*phi2 - f2*phi1)/(2 pi)]``, eq. 9)
     ``table[m + offset]`` is ``k1 mod f1``. Returns (table int32 read-only, offset).
     """
-    if math.gcd(f1, f2) != 1:
-        g = math.gcd(f1, f2)
-        raise UnwrapError(f"NT frequencies {f1} and {f2} share the factor {g}: the pair repeats "
-                          f"{g} times across the pattern, so k is ambiguous; choose coprime "
-                          f"frequencies (e.g. {f1} and {f2 + 1 if math.gcd(f1, f2 + 1) == 1 else f2 - 1})")
+    _check_coprime(f1, f2)
     inv = pow(f2, -1, f1)
     offset = f1 * f2 + f1 + f2
     m = np.arange(-offset, offset + 1, dtype=np.int64)
@@ -314,12 +401,7 @@ def nt_unwrap(phases, frequencies, *, width=None, valid=None, phase_sigma=None, 
     """
     if len(phases) != 2:
         raise UnwrapError(f"NT takes two wrapped phases, got {len(phases)}")
-    f = _check_frequencies(frequencies, 2, "frequencies")
-    if np.any(f != np.round(f)):
-        raise UnwrapError(f"NT frequencies must be integers (periods across the pattern), got {f.tolist()}")
-    f1, f2 = (int(v) for v in f)
-    if f1 == f2:
-        raise UnwrapError(f"NT frequencies must differ, got {f1} and {f2}")
+    f1, f2 = check_nt_pair(_check_frequencies(frequencies, 2, "frequencies"))
     table, offset = nt_lookup_table(f1, f2)
     if any(is_torch(p) for p in phases):
         raise UnwrapError("nt_unwrap works on numpy arrays (convert tensors with .numpy())")
@@ -346,4 +428,4 @@ def nt_unwrap(phases, frequencies, *, width=None, valid=None, phase_sigma=None, 
         Phi, k, fout = phi1 + TWO_PI * k1, k1, f1
     levels = [(float(f1), None, k1), (float(f2), None, k2)]
     return finish_unwrapped(namespace(Phi), Phi, k.astype(np.float64), prior, ok & (k1 <= f1) & (k2 >= 0) & (k2 <= f2),
-                   fout, "nt", levels)
+                            fout, "nt", levels, width=width, wrap_orders=int(fout))

@@ -5,6 +5,6 @@
 - ``mrcal_model``: mrcal ``.cameramodel`` files, through mrcal itself.
 - ``opencv_storage``: OpenCV FileStorage XML/YAML calibrations (SLStudio, SLMaster, stereoCalibrate).
 
-``load_system`` picks the reader from the file names.
+``load_system`` picks the reader from the file names, ``save_system`` the writer.
 """
-from .loader import load_system  # noqa: F401
+from .loader import load_system, save_system  # noqa: F401

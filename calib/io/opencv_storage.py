@@ -58,22 +58,38 @@ def _read_nodes(path: Path) -> dict:
 
     if not path.exists():
         raise FormatError(f"{path}: no such file")
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    if path.is_file() and path.stat().st_size == 0:
+        raise FormatError(f"{path}: the file is empty (0 bytes), not an OpenCV FileStorage calibration")
+    try:   # OpenCV raises SystemError / cv2.error for an empty or truncated file
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (SystemError, cv2.error) as exc:
+        cause = str(exc.__cause__ or exc).strip().splitlines()[-1]
+        raise FormatError(f"{path}: OpenCV cannot parse it as FileStorage XML/YAML (empty or truncated?): "
+                          f"{cause}") from None
     if not fs.isOpened():
         raise FormatError(f"{path}: OpenCV cannot open it as FileStorage XML/YAML")
     out = {}
     try:
         root = fs.root()
+        if not root.isMap():
+            raise FormatError(f"{path}: holds a FileStorage {'sequence' if root.isSeq() else 'value'} (an image "
+                              "list?), not a calibration's named matrices")
         for key in root.keys():
             node = fs.getNode(key)
             if node.isReal() or node.isInt():
                 out[key] = float(node.real())
             elif node.isString():
                 out[key] = node.string()
-            else:
-                mat = node.mat()
+            elif node.isMap():   # an opencv-matrix; sequences (image lists) are not calibration data
+                try:
+                    mat = node.mat()
+                except cv2.error:   # a nested map that is not a matrix
+                    continue
                 if mat is not None:
                     out[key] = np.asarray(mat, dtype=np.float64)
+        if not out:
+            raise FormatError(f"{path}: no numbers or matrices under the keys {list(root.keys())} (an image "
+                              "list?): not a calibration")
     finally:
         fs.release()
     return out
@@ -169,3 +185,37 @@ def read_opencv_storage(path, *, camera_size=None, projector_size=None,
         if key in nodes and isinstance(nodes[key], float):
             meta.setdefault("source_errors_px", {})[key] = nodes[key]
     return SystemModel(cam, prj, meta)
+
+
+def write_opencv_storage(system: SystemModel, path) -> Path:
+    """Write a camera + projector system as an OpenCV FileStorage file (``.yml``/``.yaml`` or ``.xml``
+    by the suffix), in the SLStudio key set, which holds everything and which
+    :func:`read_opencv_storage` (and SLStudio) read back: Kc, kc, Kp, kp, Rp, Tp (camera ->
+    projector, ``x_prj = Rp x_cam + Tp``, mm), frameWidth/Height, screenResX/Y. The world becomes
+    the camera frame, as in every OpenCV rig; skew stays in K and distortion keeps its length.
+    Values are float64 (FileStorage writes 16 significant digits)."""
+    import cv2
+
+    path = Path(path)
+    if path.suffix.lower() not in (".yml", ".yaml", ".xml"):
+        raise FormatError(f"{path}: an OpenCV FileStorage file ends in .yml, .yaml or .xml")
+    cam, prj = system.camera, system.projector
+    R = prj.R @ cam.R.T
+    t = prj.t - R @ cam.t
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    if not fs.isOpened():
+        raise FormatError(f"{path}: OpenCV cannot open it for writing")
+    try:
+        for key, value in (("Kc", cam.K), ("kc", cam.distortion.reshape(-1, 1)), ("Kp", prj.K),
+                           ("kp", prj.distortion.reshape(-1, 1)), ("Rp", R), ("Tp", t.reshape(3, 1))):
+            if value.size:
+                fs.write(key, np.ascontiguousarray(value, dtype=np.float64))
+            else:   # no distortion: OpenCV cannot store an empty matrix, so one row of zeros
+                fs.write(key, np.zeros((4, 1)))
+        for key, value in (("frameWidth", cam.width), ("frameHeight", cam.height),
+                           ("screenResX", prj.width), ("screenResY", prj.height)):
+            fs.write(key, int(value))
+    finally:
+        fs.release()
+    return path

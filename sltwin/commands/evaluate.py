@@ -34,8 +34,16 @@ def run(args) -> int:
     from unwrap.learned.evaluate import TestSource
     from unwrap.learned.infer import shipped_model_path
 
+    from pathlib import Path
+
+    from ..outputs import output_dir
+
     if bool(args.test) == bool(args.synthetic):
         raise CommandError("give either --test FILE ... or --synthetic N")
+    for f in list(args.test) + list(args.real):
+        if not Path(f).is_file():
+            raise CommandError(f"{f}: no such dataset file (calib export writes them)")
+    output_dir(args.output)
     runs = {}
     for item in args.training_run:
         if "=" not in item:

@@ -12,7 +12,7 @@ def add_arguments(parser):
     parser.add_argument("--steps", type=int, nargs="+", default=[3, 4, 6, 12],
                         help="step counts N to compare (default 3 4 6 12)")
     parser.add_argument("--sets", nargs="+", default=None,
-                        help="frequency sets METHOD:F1,F2,... (mf, mw, nt, cgray); default: a "
+                        help="frequency sets METHOD:F1,F2,... (mf, mw, nt, gray: the names of calib unwrap --method); default: a "
                              "standard list including the paper's mf:1,8,48")
     parser.add_argument("--max-error-rate", type=float, default=1e-3,
                         help="mark rows above this predicted error rate (default 1e-3)")

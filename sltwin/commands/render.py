@@ -1,5 +1,9 @@
-"""``calib render SCENE.toml -o OUT/``: render a scene to PNG images + HDF5 ground truth."""
+"""``calib render SCENE.toml -o OUT/``: render a scene to PNG images + HDF5 ground truth, and a
+``capture.toml`` describing the phase-shift frames (DESIGN.md layout) when they form one ladder,
+so that ``calib unwrap OUT/`` reads the folder as it is."""
 from __future__ import annotations
+
+from ..outputs import output_dir
 
 HELP = "render a scene TOML to PNG images + HDF5 ground truth"
 
@@ -16,16 +20,21 @@ def run(args) -> int:
     from dataclasses import replace
     from pathlib import Path
 
+    from synth.board_session import scene_capture_toml
     from synth.output import write_pngs, write_truth_h5
     from synth.render import render
     from synth.scene import load_scene
 
+    output_dir(args.output)
     scene = load_scene(args.scene)
     if args.seed is not None and scene.effects.noise is not None:
         scene.effects = replace(scene.effects, noise=replace(scene.effects.noise, seed=args.seed))
     result = render(scene)
     out = Path(args.output)
     write_pngs(result, out)
+    description = scene_capture_toml(scene)
+    if description is not None:   # calib unwrap reads the folder as it is
+        (out / "capture.toml").write_text(description)
     if not args.no_truth:
         write_truth_h5(result, scene, out / "truth.h5")
     if not args.quiet:

@@ -5,6 +5,7 @@ black: the layout of unwrap.graycode_capture)."""
 from __future__ import annotations
 
 from ..errors import CommandError
+from ..outputs import output_dir
 
 HELP = "render the paper's calibration session from the twin"
 
@@ -31,6 +32,7 @@ def run(args) -> int:
     from synth.board_session import render_board_session
     from synth.effects import Noise
 
+    output_dir(args.output)
     if args.gray_block < 1:
         raise CommandError(f"--gray-block: expected >= 1 projector px, got {args.gray_block}")
     if args.steps < 3:

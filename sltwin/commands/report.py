@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 
 from ..errors import CommandError
+from ..outputs import output_dir
 
 HELP = "twin-equivalence report (HTML + Markdown)"
 
@@ -54,6 +55,9 @@ def print_summary(summary: dict) -> None:
     print(f"wrote {summary['paths']['html']} and {summary['paths']['md']}")
     flagged = summary["beyond_3_sigma"]
     print("parameters beyond 3 sigma: " + (", ".join(flagged) if flagged else "none"))
+    if summary.get("expected_differences"):
+        print("differences the twin has by design (no skew or lens distortion in Blender): "
+              + ", ".join(summary["expected_differences"]))
     ball = summary.get("twin_ball")
     if ball:
         p = ball["pose"]
@@ -70,6 +74,7 @@ def print_summary(summary: dict) -> None:
 def run(args) -> int:
     from reports.twin_report import write_twin_report
 
+    output_dir(args.output)
     opts = ball_options(args)
     extra, parity = [], None
     if args.learned_real or args.learned_twin:

@@ -13,14 +13,19 @@ written.
 """
 from __future__ import annotations
 
-from calib.errors import BundleAdjustmentError, InitError, ObservationError, OutputError
-
 from ..errors import CommandError
+from ..outputs import output_dir
 
 HELP = "calibrate camera + projector from board captures or point observations (seed + bundle adjustment)"
 
-EXIT_CODES = [(ObservationError, 3, "observations: "), (InitError, 4, "initialisation: "),
-              (BundleAdjustmentError, 5, "bundle adjustment: "), (OutputError, 6, "")]
+
+def exit_codes() -> list:
+    """(error type, exit code, message prefix) of the errors with their own exit code (imported
+    when needed: ``calib.errors`` loads the whole calib package, which ``calib --help`` need not)."""
+    from calib.errors import BundleAdjustmentError, InitError, ObservationError, OutputError
+
+    return [(ObservationError, 3, "observations: "), (InitError, 4, "initialisation: "),
+            (BundleAdjustmentError, 5, "bundle adjustment: "), (OutputError, 6, "")]
 
 
 def add_arguments(p):
@@ -55,6 +60,9 @@ def add_arguments(p):
     p.add_argument("--loss-scale", type=float, default=3.0, help="robust loss scale, in residual sigmas")
     p.add_argument("--outlier-threshold", type=float, default=5.0,
                    help="reject points beyond this many robust sigmas (0: keep all)")
+    p.add_argument("--no-view-noise", action="store_true",
+                   help="one noise level per device (default: a view whose residuals are more than twice the "
+                        "median view's gets its own, and the adjustment runs again; docs/calib.md)")
     p.add_argument("--board-warp", nargs="?", choices=("auto", "on", "off"), const="on", default="auto",
                    help="estimate the board's 2-parameter warp (mrcal's calobject_warp): auto (default: where the "
                         "views allow it, 4 or more), on, off")
@@ -96,6 +104,7 @@ def parse_fix(items) -> tuple[dict, dict]:
 def ba_config(args):
     """The adjustment settings the options ask for (a ``calib.bundle_adjustment.BAConfig``)."""
     from calib.bundle_adjustment import BAConfig, DeviceConfig
+    from calib.errors import BundleAdjustmentError
 
     fixed, values = parse_fix(args.fix)
     n_dist = {"camera": args.camera_distortion, "projector": args.projector_distortion}
@@ -112,6 +121,7 @@ def ba_config(args):
 
 def load_observations(paths):
     """``--observations``: one observation JSON, or a camera/projector Bouguet .mat pair ('-': none)."""
+    from calib.errors import ObservationError
     from calib.observations import from_bouguet, read_observations_json
 
     try:
@@ -133,18 +143,21 @@ def run(args) -> int:
 
     if (args.captures is None) == (args.observations is None):
         raise CommandError("give either a CAPTURES folder or --observations FILE(S)")
+    output_dir(args.output)
     if args.draws < 3:
         raise CommandError(f"--draws: expected >= 3 bootstrap runs, got {args.draws}")
     config = ba_config(args)
     extra = {"board_warp": {"auto": "auto", "on": True, "off": False}[args.board_warp],
              "resample": "none" if args.uncertainty == "model" else args.uncertainty, "draws": args.draws,
-             "skew_tol_px": args.skew_tol, "skew_check": not args.no_skew_check}
+             "skew_tol_px": args.skew_tol, "skew_check": not args.no_skew_check,
+             "view_noise": not args.no_view_noise}
     if args.captures is not None:
         result = calibrate_captures(args.captures, args.output, config, capture_toml=args.capture_toml,
                                     method=args.method, strict=args.strict, degree=args.phase_fit_degree, **extra)
     else:
         result = calibrate_observations(load_observations(args.observations), args.output, config, **extra)
-    print(summary_table(result.calibration))
+    print(summary_table(result.calibration, result.observations,
+                        result.captured.skipped if result.captured is not None else None))
     if result.calibration.uncertainty is not None:
         print()
         print(uncertainty_table(result.calibration.uncertainty))

@@ -4,6 +4,8 @@ from __future__ import annotations
 import argparse
 import json
 
+from ..outputs import output_file
+
 HELP = "calibration -> digital-twin parameters (+ Blender scene script)"
 
 
@@ -40,6 +42,10 @@ def write_twin(system, output, blender_script=None, paper: str = "auto") -> dict
 
 def run(args) -> int:
     from calib.io import load_system
+
+    output_file(args.output)
+    if args.blender_script:
+        output_file(args.blender_script, "--blender-script")
 
     system = load_system(args.calibration, repair_rotation=args.repair_rotation,
                          camera_size=args.camera_size, projector_size=args.projector_size)

@@ -7,6 +7,12 @@ order, then :func:`unwrap.learned.infer.unwrap_learned`. The result is an
 writes the same ``unwrap.h5``), with ``order`` / ``phase`` from the network and two more maps:
 ``confidence`` (probability of the chosen correction, 0 where invalid) and ``order_traditional``.
 Intermediate frequencies of a longer MF ladder are not used: the model was trained on the pair.
+
+The traditional path's checks hold here too: every frame goes through one
+:class:`unwrap.capture.FrameReader` (mixed bit depth or size refused, naming the frame), the
+traditional prior of the pair must cluster near integers (:mod:`unwrap.consistency`; wrong
+ladder or phase-shift convention, ``check_prior=False`` decodes anyway), and an absolute phase
+outside the pattern is invalid (:func:`unwrap.temporal.constrain_to_pattern`).
 """
 from __future__ import annotations
 
@@ -16,10 +22,11 @@ import math
 import numpy as np
 
 from .._xp import TWO_PI
-from ..capture import load_capture, read_stack
+from ..capture import FrameReader, load_capture
+from ..consistency import check_priors, prior_check
 from ..phase_shift import wrapped_phase
-from ..pipeline import OrientationResult, _default_min_modulation
-from ..temporal import Unwrapped
+from ..pipeline import OrientationResult, check_min_modulation
+from ..temporal import Unwrapped, constrain_to_pattern
 from .errors import ModelError
 from .infer import resolve_model, unwrap_learned
 
@@ -38,18 +45,21 @@ def _pair(method: str, freqs: list) -> tuple[int, int]:
 
 
 def learned_orientation(oc, method: str, model, *, min_modulation=None, on_outside: str = "raise",
-                        progress: bool = False) -> OrientationResult:
-    """One orientation of a capture (:class:`unwrap.capture.OrientationCapture`) by the network."""
+                        check_prior: bool = True, camera_size=None, progress: bool = False) -> OrientationResult:
+    """One orientation of a capture (:class:`unwrap.capture.OrientationCapture`) by the network
+    (checks: module docstring; ``camera_size`` (W, H) the frames must have)."""
+    reader = FrameReader(camera_size)
     sets = sorted(oc.sets, key=lambda s: s.frequency)
     freqs = [float(s.frequency) for s in sets]
     i_lo, i_hi = _pair(method, freqs)
     w = {}
     for i in (i_lo, i_hi):
-        stack = read_stack(sets[i].files)
-        mm = _default_min_modulation(stack.dtype) if min_modulation is None else min_modulation
+        stack = reader.stack(sets[i].files)
+        mm = check_min_modulation(min_modulation, stack.dtype)
         full = float(np.iinfo(stack.dtype).max) if np.issubdtype(stack.dtype, np.integer) else 1.0
         ph = wrapped_phase(stack, sets[i].shifts, min_modulation=mm)
         w[i] = (ph, full)
+        used_mm = mm
         log.log(logging.INFO if progress else logging.DEBUG, "  [%s] f = %g: %d frames", oc.orientation,
                 freqs[i], len(sets[i].files))
     (lo, full_lo), (hi, full_hi) = w[i_lo], w[i_hi]
@@ -58,17 +68,27 @@ def learned_orientation(oc, method: str, model, *, min_modulation=None, on_outsi
                        width=oc.width, model=model, on_outside=on_outside)
     ok = r.order >= 0
     phase = np.where(ok, np.nan_to_num(hi.phase) + TWO_PI * r.order, math.nan)
-    res = Unwrapped(phase, np.where(ok, r.order, -1).astype(np.int32), ok, np.where(r.valid, r.prior, math.nan),
+    phase, order, ok = constrain_to_pattern(np, phase, r.order, ok, freqs[i_hi], oc.width)
+    phase = np.where(ok, phase, math.nan)
+    res = Unwrapped(phase, np.where(ok, order, -1).astype(np.int32), ok, np.where(r.valid, r.prior, math.nan),
                     freqs[i_hi], f"{method}+learned")
+    checks = prior_check(Unwrapped(phase, order, r.valid, r.prior, freqs[i_hi], method))
+    if check_prior:
+        check_priors(checks, f"orientation {oc.orientation}, method {method} (learned; the traditional prior)")
+    if not ok.any():
+        raise ModelError(f"orientation {oc.orientation}: no valid pixel (modulation threshold {used_mm:.3g}; "
+                         "all-black frames, or a threshold above what the frames hold?)")
     extras = {"confidence": r.confidence.astype(np.float32), "order_traditional": r.order_traditional.astype(np.int32)}
     log.log(logging.INFO if progress else logging.DEBUG, "  [%s] learned: %d of %d valid pixels changed from the "
             "traditional order; frequency check %s", oc.orientation, int((r.order != r.order_traditional)[ok].sum()),
             int(ok.sum()), r.frequency_check.get("status"))
-    return OrientationResult(oc.orientation, oc.width, res, hi.B, hi.A, extras=extras)
+    return OrientationResult(oc.orientation, oc.width, res, hi.B, hi.A, min_modulation=used_mm, prior_check=checks,
+                             extras=extras)
 
 
 def unwrap_capture_learned(folder, method: str = "mf", model="learned", *, preset=None, pose=None,
-                           min_modulation=None, on_outside: str = "raise", progress: bool = False) -> dict:
+                           min_modulation=None, on_outside: str = "raise", check_prior: bool = True,
+                           progress: bool = False) -> dict:
     """Every orientation of a capture folder by the network: {"v": OrientationResult, ...}."""
     cap = load_capture(folder, preset, pose)
     net = resolve_model(model)
@@ -77,5 +97,5 @@ def unwrap_capture_learned(folder, method: str = "mf", model="learned", *, prese
         log.log(logging.INFO if progress else logging.DEBUG, "unwrap %s [%s] orientation %s, method %s + learned",
                 cap.folder, cap.preset, o, method)
         out[o] = learned_orientation(oc, method, net, min_modulation=min_modulation, on_outside=on_outside,
-                                     progress=progress)
+                                     check_prior=check_prior, camera_size=cap.camera_size, progress=progress)
     return out
