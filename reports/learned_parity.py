@@ -238,6 +238,27 @@ def verdict(rows) -> str:
             f"{100 * real[0]['traditional'].rate:.3f} %).")
 
 
+def traditional_gap(rows) -> str:
+    """A sentence comparing the traditional error of the capture with its noise-matched twin's at the
+    capture's frequency: how much of the real errors the twin's noise explains ("" without both)."""
+    real = [r for r in rows if r["data"] == "real"]
+    if not real:
+        return ""
+    f = real[0]["f"]
+    twin = next((r for r in rows if r["data"] == "twin" and r["f"] == f), None)
+    if twin is None:
+        return ""
+    tr, tt = real[0]["traditional"].rate, twin["traditional"].rate
+    if tr <= 0:
+        return f"Traditional error at f = {f:g}: real 0 %, twin {100 * tt:.3f} %."
+    return (f"Traditional error at f = {f:g}: real {100 * tr:.3f} %, twin with the capture's noise {100 * tt:.3f} % "
+            f"(ratio {tr / max(tt, 1e-12):.1f}): " +
+            ("the matched noise accounts for the real errors." if tr <= 2 * tt else
+             "noise alone does not account for the real errors; the rest are not noise (object edges, "
+             "interreflection, the reference's own errors), which a model trained on noisy renders can only "
+             "partly fix."))
+
+
 def section(real_files, twin_files, model="learned", *, twin_info: dict | None = None, frequencies=(16, 48, 96)):
     """(title, blocks) for reports.html plus a summary dict."""
     from .figures import _fig_png, _plt
@@ -270,6 +291,9 @@ def section(real_files, twin_files, model="learned", *, twin_info: dict | None =
                              "ratio vs training, check"], table))
     line = verdict(rows)
     blocks.append(("p", line))
+    gap = traditional_gap(rows)
+    if gap:
+        blocks.append(("p", gap))
     plt = _plt()
     for r in rows:
         ex = r["example"]

@@ -52,3 +52,18 @@ def test_parity_section_scores_both_sides_and_states_a_verdict(two_noise_levels,
     assert "behaves on the real capture as on its twin" in summary["verdict"]
     md = to_markdown("t", [(title, blocks)])
     assert "| real | 8 |" in md and "Verdict" in md and "Figure: wrong fringe orders" in md
+
+
+def test_traditional_gap_says_whether_the_matched_noise_explains_the_real_errors():
+    from reports.learned_parity import traditional_gap
+    from unwrap.learned.metrics import ErrorCount
+
+    def row(data, f, wrong, counted=10_000):
+        return {"data": data, "f": f, "traditional": ErrorCount(wrong, counted)}
+
+    explained = traditional_gap([row("real", 16.0, 12), row("twin", 16.0, 10), row("twin", 48.0, 300)])
+    assert "real 0.120 %" in explained and "accounts for the real errors" in explained
+    unexplained = traditional_gap([row("real", 16.0, 45), row("twin", 16.0, 10)])
+    assert "ratio 4.5" in unexplained and "noise alone does not account" in unexplained
+    assert traditional_gap([row("twin", 16.0, 10)]) == ""
+    assert traditional_gap([row("real", 16.0, 10), row("twin", 48.0, 10)]) == ""
