@@ -280,7 +280,11 @@ def section(real_files, twin_files, model="learned", *, twin_info: dict | None =
                             f"{twin_info.get('full_well', float('nan')):.0f} e-; measured on the twin renders the "
                             f"same way: sigma_I = {t.get('sigma_I', float('nan')):.4f} (phase "
                             f"{t.get('sigma_phase_rad', float('nan')):.4f} rad at modulation "
-                            f"{t.get('modulation', float('nan')):.3f})."))
+                            f"{t.get('modulation', float('nan')):.3f}). The phase noise, which sets the "
+                            f"unwrapping errors, differs by a factor "
+                            f"{t.get('sigma_phase_rad', float('nan')) / n.get('sigma_phase_rad', float('nan')):.2f}"
+                            " (twin / real); the intensities need not match (the twin's light falloff and "
+                            "saturation differ from the capture's)."))
     table = []
     for r in rows:
         chk = r["check"] or {}
