@@ -228,7 +228,9 @@ def markdown(res: dict) -> str:
                     cells += [_pct(c.get("ours")), _paper(c.get("paper"))]
                 L.append(f"| {f} ({tag}) | {row} | " + " | ".join(cells) + " |")
         L += ["", "UNet-TPU (prior-free, trained on real captures) is absent: no real training set of "
-              "reasonable size with reference orders exists (the real exports with reference orders hold 7 MF scenes, 6 board poses and a skull, too few to train on and needed as the real test).", ""]
+              "reasonable size with reference orders exists (of the real captures in ../shared/data only "
+              "SLStudio's skull has a reference order, from its Gray-code scan: one capture, too few to train on and needed as the real test; the SLStudio "
+              "calibration poses have no reference, kamino and SLMaster no unit-frequency MF pair).", ""]
     s6 = res.get("s6") or {}
     if s6:
         L += ["## S6 layout: MSE vs MSE + Fourier loss [%]", "",
