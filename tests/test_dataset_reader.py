@@ -1,5 +1,5 @@
-"""The torch reader (unwrap.dataset.FringeOrderDataset): schema check, the interface of
-/work/notes/dataset-contract.md, priors from unwrap's own decoders, crops/flips, DataLoader
+"""The torch reader (unwrap.dataset.FringeOrderDataset): schema check, the item interface of
+docs/dataset.md, priors from unwrap's own decoders, crops/flips, DataLoader
 workers under fork and spawn, and real captures through the same reader."""
 import math
 

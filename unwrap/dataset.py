@@ -88,7 +88,7 @@ def traditional(method: str, phi_lo, phi_hi, f_lo: float, f_hi: float, width: fl
 
 class FringeOrderDataset(Dataset):
     """A torch Dataset over one or more dataset files (see the module docstring and
-    ``/work/notes/dataset-contract.md``: the interface the model consumes).
+    docs/dataset.md: the interface the model consumes).
 
     ARGUMENTS
     - path_or_paths: one .h5 file (a shard or a combined file) or a list of them.
