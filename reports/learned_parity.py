@@ -32,6 +32,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .errors import ReportError
+
 LOG = logging.getLogger("reports")
 SECTION_TITLE = "Learned unwrapping: twin vs real"
 
@@ -69,7 +71,7 @@ def capture_noise(path, orientation: str = "v", pair=None) -> dict:
         res.append(e)
         mods.append(it["modulation_high"][0][interior].double().numpy())
     if not res:
-        raise ValueError(f"{path}: no sample with reference orders to measure the noise on")
+        raise ReportError(f"{path}: no sample with reference orders to measure the noise on")
     e, B = np.concatenate(res), np.concatenate(mods)
     dof = math.sqrt(25.0 / 22.0)             # a 3-parameter plane through 25 pixels, the pixel among them
     sig = 1.4826 * np.median(np.abs(e)) * dof

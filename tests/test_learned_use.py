@@ -130,3 +130,29 @@ def test_calib_train_command_line_runs_resumes_and_refuses_typos(tmp_path, capsy
     assert "step 3" in capsys.readouterr().out
     assert main(["train", "optim.setps=2", "data.synthetic_samples=4", "-o", str(tmp_path / "s")]) == 2
     assert "unknown key 'optim.setps'" in capsys.readouterr().err
+
+
+def test_the_learned_capture_path_refuses_what_the_traditional_path_refuses(design_capture, tmp_path, capsys):
+    """Issue 15's checks hold with --model too: frames written with a pi offset (another lab's
+    convention) are refused by the prior check unless --no-prior-check, and a frame of another bit
+    depth is refused by name."""
+    import shutil
+
+    import cv2
+    root, _ = design_capture
+    model = str(constant_model(tmp_path / "zero.pt", 0))
+    offset = tmp_path / "offset"
+    shutil.copytree(root, offset)
+    for png in (offset / "pose_00").glob("*.png"):        # A + B cos(Phi + pi - delta) = 2A - I
+        cv2.imwrite(str(png), (60000 - cv2.imread(str(png), -1).astype(np.int64)).astype(np.uint16))
+    assert main(["unwrap", str(offset), "--model", model, "-o", str(tmp_path / "a"), "--no-previews"]) == 2
+    assert "half integers" in capsys.readouterr().err
+    assert main(["unwrap", str(offset), "--model", model, "--no-prior-check", "-o", str(tmp_path / "b"),
+                 "--no-previews"]) == 0
+    mixed = tmp_path / "mixed"
+    shutil.copytree(root, mixed)
+    frame = mixed / "pose_00" / "v_f048_n03.png"
+    cv2.imwrite(str(frame), (cv2.imread(str(frame), -1) // 257).astype(np.uint8))
+    capsys.readouterr()
+    assert main(["unwrap", str(mixed), "--model", model, "-o", str(tmp_path / "c"), "--no-previews"]) == 2
+    assert "v_f048_n03.png: uint8 frame among uint16 frames" in capsys.readouterr().err
