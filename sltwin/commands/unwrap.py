@@ -74,6 +74,8 @@ def describe(o: str, r) -> str:
 
 
 def run(args) -> int:
+    import numpy as np
+
     from unwrap.pipeline import unwrap_capture, write_results
 
     output_dir(args.output)
@@ -82,9 +84,9 @@ def run(args) -> int:
 
         if args.method not in (None, "mf", "mw", "nt"):
             raise CommandError(f"--model works with --method mf, mw or nt, not {args.method}")
-        if args.max_error_rate is not None:
-            raise CommandError("--max-error-rate sets the threshold from the traditional decoders' reliability "
-                               "model; with --model give --min-modulation instead")
+        if args.max_error_rate is not None or args.noise_sigma is not None:
+            raise CommandError("--max-error-rate / --noise-sigma set the threshold from the traditional decoders' "
+                               "reliability model; with --model give --min-modulation instead")
         results = unwrap_capture_learned(args.capture_dir, args.method or "mf", args.model, preset=args.preset,
                                          pose=args.pose, min_modulation=args.min_modulation,
                                          on_outside=args.outside, check_prior=not args.no_prior_check,
@@ -98,8 +100,6 @@ def run(args) -> int:
     for o, r in results.items():
         print(describe(o, r))
         if "confidence" in r.extras:
-            import numpy as np
-
             u = r.result
             changed = (u.order != r.extras["order_traditional"]) & u.valid
             print(f"   learned: {int(changed.sum())} orders differ from the traditional ones; median confidence "
