@@ -54,6 +54,17 @@ MAX_CORRECTION = 2
 OUT_OF_RANGE_COST = 1e4
 _INF = 1e12
 
+#: Energy parameters (nats per 2 pi jump; the prior likelihood's outlier weight; a noise floor of
+#: the prior in fringes), set on the twin validation scenes by ``python -m bench.spatial_unwrap
+#: --calibrate`` (never on real captures).
+DEFAULTS = {"smoothness": 2.0, "outlier": 0.05, "sigma_floor": 0.0, "smoothness_learned": 1.0}
+#: Never-worse gate thresholds per path (:func:`gate`), calibrated the same way: a correction is
+#: applied where the traditional decision's predicted error probability is at least
+#: ``min_p_wrong`` and the network's probability of the new label at least ``min_confidence``.
+GATE = {"Graph cut": {"min_p_wrong": 0.05, "min_confidence": 0.0},
+        "Learned": {"min_p_wrong": 0.05, "min_confidence": 0.9},
+        "Learned + graph cut": {"min_p_wrong": 0.05, "min_confidence": 0.9}}
+
 
 def _check_maps(name_shape: dict) -> tuple:
     shapes = {k: np.shape(v) for k, v in name_shape.items()}
@@ -346,5 +357,5 @@ def gate(order, order_traditional, valid, p_wrong_traditional, *, confidence=Non
     return np.where(np.asarray(valid, dtype=bool), out, -1).astype(np.int64)
 
 
-__all__ = ["MAX_CORRECTION", "SpatialResult", "edge_weights", "gate", "graphcut_orders", "phase_noise",
+__all__ = ["DEFAULTS", "GATE", "MAX_CORRECTION", "SpatialResult", "edge_weights", "gate", "graphcut_orders", "phase_noise",
            "prior_data_cost", "prior_sigma", "solve_corrections", "traditional_error_probability"]
