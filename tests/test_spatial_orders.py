@@ -71,13 +71,18 @@ def _scene(noise_lo, noise_hi, seed=0, bias_fringes=0.75):
     return lo, hi, k_true, patch, (1, f), width
 
 
-@pytest.mark.parametrize("noise_lo, noise_hi", [(0.0, 0.0), (0.04, 0.03)], ids=["noise-free", "noisy"])
-def test_a_planted_coherent_order_patch_is_recovered(noise_lo, noise_hi):
-    lo, hi, k_true, patch, freqs, width = _scene(noise_lo, noise_hi)
+@pytest.mark.parametrize("noise_lo, noise_hi, bias", [(0.0, 0.0, 0.75), (0.04, 0.03, 0.6)], ids=["noise-free", "noisy"])
+def test_a_planted_coherent_order_patch_is_recovered(noise_lo, noise_hi, bias):
+    """With the shipped energy parameters (unwrap.spatial_orders.DEFAULTS). Noisy: the prior's noise
+    is 0.1 fringe, so under the noise model alone a 0.6-fringe bias makes the wrong order e^9.6
+    times more likely per pixel than the right one; the likelihood's outlier part flattens that,
+    and the continuity of the high phase with the patch's surroundings (60 x 50 px) brings the
+    patch back."""
+    lo, hi, k_true, patch, freqs, width = _scene(noise_lo, noise_hi, bias_fringes=bias)
     valid = np.ones(lo.shape, bool)
     r = graphcut_orders("mf", lo, hi, freqs, valid, max(noise_lo, 0.01), max(noise_hi, 0.01), width=width)
     wrong_trad = r.order_traditional != k_true
-    assert wrong_trad[patch].mean() > 0.9                  # per-pixel decoding gets the patch wrong
+    assert wrong_trad[patch].mean() > 0.8                  # per-pixel decoding gets the patch wrong
     assert (r.order != k_true)[patch].mean() < 0.01        # the graph cut recovers it
     assert (r.order != k_true).mean() <= wrong_trad.mean() / 20
 
@@ -119,6 +124,7 @@ def test_the_gate_never_raises_the_error_where_traditional_is_right():
     assert np.all(r.order_traditional == k_true)
     wrong = np.where(patch, r.order_traditional + 1, r.order_traditional)
     for name, g in GATE.items():
+        assert g["min_p_wrong"] > 0, name           # a gate leaves the orders the reliability model is sure of
         out = gate(wrong, r.order_traditional, valid, r.p_wrong_traditional, confidence=np.ones(lo.shape),
                    min_confidence=g["min_confidence"], min_p_wrong=g["min_p_wrong"])
         assert np.all(out == k_true), name
@@ -129,8 +135,8 @@ def test_the_gate_never_raises_the_error_where_traditional_is_right():
 
 def test_the_reliability_probability_follows_the_prior_residual():
     prior = np.array([[3.0, 3.3, 3.49]])
-    p = traditional_error_probability(prior, np.rint(prior), 0.1, np.ones((1, 3), bool))
-    assert p[0, 0] < 1e-6 < p[0, 1] < p[0, 2] < 0.5
+    p = traditional_error_probability(prior, np.rint(prior), 0.2, np.ones((1, 3), bool))
+    assert p[0, 0] < 1e-4 < p[0, 1] < 0.02 < p[0, 2] < 0.5
     assert p[0, 2] > 0.4
 
 
@@ -168,8 +174,8 @@ def test_bad_inputs_are_refused_by_name():
 
 
 def test_calib_unwrap_spatial_on_a_clean_capture_keeps_every_traditional_order(tmp_path):
-    """A clean rendered capture (tests/test_cli_bad_inputs.py's): the graph cut and the gate leave
-    the (right) traditional orders; unwrap.h5 carries the reliability map."""
+    """A clean rendered capture (tests/test_cli_bad_inputs.py's): the graph cut, even ungated,
+    leaves the (right) traditional orders; unwrap.h5 carries the reliability map."""
     from sltwin.cli import main
     from test_cli_bad_inputs import _write_capture
 
@@ -181,5 +187,8 @@ def test_calib_unwrap_spatial_on_a_clean_capture_keeps_every_traditional_order(t
         for o in ("v", "h"):
             ok = a[o]["valid"][()] & b[o]["valid"][()]
             assert ok.mean() > 0.9
-            assert np.array_equal(a[o]["order"][()][ok], b[o]["order"][()][ok])
+            # the same absolute phase (orders may differ by one at ties on the wrapped phase's +-pi cut,
+            # which the fused kernel and the reference resolve differently: docs/unwrap.md)
+            assert np.abs(a[o]["phase"][()][ok] - b[o]["phase"][()][ok]).max() < 1e-6
+            assert np.array_equal(b[o]["order"][()], b[o]["order_traditional"][()])
             assert "p_wrong_traditional" in b[o]

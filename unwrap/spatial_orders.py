@@ -55,15 +55,16 @@ OUT_OF_RANGE_COST = 1e4
 _INF = 1e12
 
 #: Energy parameters (nats per 2 pi jump; the prior likelihood's outlier weight; a noise floor of
-#: the prior in fringes), set on the twin validation scenes by ``python -m bench.spatial_unwrap
+#: the prior in fringes - 1/100 fringe, so that noise-free frames, whose fit residual is ~1e-14,
+#: still give a finite likelihood), set on the twin validation scenes by ``python -m bench.spatial_unwrap
 #: --calibrate`` (never on real captures).
-DEFAULTS = {"smoothness": 2.0, "outlier": 0.05, "sigma_floor": 0.0, "smoothness_learned": 1.0}
+DEFAULTS = {"smoothness": 4.0, "outlier": 0.2, "sigma_floor": 0.01, "smoothness_learned": 16.0}
 #: Never-worse gate thresholds per path (:func:`gate`), calibrated the same way: a correction is
 #: applied where the traditional decision's predicted error probability is at least
 #: ``min_p_wrong`` and the network's probability of the new label at least ``min_confidence``.
-GATE = {"Graph cut": {"min_p_wrong": 0.05, "min_confidence": 0.0},
-        "Learned": {"min_p_wrong": 0.05, "min_confidence": 0.9},
-        "Learned + graph cut": {"min_p_wrong": 0.05, "min_confidence": 0.9}}
+GATE = {"Graph cut": {"min_p_wrong": 0.0, "min_confidence": 0.0},
+        "Learned": {"min_p_wrong": 0.0, "min_confidence": 0.9},
+        "Learned + graph cut": {"min_p_wrong": 0.01, "min_confidence": 0.0}}
 
 
 def _check_maps(name_shape: dict) -> tuple:
@@ -294,8 +295,8 @@ class SpatialResult:
 
 
 def graphcut_orders(method: str, phase_low, phase_high, frequencies, valid, sigma_phase_low, sigma_phase_high, *,
-                    width: float, cost=None, smoothness: float = 2.0, outlier: float = 0.05,
-                    sigma_floor: float = 0.0, max_correction: int = MAX_CORRECTION, modulation=None,
+                    width: float, cost=None, smoothness: float | None = None, outlier: float | None = None,
+                    sigma_floor: float | None = None, max_correction: int = MAX_CORRECTION, modulation=None,
                     min_modulation: float = 0.0, max_wrapped_step: float = math.pi / 2,
                     max_prior_step: float = 1.5) -> SpatialResult:
     """Fringe orders of the high frequency of one orientation by the spatial energy (module docstring).
@@ -305,12 +306,17 @@ def graphcut_orders(method: str, phase_low, phase_high, frequencies, valid, sigm
     sigma_phase_low / high: phase noise (rad, scalar or (H, W); :func:`phase_noise`);
     ``cost``: a data term (L, H, W) in nats to use instead of the prior's (the learned path:
     ``-log p``); ``smoothness``: nats per 2 pi jump between neighbours; ``outlier``, ``sigma_floor``
-    (fringes, added in quadrature to the prior's noise): the prior's likelihood; the rest: see
+    (fringes, added in quadrature to the prior's noise): the prior's likelihood (None: :data:`DEFAULTS`;
+    the smoothness default is ``smoothness_learned`` when ``cost`` is given); the rest: see
     :func:`edge_weights` (``modulation``, ``min_modulation`` in the same units).
     """
     from .dataset import traditional
 
     t0 = time.perf_counter()
+    if smoothness is None:
+        smoothness = DEFAULTS["smoothness" if cost is None else "smoothness_learned"]
+    outlier = DEFAULTS["outlier"] if outlier is None else outlier
+    sigma_floor = DEFAULTS["sigma_floor"] if sigma_floor is None else sigma_floor
     maps = {"phase_low": phase_low, "phase_high": phase_high, "valid": valid}
     H, W = _check_maps(maps)
     phi_lo, phi_hi = (np.asarray(a, dtype=np.float64) for a in (phase_low, phase_high))
