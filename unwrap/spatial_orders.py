@@ -194,12 +194,49 @@ def _add_unary(acc, layer, nodes, amount):
     np.add.at(acc, (layer, nodes), amount)
 
 
-def solve_corrections(cost, phase_high, order, valid, wx, wy):
+def bridge_edges(phase_high, valid, *, weight: float, prior=None, max_wrapped_step: float = math.pi / 2,
+                 max_prior_step: float = 1.5, min_degree: int = 2):
+    """Extra smoothness edges for pixels with fewer than ``min_degree`` valid 4-neighbours (speckled
+    masks of noisy captures, where a 4-neighbour graph leaves them without context): to the valid
+    pixels of their 5x5 box other than the 4-neighbours (diagonals and 2-px steps), weight
+    ``weight / distance``, cut by the same criteria as :func:`edge_weights`.
+
+    RETURNED VALUE: (p, q, w): flat pixel indices (row-major, int64) and weights."""
+    v = np.asarray(valid, dtype=bool)
+    H, W = v.shape
+    phi = np.nan_to_num(np.asarray(phase_high, dtype=np.float64))
+    r = None if prior is None else np.nan_to_num(np.asarray(prior, dtype=np.float64))
+    deg = np.zeros((H, W), np.int64)
+    deg[:, 1:] += v[:, :-1]
+    deg[:, :-1] += v[:, 1:]
+    deg[1:] += v[:-1]
+    deg[:-1] += v[1:]
+    low = v & (deg < min_degree)
+    P, Q, Wt = [], [], []
+    flat = np.arange(H * W).reshape(H, W)
+    for dy in range(0, 3):
+        for dx in range(-2, 3):
+            if (dy, dx) <= (0, 0) or abs(dy) + abs(dx) <= 1:
+                continue                                   # each pair once; 4-neighbours are edge_weights'
+            ys, yd = slice(0, H - dy), slice(dy, H)
+            xs, xd = (slice(0, W - dx), slice(dx, W)) if dx >= 0 else (slice(-dx, W), slice(0, W + dx))
+            ok = v[ys, xs] & v[yd, xd] & (low[ys, xs] | low[yd, xd])
+            ok &= np.abs(wrap(phi[ys, xs] - phi[yd, xd])) <= max_wrapped_step
+            if r is not None:
+                ok &= np.abs(r[ys, xs] - r[yd, xd]) <= max_prior_step
+            P.append(flat[ys, xs][ok]), Q.append(flat[yd, xd][ok])
+            Wt.append(np.full(int(ok.sum()), weight / math.hypot(dy, dx)))
+    return np.concatenate(P), np.concatenate(Q), np.concatenate(Wt)
+
+
+def solve_corrections(cost, phase_high, order, valid, wx, wy, extra_edges=None):
     """Exact minimiser of the energy of the module docstring.
 
     ARGUMENTS: cost (L, H, W) float64 nats (L = 2 K + 1 labels, index c + K; finite at valid
     pixels); phase_high (H, W) wrapped high-frequency phase (rad); order (H, W) traditional
-    order; valid (H, W) bool; wx (H, W-1), wy (H-1, W) smoothness weights (nats per jump, >= 0).
+    order; valid (H, W) bool; wx (H, W-1), wy (H-1, W) smoothness weights (nats per jump, >= 0);
+    extra_edges: optional (p, q, w) of more pairs (flat row-major pixel indices, e.g.
+    :func:`bridge_edges`; pairs with an invalid pixel are ignored).
     RETURNED VALUE: (correction (H, W) int64, 0 at invalid pixels; the energy of that solution
     (float, nats)).
     """
@@ -244,6 +281,19 @@ def solve_corrections(cost, phase_high, order, valid, wx, wy):
         m = np.rint(dphi / TWO_PI).astype(np.int64) + (n[:, :-1] - n[:, 1:] if axis == 1 else n[:-1, :] - n[1:, :])
         keep = (p >= 0) & (q >= 0) & (w > 0)
         pi_.append(p[keep]), qi_.append(q[keep]), ws.append(w[keep]), ms.append(m[keep])
+    if extra_edges is not None:
+        fp, fq, fw = (np.asarray(a).reshape(-1) for a in extra_edges)
+        if not (fp.shape == fq.shape == fw.shape) or (fp.size and (min(fp.min(), fq.min()) < 0
+                                                                   or max(fp.max(), fq.max()) >= H * W)):
+            raise UnwrapError("extra_edges: p, q, w must have one length and index pixels of the image")
+        if not np.all(np.isfinite(fw)) or (fw < 0).any():
+            raise UnwrapError("extra_edges: weights must be finite and >= 0")
+        fp, fq = fp.astype(np.int64), fq.astype(np.int64)
+        ip, iq = idx.reshape(-1)[fp], idx.reshape(-1)[fq]
+        phf, nf = phi.reshape(-1), n.reshape(-1)
+        m = np.rint((phf[fp] - phf[fq]) / TWO_PI).astype(np.int64) + nf[fp] - nf[fq]
+        keep = (ip >= 0) & (iq >= 0) & (fw > 0)
+        pi_.append(ip[keep]), qi_.append(iq[keep]), ws.append(fw[keep]), ms.append(m[keep])
     P, Q, Wt, M = (np.concatenate(a) for a in (pi_, qi_, ws, ms))
     M_raw, M = M, np.clip(M, -(L - 1), L - 1)       # |m| >= L - 1: the term is linear in the labels, the same for all such m
     g = maxflow.Graph[float](n_valid * (L - 1), 4 * n_valid * (L - 1))
@@ -298,7 +348,7 @@ def graphcut_orders(method: str, phase_low, phase_high, frequencies, valid, sigm
                     width: float, cost=None, smoothness: float | None = None, outlier: float | None = None,
                     sigma_floor: float | None = None, max_correction: int = MAX_CORRECTION, modulation=None,
                     min_modulation: float = 0.0, max_wrapped_step: float = math.pi / 2,
-                    max_prior_step: float = 1.5) -> SpatialResult:
+                    max_prior_step: float = 1.5, bridge: bool = True) -> SpatialResult:
     """Fringe orders of the high frequency of one orientation by the spatial energy (module docstring).
 
     ARGUMENTS: method "mf" | "mw" | "nt"; wrapped phases (rad, (H, W), NaN allowed where invalid);
@@ -308,7 +358,8 @@ def graphcut_orders(method: str, phase_low, phase_high, frequencies, valid, sigm
     ``-log p``); ``smoothness``: nats per 2 pi jump between neighbours; ``outlier``, ``sigma_floor``
     (fringes, added in quadrature to the prior's noise): the prior's likelihood (None: :data:`DEFAULTS`;
     the smoothness default is ``smoothness_learned`` when ``cost`` is given); the rest: see
-    :func:`edge_weights` (``modulation``, ``min_modulation`` in the same units).
+    :func:`edge_weights` (``modulation``, ``min_modulation`` in the same units); ``bridge``: add
+    :func:`bridge_edges` for pixels with fewer than 2 valid 4-neighbours.
     """
     from .dataset import traditional
 
@@ -342,7 +393,9 @@ def graphcut_orders(method: str, phase_low, phase_high, frequencies, valid, sigm
     wx, wy = edge_weights(phi_hi, ok, weight=smoothness, prior=prior, modulation=modulation,
                           min_modulation=min_modulation, max_wrapped_step=max_wrapped_step,
                           max_prior_step=max_prior_step)
-    c, energy = solve_corrections(cost, phi_hi, n, ok, wx, wy)
+    extra = bridge_edges(phi_hi, ok, weight=smoothness, prior=prior, max_wrapped_step=max_wrapped_step,
+                         max_prior_step=max_prior_step) if bridge else None
+    c, energy = solve_corrections(cost, phi_hi, n, ok, wx, wy, extra)
     order = np.where(ok, n + c, -1)
     return SpatialResult(order.astype(np.int64), n.astype(np.int64), c, np.where(ok, prior, 0.0), p_wrong, ok,
                          energy, time.perf_counter() - t0)
@@ -363,5 +416,5 @@ def gate(order, order_traditional, valid, p_wrong_traditional, *, confidence=Non
     return np.where(np.asarray(valid, dtype=bool), out, -1).astype(np.int64)
 
 
-__all__ = ["DEFAULTS", "GATE", "MAX_CORRECTION", "SpatialResult", "edge_weights", "gate", "graphcut_orders", "phase_noise",
+__all__ = ["DEFAULTS", "GATE", "MAX_CORRECTION", "SpatialResult", "bridge_edges", "edge_weights", "gate", "graphcut_orders", "phase_noise",
            "prior_data_cost", "prior_sigma", "solve_corrections", "traditional_error_probability"]
