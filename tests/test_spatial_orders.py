@@ -17,11 +17,15 @@ from unwrap.spatial_orders import (GATE, edge_weights, gate, graphcut_orders, pr
 TWO_PI = 2 * math.pi
 
 
-def _energy(cost, phi, order, valid, wx, wy, c):
+def _energy(cost, phi, order, valid, wx, wy, c, extra=None):
     K = cost.shape[0] // 2
     H, W = phi.shape
     e = sum(cost[c[y, x] + K, y, x] for y in range(H) for x in range(W) if valid[y, x])
     Phi = phi + TWO_PI * (order + c)
+    if extra is not None:
+        for p, q, w in zip(*extra):
+            if valid.flat[p] and valid.flat[q]:
+                e += w * abs(np.rint((Phi.flat[p] - Phi.flat[q]) / TWO_PI))
     for (w, dy, dx) in ((wx, 0, 1), (wy, 1, 0)):
         for y in range(H - dy):
             for x in range(W - dx):
@@ -41,15 +45,18 @@ def test_the_graph_cut_is_the_exact_minimum_of_the_energy():
         order = rng.integers(0, 5, (H, W))
         valid = rng.uniform(size=(H, W)) > 0.15
         wx, wy = rng.uniform(0, 2, (H, W - 1)), rng.uniform(0, 2, (H - 1, W))
-        c, e = solve_corrections(cost, phi, order, valid, wx, wy)
+        extra = None
+        if trial % 3 == 0:                      # long-range pairs (bridge_edges' kind)
+            extra = (rng.integers(0, H * W, 3), rng.integers(0, H * W, 3), rng.uniform(0, 2, 3))
+        c, e = solve_corrections(cost, phi, order, valid, wx, wy, extra)
         vp = np.argwhere(valid)
         best = math.inf
         for combo in itertools.product(range(-K, K + 1), repeat=len(vp)):
             cc = np.zeros((H, W), int)
             for (y, x), v in zip(vp, combo):
                 cc[y, x] = v
-            best = min(best, _energy(cost, phi, order, valid, wx, wy, cc))
-        assert _energy(cost, phi, order, valid, wx, wy, c) == pytest.approx(best, abs=1e-9)
+            best = min(best, _energy(cost, phi, order, valid, wx, wy, cc, extra))
+        assert _energy(cost, phi, order, valid, wx, wy, c, extra) == pytest.approx(best, abs=1e-9)
         assert e == pytest.approx(best, abs=1e-9)
         assert np.all(c[~valid] == 0)
 
@@ -131,6 +138,18 @@ def test_the_gate_never_raises_the_error_where_traditional_is_right():
     # and where the traditional decision is unreliable and the proposal sure, it is applied
     out = gate(wrong, r.order_traditional, valid, np.where(patch, 0.5, 0.0), min_p_wrong=0.1)
     assert np.all(out[patch] == k_true[patch] + 1)
+
+
+def test_bridge_edges_reach_isolated_pixels_only():
+    from unwrap.spatial_orders import bridge_edges
+
+    valid = np.ones((9, 9), bool)
+    valid[3:6, 3:6] = False
+    valid[4, 4] = True                                    # an island of one pixel in a hole
+    p, q, w = bridge_edges(np.zeros((9, 9)), valid, weight=2.0)
+    assert set(p.tolist()) | set(q.tolist()) >= {40}
+    assert all(40 in (a, b) for a, b in zip(p.tolist(), q.tolist()))   # only the island is bridged
+    assert np.allclose(sorted(set(np.round(w, 6))), sorted([1.0, 2 / math.sqrt(5), 2 / math.sqrt(8)]), atol=1e-6)
 
 
 def test_the_reliability_probability_follows_the_prior_residual():
