@@ -211,3 +211,31 @@ def test_calib_unwrap_spatial_on_a_clean_capture_keeps_every_traditional_order(t
             assert np.abs(a[o]["phase"][()][ok] - b[o]["phase"][()][ok]).max() < 1e-6
             assert np.array_equal(b[o]["order"][()], b[o]["order_traditional"][()])
             assert "p_wrong_traditional" in b[o]
+
+
+def test_mw_pair_one_period_apart_noise_free_is_left_exact():
+    H, W, width = 40, 120, 912
+    u = np.tile(np.linspace(20, 880, W), (H, 1))
+    lo, hi = (wrap(TWO_PI * f * u / width) for f in (47, 48))
+    k_true = np.rint((TWO_PI * 48 * u / width - hi) / TWO_PI)
+    r = graphcut_orders("mw", lo, hi, (47, 48), np.ones((H, W), bool), 0.01, 0.01, width=width)
+    assert np.all(r.order_traditional == k_true) and np.all(r.order == k_true)
+
+
+def test_calib_unwrap_learned_spatial_gated_keeps_the_sure_orders(tmp_path):
+    """--model learned --spatial graphcut with the default gate on a clean capture: every order the
+    reliability model is sure of stays the traditional one."""
+    from sltwin.cli import main
+    from test_cli_bad_inputs import _write_capture
+
+    _write_capture(tmp_path / "cap")
+    assert main(["unwrap", str(tmp_path / "cap"), "--model", "learned", "--spatial", "graphcut",
+                 "-o", str(tmp_path / "lgc"), "--no-previews", "-q"]) == 0
+    with h5py.File(tmp_path / "lgc" / "unwrap.h5") as b:
+        for o in ("v", "h"):
+            g = b[o]
+            assert g.attrs["method"] == "mf+learned+graphcut+gate"
+            sure = g["valid"][()] & (g["p_wrong_traditional"][()] < GATE["Learned + graph cut"]["min_p_wrong"])
+            assert sure.mean() > 0.9
+            assert np.array_equal(g["order"][()][sure], g["order_traditional"][()][sure])
+            assert "confidence" in g

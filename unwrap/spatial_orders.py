@@ -231,17 +231,8 @@ def bridge_edges(phase_high, valid, *, weight: float, prior=None, max_wrapped_st
     return np.concatenate(P), np.concatenate(Q), np.concatenate(Wt)
 
 
-def solve_corrections(cost, phase_high, order, valid, wx, wy, extra_edges=None):
-    """Exact minimiser of the energy of the module docstring.
-
-    ARGUMENTS: cost (L, H, W) float64 nats (L = 2 K + 1 labels, index c + K; finite at valid
-    pixels); phase_high (H, W) wrapped high-frequency phase (rad); order (H, W) traditional
-    order; valid (H, W) bool; wx (H, W-1), wy (H-1, W) smoothness weights (nats per jump, >= 0);
-    extra_edges: optional (p, q, w) of more pairs (flat row-major pixel indices, e.g.
-    :func:`bridge_edges`; pairs with an invalid pixel are ignored).
-    RETURNED VALUE: (correction (H, W) int64, 0 at invalid pixels; the energy of that solution
-    (float, nats)).
-    """
+def _check_solver_inputs(cost, phase_high, order, valid, wx, wy):
+    """Validated (cost, phi, valid, wx, wy) of :func:`solve_corrections` (UnwrapError naming the problem)."""
     H, W = _check_maps({"phase_high": phase_high, "order": order, "valid": valid})
     cost = np.asarray(cost, dtype=np.float64)
     if cost.ndim != 3 or cost.shape[1:] != (H, W) or cost.shape[0] % 2 != 1 or cost.shape[0] < 3:
@@ -257,24 +248,13 @@ def solve_corrections(cost, phase_high, order, valid, wx, wy, extra_edges=None):
     phi = np.asarray(phase_high, dtype=np.float64)
     if np.any(~np.isfinite(phi[valid])):
         raise UnwrapError("phase_high is not finite at pixels marked valid")
-    import maxflow
+    return cost, phi, valid, wx, wy
 
-    L = cost.shape[0]
-    K = L // 2
-    n_valid = int(valid.sum())
-    out = np.zeros((H, W), dtype=np.int64)
-    if n_valid == 0:
-        return out, 0.0
-    idx = np.full((H, W), -1, dtype=np.int64)
-    idx[valid] = np.arange(n_valid)
-    phi = np.where(valid, phi, 0.0)
-    n = np.where(valid, np.asarray(order, dtype=np.int64), 0)
-    D = cost[:, valid]                                          # (L, N)
-    src = np.zeros((L - 1, n_valid))                            # paid when u = 1
-    snk = np.zeros((L - 1, n_valid))                            # paid when u = 0
-    delta = np.diff(D, axis=0)
-    src += np.maximum(delta, 0.0)
-    snk += np.maximum(-delta, 0.0)
+
+def _pairs(idx, phi, n, wx, wy, extra_edges):
+    """(P, Q, w, m): node indices of the pairs with w > 0 and their jump offsets
+    ``m = round((phi_p - phi_q) / 2 pi) + n_p - n_q``."""
+    H, W = idx.shape
     pi_, qi_, ws, ms = [], [], [], []
     for w, axis in ((wx, 1), (wy, 0)):
         p = idx[:, :-1] if axis == 1 else idx[:-1, :]
@@ -296,8 +276,18 @@ def solve_corrections(cost, phase_high, order, valid, wx, wy, extra_edges=None):
         m = np.rint((phf[fp] - phf[fq]) / TWO_PI).astype(np.int64) + nf[fp] - nf[fq]
         keep = (ip >= 0) & (iq >= 0) & (fw > 0)
         pi_.append(ip[keep]), qi_.append(iq[keep]), ws.append(fw[keep]), ms.append(m[keep])
-    P, Q, Wt, M = (np.concatenate(a) for a in (pi_, qi_, ws, ms))
-    M_raw, M = M, np.clip(M, -(L - 1), L - 1)       # |m| >= L - 1: the term is linear in the labels, the same for all such m
+    return tuple(np.concatenate(a) for a in (pi_, qi_, ws, ms))
+
+
+def _min_cut_labels(D, P, Q, Wt, M):
+    """Labels 0..L-1 (N,) minimising sum D[a_p, p] + sum w |a_p - a_q + m| (Ishikawa's graph)."""
+    import maxflow
+
+    L, n_valid = D.shape
+    M = np.clip(M, -(L - 1), L - 1)       # |m| >= L - 1: the term is linear in the labels, the same for all such m
+    delta = np.diff(D, axis=0)
+    src = np.maximum(delta, 0.0)          # paid when u = 1 (sink side)
+    snk = np.maximum(-delta, 0.0)         # paid when u = 0
     g = maxflow.Graph[float](n_valid * (L - 1), 4 * n_valid * (L - 1))
     nodes = g.add_nodes(n_valid * (L - 1))
     ids = np.asarray(nodes).reshape(L - 1, n_valid) if np.ndim(nodes) else \
@@ -306,30 +296,49 @@ def solve_corrections(cost, phase_high, order, valid, wx, wy, extra_edges=None):
     ei, ej, ew = [], [], []
     for i in range(-(L - 1), 2 * (L - 1)):
         j = i + M
-        p_in, q_in = 0 <= i <= L - 2, (j >= 0) & (j <= L - 2)
-        if p_in:
-            both = q_in
-            ei.append(ids[i, P[both]]), ej.append(ids[j[both], Q[both]]), ew.append(Wt[both])
+        q_in = (j >= 0) & (j <= L - 2)
+        if 0 <= i <= L - 2:
+            ei.append(ids[i, P[q_in]]), ej.append(ids[j[q_in], Q[q_in]]), ew.append(Wt[q_in])
             lo, hi = j < 0, j > L - 2         # q's indicator is 1 (lo) or 0 (hi): |u_i - 1| or |u_i|
             _add_unary(snk, i, P[lo], Wt[lo])
             _add_unary(src, i, P[hi], Wt[hi])
         else:                                 # p's indicator is 1 (i < 0) or 0 (i > L - 2)
-            sel = q_in
-            if i < 0:
-                _add_unary(snk, j[sel], Q[sel], Wt[sel])
-            else:
-                _add_unary(src, j[sel], Q[sel], Wt[sel])
-    if ei:
-        a, b, w = np.concatenate(ei), np.concatenate(ej), np.concatenate(ew)
-        if a.size:
-            g.add_edges(a, b, w, w)
+            _add_unary(snk if i < 0 else src, j[q_in], Q[q_in], Wt[q_in])
+    a, b, w = np.concatenate(ei), np.concatenate(ej), np.concatenate(ew)
+    if a.size:
+        g.add_edges(a, b, w, w)
     for i in range(L - 2):                    # monotone layers: u_i >= u_{i+1}
         g.add_edges(ids[i], ids[i + 1], np.full(n_valid, _INF), np.zeros(n_valid))
     g.add_grid_tedges(ids, src, snk)
     g.maxflow()
-    a = g.get_grid_segments(ids).sum(axis=0)  # u = 1 on the sink side; label = number of layers at 1
-    out[valid] = a - K
-    energy = D[a, np.arange(n_valid)].sum() + (Wt * np.abs(M_raw + a[P] - a[Q])).sum()
+    return g.get_grid_segments(ids).sum(axis=0)  # u = 1 on the sink side; label = number of layers at 1
+
+
+def solve_corrections(cost, phase_high, order, valid, wx, wy, extra_edges=None):
+    """Exact minimiser of the energy of the module docstring.
+
+    ARGUMENTS: cost (L, H, W) float64 nats (L = 2 K + 1 labels, index c + K; finite at valid
+    pixels); phase_high (H, W) wrapped high-frequency phase (rad); order (H, W) traditional
+    order; valid (H, W) bool; wx (H, W-1), wy (H-1, W) smoothness weights (nats per jump, >= 0);
+    extra_edges: optional (p, q, w) of more pairs (flat row-major pixel indices, e.g.
+    :func:`bridge_edges`; pairs with an invalid pixel are ignored).
+    RETURNED VALUE: (correction (H, W) int64, 0 at invalid pixels; the energy of that solution
+    (float, nats)).
+    """
+    cost, phi, valid, wx, wy = _check_solver_inputs(cost, phase_high, order, valid, wx, wy)
+    L, H, W = cost.shape
+    n_valid = int(valid.sum())
+    out = np.zeros((H, W), dtype=np.int64)
+    if n_valid == 0:
+        return out, 0.0
+    idx = np.full((H, W), -1, dtype=np.int64)
+    idx[valid] = np.arange(n_valid)
+    n = np.where(valid, np.asarray(order, dtype=np.int64), 0)
+    P, Q, Wt, M = _pairs(idx, np.where(valid, phi, 0.0), n, wx, wy, extra_edges)
+    D = cost[:, valid]                                          # (L, N)
+    a = _min_cut_labels(D, P, Q, Wt, M)
+    out[valid] = a - L // 2
+    energy = D[a, np.arange(n_valid)].sum() + (Wt * np.abs(M + a[P] - a[Q])).sum()
     return out, float(energy)
 
 
