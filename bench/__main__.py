@@ -10,7 +10,7 @@ import sys
 import time
 
 from . import (ba_scale, calib_accuracy, calib_captures, detect_accuracy, export_speed, learned_speed,
-               outlier_rule, synth_speed, unwrap_speed)
+               outlier_rule, spatial_unwrap, synth_speed, unwrap_speed)
 
 #: (name, main(argv) of the benchmark, arguments of its quick mode)
 BENCHMARKS = [
@@ -23,6 +23,7 @@ BENCHMARKS = [
     ("outlier_rule", outlier_rule.main, ["--quick"]),
     ("export_speed", export_speed.main, ["--quick"]),
     ("learned_speed", learned_speed.main, ["--quick"]),
+    ("spatial_unwrap", spatial_unwrap.main, ["--quick"]),
 ]
 
 

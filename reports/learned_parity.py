@@ -20,7 +20,9 @@ both numbers are reported.
 
 Verdict: the model "behaves on real data as on the twin" when, at the capture's frequency, the
 learned/traditional error ratio on the capture is within a factor 2 of the twin's (or both error
-rates are below 0.1 %), and the learned error rate on the capture is not above the traditional.
+rates are below 0.1 %), and the learned error rate on the capture is not above the traditional;
+when the capture's traditional error is more than 1.5x its twin's, the verdict says instead that
+"the twin under-predicts real errors Nx" (the twin does not make the real errors, so it cannot vouch).
 """
 from __future__ import annotations
 
@@ -233,6 +235,12 @@ def verdict(rows) -> str:
     small = max(real[0]["learned"].rate, twin["learned"].rate, real[0]["traditional"].rate) < 1e-3
     same = small or (0.5 <= (rr + 1e-9) / (tr + 1e-9) <= 2.0)
     not_worse = real[0]["learned"].rate <= real[0]["traditional"].rate
+    gap = real[0]["traditional"].rate / max(twin["traditional"].rate, 1e-12)
+    if not small and gap > 1.5:       # issue 21: a twin that misses most real errors cannot vouch for the model
+        return (f"Verdict: the twin under-predicts real errors {gap:.1f}x at f = {f:g} (traditional: real "
+                f"{100 * real[0]['traditional'].rate:.3f} %, twin {100 * twin['traditional'].rate:.3f} %), so it "
+                f"cannot show that the model behaves on real captures as on the twin (learned/traditional error: "
+                f"real {rr:.2f}, twin {tr:.2f}).")
     word = "behaves on the real capture as on its twin" if same and not_worse else \
         "does NOT behave on the real capture as on its twin"
     return (f"Verdict: the twin-trained model {word} at f = {f:g} (learned/traditional error: real {rr:.2f}, "

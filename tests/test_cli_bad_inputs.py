@@ -283,6 +283,11 @@ CASES = [
     ("unwrap-model-gray", "unwrap {cap}/good --model learned --method gray -o {out}", "--method"),
     ("unwrap-model-max-error-rate", "unwrap {cap}/good --model learned --max-error-rate 1e-3 -o {out}",
      "--max-error-rate"),
+    # calib unwrap --spatial (issue 21)
+    ("unwrap-spatial-gray", "unwrap {cap}/good --spatial graphcut --method gray -o {out}", "--method"),
+    ("unwrap-no-gate-alone", "unwrap {cap}/good --no-gate -o {out}", "--no-gate"),
+    ("unwrap-spatial-max-error-rate", "unwrap {cap}/good --spatial graphcut --max-error-rate 1e-3 -o {out}",
+     "--max-error-rate"),
 ]
 
 

@@ -67,3 +67,16 @@ def test_traditional_gap_says_whether_the_matched_noise_explains_the_real_errors
     assert "ratio 4.5" in unexplained and "noise alone does not account" in unexplained
     assert traditional_gap([row("twin", 16.0, 10)]) == ""
     assert traditional_gap([row("real", 16.0, 10), row("twin", 48.0, 10)]) == ""
+
+
+def test_verdict_names_a_twin_that_under_predicts_the_real_errors():
+    """Issue 21: the skull's real traditional error is 4.4x its twin's; the verdict must say so."""
+    from reports.learned_parity import verdict
+    from unwrap.learned.metrics import ErrorCount
+
+    def row(data, trad, learned, counted=100_000):
+        return {"data": data, "f": 16.0, "traditional": ErrorCount(trad, counted), "learned": ErrorCount(learned, counted)}
+
+    v = verdict([row("real", 450, 370), row("twin", 102, 112)])
+    assert "the twin under-predicts real errors 4.4x" in v and "behaves on the real capture" not in v
+    assert "behaves on the real capture as on its twin" in verdict([row("real", 120, 110), row("twin", 100, 95)])

@@ -1,5 +1,6 @@
-"""``calib unwrap CAPTURE_DIR [--method mf|mw|nt|gray] [--model learned|PATH] -o OUT``: absolute phase,
-k, masks, previews (``--model``: by the learned network, with a confidence map).
+"""``calib unwrap CAPTURE_DIR [--method mf|mw|nt|gray] [--model learned|PATH] [--spatial graphcut [--no-gate]]
+-o OUT``: absolute phase, k, masks, previews (``--model``: by the learned network, with a confidence map;
+``--spatial graphcut``: orders corrected by a graph cut, :mod:`unwrap.spatial_capture`).
 
 The modulation threshold is 2 % of full scale unless ``--min-modulation`` sets it, or
 ``--max-error-rate`` derives it from the reliability model for the method, its step counts and
@@ -50,6 +51,13 @@ def add_arguments(parser):
                              "checkpoint; writes the same unwrap.h5 plus confidence and order_traditional")
     parser.add_argument("--outside", choices=["raise", "warn"], default="raise",
                         help="--model with frequencies far outside its training range: refuse (default) or warn")
+    parser.add_argument("--spatial", choices=["graphcut"], default=None,
+                        help="correct the fringe orders by a graph cut over the whole image (data term: the "
+                             "prior's likelihood, or the network's with --model; smoothness: wrap-consistent "
+                             "high phase, cut at depth edges; docs/unwrap.md)")
+    parser.add_argument("--no-gate", action="store_true",
+                        help="with --spatial: keep every correction (default: only where the traditional order "
+                             "is unreliable and, with --model, the network is sure)")
     parser.add_argument("--no-previews", action="store_true", help="skip the PNG previews")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress messages")
 
@@ -79,7 +87,22 @@ def run(args) -> int:
     from unwrap.pipeline import unwrap_capture, write_results
 
     output_dir(args.output)
-    if args.model is not None:
+    if args.no_gate and args.spatial is None:
+        raise CommandError("--no-gate belongs to --spatial graphcut")
+    if args.spatial is not None:
+        from unwrap.spatial_capture import unwrap_capture_spatial
+
+        if args.method not in (None, "mf", "mw", "nt"):
+            raise CommandError(f"--spatial works with --method mf, mw or nt, not {args.method}")
+        if args.max_error_rate is not None:
+            raise CommandError("--max-error-rate sets the traditional decoders' threshold; with --spatial give "
+                               "--min-modulation")
+        results = unwrap_capture_spatial(args.capture_dir, args.method or "mf", model=args.model,
+                                         use_gate=not args.no_gate, preset=args.preset, pose=args.pose,
+                                         min_modulation=args.min_modulation, noise_sigma=args.noise_sigma,
+                                         check_prior=not args.no_prior_check, on_outside=args.outside,
+                                         progress=True)
+    elif args.model is not None:
         from unwrap.learned.capture import unwrap_capture_learned
 
         if args.method not in (None, "mf", "mw", "nt"):
@@ -99,10 +122,12 @@ def run(args) -> int:
                          attrs={"capture": str(args.capture_dir)})
     for o, r in results.items():
         print(describe(o, r))
-        if "confidence" in r.extras:
+        if "confidence" in r.extras or "p_wrong_traditional" in r.extras:
             u = r.result
             changed = (u.order != r.extras["order_traditional"]) & u.valid
-            print(f"   learned: {int(changed.sum())} orders differ from the traditional ones; median confidence "
-                  f"{float(np.median(r.extras['confidence'][u.valid])) if u.valid.any() else 0:.3f}")
+            print(f"   {u.method}: {int(changed.sum())} orders differ from the traditional ones; median confidence "
+                  f"{float(np.median(r.extras['confidence'][u.valid])) if u.valid.any() else 0:.3f}"
+                  if "confidence" in r.extras else f"   {u.method}: {int(changed.sum())} orders differ from the "
+                  "traditional ones")
     print(f"wrote {path}")
     return 0

@@ -134,16 +134,18 @@ class LearnedResult:
     prior: np.ndarray            # float64, 0 where invalid
     valid: np.ndarray
     frequency_check: dict = field(default_factory=dict)
+    log_probs: np.ndarray | None = None   # float64 (2K+1, H, W) class log-probabilities (``log_probs=True``)
 
 
 def unwrap_learned(method: str, phase_low, phase_high, modulation_low, modulation_high, valid, frequencies, *,
-                   width: float, model="learned", on_outside: str = "raise") -> LearnedResult:
+                   width: float, model="learned", on_outside: str = "raise", log_probs: bool = False) -> LearnedResult:
     """Fringe order of the high frequency from one orientation's wrapped phases, by the network.
 
     ARGUMENTS: method ("mf", "mw", "nt"); wrapped phases (rad, (H, W), NaN allowed where invalid);
     modulations (fraction of full scale); valid (H, W) bool; frequencies (low, high); width =
     projector pixels across the fringes; model (module docstring); on_outside (see
-    :func:`check_frequency_range`).
+    :func:`check_frequency_range`); log_probs: also return the per-pixel log-probabilities of the
+    correction classes -K..K (the data term of :mod:`unwrap.spatial_orders`; physics-aware models).
     """
     net, ck = resolve_model(model)
     f_lo, f_hi = (float(f) for f in frequencies)
@@ -162,5 +164,15 @@ def unwrap_learned(method: str, phase_low, phase_high, modulation_low, modulatio
              "frequency_low": torch.tensor([f_lo], dtype=torch.float64),
              "frequency_high": torch.tensor([f_hi], dtype=torch.float64),
              "method": torch.tensor([Fe.METHOD_INDEX[method]])}
-    order, conf = predict(net, ck, batch)
-    return LearnedResult(order[0].cpu().numpy(), conf[0].cpu().numpy(), order_trad, prior, valid, check)
+    if not log_probs:
+        order, conf = predict(net, ck, batch)
+        return LearnedResult(order[0].cpu().numpy(), conf[0].cpu().numpy(), order_trad, prior, valid, check)
+    if ck["arch"]["kind"] != "physics":
+        raise ModelError("log_probs: only a physics-aware model outputs order-correction classes")
+    with torch.no_grad():
+        dev = next(net.parameters()).device
+        out = net(Fe.make_inputs(batch, ck["arch"]["kind"])[0].to(dev)).float()
+        order, conf = Fe.decode(out, {k: (v.to(dev) if torch.is_tensor(v) else v) for k, v in batch.items()},
+                                "physics", ck["arch"]["max_correction"])
+        lp = torch.log_softmax(out.double(), dim=1)[0].cpu().numpy()
+    return LearnedResult(order[0].cpu().numpy(), conf[0].cpu().numpy(), order_trad, prior, valid, check, lp)

@@ -1,0 +1,156 @@
+"""Unwrap a capture folder with the spatial graph cut (``calib unwrap CAPTURE --spatial graphcut``).
+
+Per orientation: the N-step wrapped phases of a pair (MF: the lowest and the highest frequency;
+MW / NT: the two highest, one period apart, as the learned path), the phase noise of each pixel
+from the reliability model (``sqrt(2/N) sigma / B``; ``sigma`` from the fit residuals, N >= 4,
+else from the high phase's residual against a local plane, or given), then
+:func:`unwrap.spatial_orders.graphcut_orders` - with the prior's likelihood as data term, or with
+the learned network's class log-probabilities (``model``) - and by default the never-worse gate
+(:func:`unwrap.spatial_orders.gate`, thresholds :data:`unwrap.spatial_orders.GATE`). The result
+is an :class:`unwrap.pipeline.OrientationResult` like the other paths' (``write_results`` writes
+the same ``unwrap.h5``) with the extra maps ``order_traditional``, ``p_wrong_traditional`` (the
+reliability model's error probability of the traditional order) and, with a model,
+``confidence``. The checks of the other paths hold: one :class:`unwrap.capture.FrameReader`,
+the traditional prior near integers (:mod:`unwrap.consistency`), the pattern range.
+"""
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+from ._xp import TWO_PI
+from .capture import FrameReader, load_capture
+from .consistency import check_priors, prior_check
+from .errors import UnwrapError
+from .phase_shift import fit_noise_sigma, wrapped_phase
+from .pipeline import OrientationResult, check_min_modulation
+from .spatial_orders import DEFAULTS, GATE, gate, graphcut_orders, phase_noise
+from .temporal import Unwrapped, constrain_to_pattern
+
+log = logging.getLogger("unwrap")
+
+
+def _pair(method: str, freqs: list) -> tuple[int, int]:
+    if len(freqs) < 2:
+        raise UnwrapError(f"the spatial stage needs two fringe frequencies, the capture has {freqs}")
+    if method == "mf":
+        return 0, len(freqs) - 1
+    if method in ("mw", "nt"):
+        return len(freqs) - 2, len(freqs) - 1
+    raise UnwrapError(f"method {method!r}: the spatial stage supports 'mf', 'mw' and 'nt'")
+
+
+def noise_from_phase(phase_abs, valid, modulation, steps: int) -> float:
+    """Intensity noise per frame (units of ``modulation``) from an absolute phase (rad, (H, W)):
+    the robust spread of each interior pixel's residual against the least-squares plane of its
+    5x5 neighbours, times ``B sqrt(N / 2)`` (the N-step noise gain), median over the pixels. For
+    3-step captures, whose fit has no residual."""
+    import torch
+
+    from .learned.smoothing import smooth_phase
+
+    ok = np.asarray(valid, dtype=bool) & np.isfinite(phase_abs)
+    P = torch.from_numpy(np.where(ok, phase_abs, 0.0))[None, None]
+    okt = torch.from_numpy(ok)[None, None]
+    e = (P - smooth_phase(P, okt, 5, "plane"))[0, 0].numpy()
+    interior = ok & (torch.nn.functional.avg_pool2d(okt.double(), 5, 1, 2)[0, 0].numpy() > 0.999)
+    if interior.sum() < 100:
+        raise UnwrapError("too few interior valid pixels to estimate the noise from the phase; give noise_sigma")
+    dof = math.sqrt(25.0 / 22.0)
+    return float(np.median(1.4826 * np.abs(e[interior]) * dof * np.asarray(modulation)[interior])
+                 * math.sqrt(steps / 2.0))
+
+
+def spatial_orientation(oc, method: str = "mf", *, model=None, use_gate: bool = True, min_modulation=None,
+                        noise_sigma=None, check_prior: bool = True, camera_size=None, on_outside: str = "raise",
+                        progress: bool = False) -> OrientationResult:
+    """One orientation (:class:`unwrap.capture.OrientationCapture`) by the graph cut (module docstring)."""
+    reader = FrameReader(camera_size)
+    sets = sorted(oc.sets, key=lambda s: s.frequency)
+    freqs = [float(s.frequency) for s in sets]
+    i_lo, i_hi = _pair(method, freqs)
+    w, stacks = {}, {}
+    for i in (i_lo, i_hi):
+        stacks[i] = reader.stack(sets[i].files)
+        mm = check_min_modulation(min_modulation, stacks[i].dtype)
+        w[i] = wrapped_phase(stacks[i], sets[i].shifts, min_modulation=mm)
+    lo, hi = w[i_lo], w[i_hi]
+    valid = lo.valid & hi.valid
+    if not valid.any():
+        raise UnwrapError(f"orientation {oc.orientation}: no valid pixel (modulation threshold {mm:.3g})")
+    steps = (len(sets[i_lo].files), len(sets[i_hi].files))
+    pair = (freqs[i_lo], freqs[i_hi])
+    phi_lo, phi_hi = np.nan_to_num(lo.phase), np.nan_to_num(hi.phase)
+    if noise_sigma is not None:
+        if not (math.isfinite(noise_sigma) and noise_sigma > 0):
+            raise UnwrapError(f"noise_sigma must be finite and > 0 (grey levels), got {noise_sigma!r}")
+        sigma, how = float(noise_sigma), "given"
+    elif steps[1] >= 4:
+        sigma, how = fit_noise_sigma(stacks[i_hi], sets[i_hi].shifts, valid), "fit residuals"
+    else:
+        from .dataset import traditional
+        _, n0, ok0 = traditional(method, phi_lo, phi_hi, *pair, float(oc.width), valid)
+        sigma, how = noise_from_phase(np.where(ok0, phi_hi + TWO_PI * n0, np.nan), ok0, hi.B, steps[1]), "phase residual"
+    s_lo, s_hi = phase_noise(lo.B, steps[0], sigma), phase_noise(hi.B, steps[1], sigma)
+    extras, cost, conf, label = {}, None, None, f"{method}+graphcut"
+    if model is not None:
+        from .learned.infer import unwrap_learned
+        full = [float(np.iinfo(stacks[i].dtype).max) if np.issubdtype(stacks[i].dtype, np.integer) else 1.0
+                for i in (i_lo, i_hi)]
+        r = unwrap_learned(method, phi_lo, phi_hi, lo.B / full[0], hi.B / full[1], valid, pair, width=oc.width,
+                           model=model, on_outside=on_outside, log_probs=True)
+        cost, label = -r.log_probs, f"{method}+learned+graphcut"
+    res = graphcut_orders(method, phi_lo, phi_hi, pair, valid, s_lo, s_hi, width=oc.width, cost=cost,
+                          smoothness=DEFAULTS["smoothness_learned" if model is not None else "smoothness"],
+                          outlier=DEFAULTS["outlier"], sigma_floor=DEFAULTS["sigma_floor"])
+    order = res.order
+    if model is not None:
+        c = np.clip(res.correction + 2, 0, 4)
+        conf = np.where(res.valid, np.exp(np.take_along_axis(r.log_probs, c[None], 0)[0]), 0.0)
+        extras["confidence"] = conf.astype(np.float32)
+    if use_gate:
+        g = GATE["Learned + graph cut" if model is not None else "Graph cut"]
+        order = gate(order, res.order_traditional, res.valid, res.p_wrong_traditional, confidence=conf,
+                     min_confidence=g["min_confidence"], min_p_wrong=g["min_p_wrong"])
+        label += "+gate"
+    ok = order >= 0
+    phase = np.where(ok, phi_hi + TWO_PI * order, math.nan)
+    phase, order, ok = constrain_to_pattern(np, phase, order, ok, pair[1], oc.width)
+    phase = np.where(ok, phase, math.nan)
+    out = Unwrapped(phase, np.where(ok, order, -1).astype(np.int32), ok, np.where(res.valid, res.prior, math.nan),
+                    pair[1], label)
+    checks = prior_check(Unwrapped(phase, order, res.valid, res.prior, pair[1], method))
+    if check_prior:
+        check_priors(checks, f"orientation {oc.orientation}, method {method} (spatial; the traditional prior)")
+    extras["order_traditional"] = res.order_traditional.astype(np.int32)
+    extras["p_wrong_traditional"] = res.p_wrong_traditional.astype(np.float32)
+    changed = int(((order != res.order_traditional) & ok).sum())
+    log.log(logging.INFO if progress else logging.DEBUG,
+            "  [%s] %s: noise %.3g per frame (%s), %d of %d valid orders changed, graph cut %.2f s", oc.orientation,
+            label, sigma, how, changed, int(ok.sum()), res.seconds)
+    return OrientationResult(oc.orientation, oc.width, out, hi.B, hi.A, min_modulation=mm, noise_sigma=sigma,
+                             prior_check=checks, extras=extras)
+
+
+def unwrap_capture_spatial(folder, method: str = "mf", *, model=None, use_gate: bool = True, preset=None, pose=None,
+                           min_modulation=None, noise_sigma=None, check_prior: bool = True,
+                           on_outside: str = "raise", progress: bool = False) -> dict:
+    """Every orientation of a capture folder by the graph cut: {"v": OrientationResult, ...}."""
+    cap = load_capture(folder, preset, pose)
+    net = None
+    if model is not None:
+        from .learned.infer import resolve_model
+        net = resolve_model(model)
+    out = {}
+    for o, oc in cap.orientations.items():
+        if not oc.sets:
+            raise UnwrapError(f"orientation {o}: this capture holds Gray code only; the spatial stage needs "
+                              "phase-shift frames of two frequencies")
+        log.log(logging.INFO if progress else logging.DEBUG, "unwrap %s [%s] orientation %s, method %s + graph cut",
+                cap.folder, cap.preset, o, method)
+        out[o] = spatial_orientation(oc, method, model=net, use_gate=use_gate, min_modulation=min_modulation,
+                                     noise_sigma=noise_sigma, check_prior=check_prior, camera_size=cap.camera_size,
+                                     on_outside=on_outside, progress=progress)
+    return out
