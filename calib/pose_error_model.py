@@ -78,6 +78,9 @@ class PoseErrorModel:
     cov: np.ndarray
     independent_fraction: float
     fields: dict
+    components: tuple = None
+    """(labels, S, s0): the fields' labels, their per-pose coefficient variances (whitened units;
+    0: not kept) and the independent variance, for checks that rebuild ``Omega``."""
     levels: object = None
     """:class:`calib.level_uncertainty.LevelUncertainty`: the sigmas above are already multiplied by
     its ``inflation`` (few poses: the per-pose levels are themselves uncertain)."""
@@ -144,7 +147,7 @@ def fit_pose_error_model(aj, obs) -> PoseErrorModel:
     fields = {lab: float(np.sqrt(s)) * px[lab.split(".")[0]] for lab, s in zip(labels, S)}
     return PoseErrorModel(names, dict(zip(names, np.sqrt(np.diag(cov_g)).tolist())),
                           dict(zip(names, np.sqrt(np.diag(cov_ind)).tolist())), cov_g,
-                          float(s0 / max(np.mean(r ** 2), 1e-300)), fields, levels)
+                          float(s0 / max(np.mean(r ** 2), 1e-300)), fields, (labels, S, float(s0)), levels)
 
 
 def _solve_components(M, T) -> tuple[np.ndarray, float]:

@@ -14,6 +14,13 @@ large. Unequal leverage raises it (a pose that alone pins a parameter moves it a
 out: on a model of the SLStudio session the jackknife overstates by 1.1-1.2x, docs/calib.md), so the
 ratio ``rms_z * sqrt(n - 1)`` ("normalised") is read with that in mind: 1 is honest, 1.2 still is.
 
+What honest sigmas give on a given session is computed too (``expected``): the fit linearised at
+the full solution, the shift of leaving pose i out is ``K_i e`` with
+``K_i = (J_-i^T J_-i)^-1 J_-i^T P_-i - (J^T J)^-1 J^T`` (rows and board-pose columns of pose i
+dropped), so under the fitted error model ``E[shift^2] = diag(K_i Omega K_i^T)``, and the expected
+``z^2`` is that over the model's own variance (before the few-pose inflation). It carries the
+session's unequal leverage; ``rms / expected_rms`` near 1 is honest.
+
 "Nested": each session of n - 1 poses is itself checked against its own n - 2 subsets when asked
 (``depth=2``), which is how a 5-pose session is measured from a 6-pose one.
 
@@ -53,6 +60,16 @@ class HoldoutZ:
     reported: dict
     too_small: bool | None = None
     sub: list = field(default_factory=list)
+    expected: np.ndarray | None = None
+    poses: tuple = ()
+
+    @property
+    def expected_rms(self) -> float:
+        """RMS z that honest sigmas give on this session (linearised, fitted error model); NaN
+        where the error model was not computed."""
+        if self.expected is None:
+            return float("nan")
+        return float(np.sqrt(np.mean(self.expected[np.isfinite(self.z)])))
 
     @property
     def rms(self) -> float:
@@ -82,6 +99,7 @@ def calibrate_with_uncertainty(obs: Observations, config=None):
     cal = reweight_views(obs, config)
     fitted = with_view_noise(obs, cal.view_noise) if cal.view_noise else obs
     cal.uncertainty = assess_uncertainty(cal, fitted)
+    cal.uncertainty_observations = fitted
     return cal
 
 
@@ -130,4 +148,35 @@ def _holdout(keep, fit, depth, names, system_parameters) -> HoldoutZ:
         if depth > 1 and len(rest) >= 4:
             sub.append(_holdout(rest, fit, depth - 1, names, system_parameters))
     small = full.uncertainty.too_small
-    return HoldoutZ(len(keep), names, z, {n: std[n] for n in names}, small, sub)
+    return HoldoutZ(len(keep), names, z, {n: std[n] for n in names}, small, sub, _expected(full, names), tuple(keep))
+
+
+def _expected(cal, names):
+    """(n_poses, P) expected z^2 under the fitted error model (module docstring), or None."""
+    from .pose_error_model import _field_matrices
+    from .residual_jacobian import adjustment_jacobian
+
+    em = cal.uncertainty.error_model
+    if em is None or em.components is None:
+        return None
+    fitted = cal.uncertainty_observations
+    aj = adjustment_jacobian(cal, fitted)
+    mats, labels, rows = _field_matrices(aj, fitted)
+    _, S, s0 = em.components
+    J = aj.J[rows]
+    B = np.linalg.inv(J.T @ J)
+    cols = [aj.names.index(n) for n in names]
+    base = (B @ J.T)[cols]
+    view = np.repeat(aj.view, 2)[rows]
+    inflation = dict(zip(em.names, em.levels.inflation)) if em.levels is not None else {}
+    v = np.array([(em.std[n] / inflation.get(n, 1.0)) ** 2 for n in names])
+    out = np.full((len(fitted.views), len(names)), np.nan)
+    for i in range(len(fitted.views)):
+        keep_r = view != i
+        keep_c = [k for k, n in enumerate(aj.names) if not ("/" in n and n.split("/")[1].split(".")[0] == str(i))]
+        Ji = J[np.ix_(keep_r, keep_c)]
+        K = -base.copy()
+        K[:, keep_r] += (np.linalg.inv(Ji.T @ Ji) @ Ji.T)[[keep_c.index(c) for c in cols]]
+        var = s0 * np.sum(K ** 2, axis=1) + sum(s * np.sum((K @ A) ** 2, axis=1) for s, A in zip(S, mats) if s > 0)
+        out[i] = var / v
+    return out
