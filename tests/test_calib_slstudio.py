@@ -14,6 +14,8 @@ import pytest
 from sltwin.cli import main
 from tests.conftest import REPO, shared_data
 
+pytestmark = pytest.mark.realdata
+
 UPSTREAM_FLAGS = ["--distortion", "4", "--fix", "camera.cx=843.5", "--fix", "camera.cy=675.5",
                   "--fix", "camera.k2=0", "--fix", "camera.p1=0", "--fix", "camera.p2=0",
                   "--fix", "projector.k2=0", "--fix", "projector.p1=0", "--fix", "projector.p2=0"]

@@ -19,7 +19,8 @@ REPO = Path(__file__).resolve().parents[1]
 TINY = ["data.synthetic_samples=6", "data.synthetic_size=[32, 48]", "data.crop=[]", "data.orientations=['v']",
         "data.methods=['mf', 'nt']", "data.val_fraction=0.2", "model.width=4", "model.depth=1", "model.max_width=8",
         "optim.batch_size=2", "optim.steps=6", "optim.warmup_steps=1", "run.val_every=3", "run.checkpoint_every=2",
-        "run.log_every=1", "run.threads=1"]
+        "run.log_every=1", "run.threads=1", "run.device=cpu"]
+"""``run.device=cpu``: a runner with a GPU must not change what these CPU tests mean (AMP, NCCL)."""
 
 
 def _weights(path):

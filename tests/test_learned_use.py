@@ -128,7 +128,7 @@ def test_speed_table_times_every_path(tmp_path):
 def test_calib_train_command_line_runs_resumes_and_refuses_typos(tmp_path, capsys):
     args = ["train", "data.synthetic_samples=4", "data.synthetic_size=[32, 32]", "data.crop=[]",
             "data.orientations=['v']", "data.methods=['mf']", "model.width=4", "model.depth=1", "optim.batch_size=2",
-            "optim.steps=2", "run.val_every=2", "-q"]
+            "optim.steps=2", "run.val_every=2", "run.device=cpu", "-q"]
     assert main(args + ["-o", str(tmp_path / "r")]) == 0
     assert main(["train", "--resume", str(tmp_path / "r"), "optim.steps=3", "-q"]) == 0
     assert "step 3" in capsys.readouterr().out
