@@ -70,3 +70,37 @@ def test_traditional_gap_says_whether_the_matched_noise_explains_the_real_errors
     assert "ratio 4.5" in unexplained and "noise alone does not account" in unexplained
     assert traditional_gap([row("twin", 16.0, 10)]) == ""
     assert traditional_gap([row("real", 16.0, 10), row("twin", 48.0, 10)]) == ""
+
+
+@pytest.mark.slow
+def test_calib_report_with_learned_files_adds_the_parity_section(tmp_path, capsys):
+    """The passing case of `calib report --learned-real/--learned-twin/--learned-model`: the report
+    carries the learned parity section at the frequency the files hold (16, one of the section's),
+    and a zero-correction model scores as the traditional order on both."""
+    from calib import default_system
+    from calib.io.calibration_json import write_calibration_json
+    from sltwin.cli import main
+    from synth.dataset_export import export_dataset
+
+    files = {}
+    for fw in (1500, 6000):
+        d = tmp_path / f"fw{fw}"
+        d.mkdir()
+        cfg = tiny_config(d, samples=2, frequencies="[1, 16]", steps=4,
+                          effects=f"noise = {{full_well_e = {fw}, read_noise_e = 1}}\nexposure = 0.8")
+        export_dataset(cfg, d / "set.h5", progress=False)
+        files[fw] = d / "set.h5"
+    cal = write_calibration_json(default_system(), tmp_path / "calibration.json")
+    model = constant_model(tmp_path / "zero.pt", 0)
+    out = tmp_path / "rep"
+    assert main(["report", "--real", str(cal), "--twin", str(cal), "--learned-real", str(files[1500]),
+                 "--learned-twin", str(files[6000]), "--learned-model", str(model), "-o", str(out)]) == 0
+    assert "behaves on the real capture as on its twin" in capsys.readouterr().out
+    md = (out / "report.md").read_text()
+    assert "Verdict" in md
+    rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[1:-1]] for line in md.splitlines()
+            if line.startswith(("| real | 16 |", "| twin | 16 |"))}
+    assert sorted(rows) == ["real", "twin"]
+    for data, (_, f, samples, pixels, trad, filtered, learned, check) in rows.items():
+        assert samples == "2" and int(pixels) > 30_000 and check.endswith("ok")
+        assert learned == trad                                  # zero correction = the traditional order
