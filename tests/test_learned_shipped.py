@@ -4,12 +4,12 @@ fixed scenes"), far less often than the traditional order. A retrained, damaged 
 checkpoint changes these numbers."""
 import pytest
 
-from unwrap.learned.evaluate import TestSource, score
+from unwrap.learned import evaluate
 from unwrap.learned.infer import shipped_model_path
 
 pytestmark = pytest.mark.slow
 
-SCENES = TestSource(synthetic=(2, (96, 128), 9001))
+SCENES = evaluate.TestSource(synthetic=(2, (96, 128), 9001))
 """What ``calib eval --synthetic 2`` scores: two in-memory scenes (procedural objects, the training
 noise model), seed 9001, 96 x 128, both orientations: 47,868 counted pixels per method."""
 
@@ -23,7 +23,7 @@ def test_the_shipped_model_makes_the_documented_error_rate_on_fixed_scenes(metho
 
     net, ck = load_model(shipped_model_path())
     assert ck["meta"]["frequencies"]["mf"] == [1.0, 48.0]
-    s = score(SCENES, method, f, {"shipped": (net, ck)}, filtered_window=None)
+    s = evaluate.score(SCENES, method, f, {"shipped": (net, ck)}, filtered_window=None)
     trad, learned = (100 * s.counts[k].rate for k in ("Traditional", "shipped"))
     assert s.counts["shipped"].counted == 47_868
     documented_trad, documented = DOCUMENTED[(method, f)]
