@@ -240,7 +240,7 @@ def test_export_command_shard_combine_and_capture_passing_cases(tmp_path, design
     from unwrap.dataset_schema import decode_phase
     from unwrap.patterns import absolute_phase
 
-    cfg = tiny_config(tmp_path, samples=3)
+    cfg = tiny_config(tmp_path, samples=2)
     assert main(["export", str(cfg), "-o", str(tmp_path / "whole.h5"), "-q"]) == 0
     for i in range(2):
         assert main(["export", str(cfg), "--shard", f"{i}/2", "-o", str(tmp_path / "s.h5"), "-q"]) == 0
