@@ -34,7 +34,10 @@ covariance is the adjustment's.
 
 Covariance (sandwich: the estimate stays the least-squares one, the errors are not what it assumed):
 
-    cov = B J^T Omega J B,   B = (J^T J)^-1,   Omega = s0 I + sum_l S_l A_l A_l^T.
+    cov = B J^T Omega J B,   B = (J^T J)^-1,   Omega = s0 I + sum_l S_l A_l A_l^T,
+
+each parameter's variance then multiplied by the factor for levels estimated from few poses
+(:mod:`calib.level_uncertainty`: ``E[v / v_hat]``, a Student-t inflation; 1 without kept fields).
 
 Checked: on the SLStudio session the standard deviations it gives are those of a bootstrap over
 poses (ratio median 1.13, 0.74-1.73 over the 24 intrinsics and rig parameters) where the
@@ -48,6 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import UncertaintyError
+from .level_uncertainty import level_uncertainty
 
 SIGNIFICANCE = 3.5
 """A field is kept when its statistic exceeds what the rest explains by this many standard deviations."""
@@ -74,6 +78,12 @@ class PoseErrorModel:
     cov: np.ndarray
     independent_fraction: float
     fields: dict
+    components: tuple = None
+    """(labels, S, s0): the fields' labels, their per-pose coefficient variances (whitened units;
+    0: not kept) and the independent variance, for checks that rebuild ``Omega``."""
+    levels: object = None
+    """:class:`calib.level_uncertainty.LevelUncertainty`: the sigmas above are already multiplied by
+    its ``inflation`` (few poses: the per-pose levels are themselves uncertain)."""
 
     def inflation(self) -> dict:
         """{name: std / std_independent}."""
@@ -130,13 +140,14 @@ def fit_pose_error_model(aj, obs) -> PoseErrorModel:
     cov = s0 * B + sum(s * L @ L.T for s, L in zip(S, lever))
     g = aj.global_index
     names = [aj.names[k] for k in g]
-    cov_g = cov[np.ix_(g, g)]
+    levels = level_uncertainty(S, s0, mats, absorbed, lever, B, g, labels)
+    cov_g = cov[np.ix_(g, g)] * np.outer(levels.inflation, levels.inflation)
     cov_ind = aj.covariance()[np.ix_(g, g)]
     px = _whitening_px(aj)
     fields = {lab: float(np.sqrt(s)) * px[lab.split(".")[0]] for lab, s in zip(labels, S)}
     return PoseErrorModel(names, dict(zip(names, np.sqrt(np.diag(cov_g)).tolist())),
                           dict(zip(names, np.sqrt(np.diag(cov_ind)).tolist())), cov_g,
-                          float(s0 / max(np.mean(r ** 2), 1e-300)), fields)
+                          float(s0 / max(np.mean(r ** 2), 1e-300)), fields, (labels, S, float(s0)), levels)
 
 
 def _solve_components(M, T) -> tuple[np.ndarray, float]:

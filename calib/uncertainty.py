@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import UncertaintyError
+from .level_uncertainty import MIN_DOF
 from .pose_error_model import fit_pose_error_model
 from .residual_diagnostics import diagnose_residuals
 from .residual_jacobian import adjustment_jacobian
@@ -57,6 +58,9 @@ class UncertaintyReport:
     resampled: object = None
     diagnostics: object = None
     warnings: list = field(default_factory=list)
+    too_small: bool = False
+    """True when the per-pose error levels rest on too few poses for the sigmas to be trusted
+    (:mod:`calib.level_uncertainty`: a parameter's variance has < MIN_DOF effective degrees of freedom)."""
 
     def rows(self) -> list:
         """[(name, independent, reported, resampled or None, resampled / reported or None)]."""
@@ -73,8 +77,15 @@ class UncertaintyReport:
             em = self.error_model
             d["error_model"] = {"per_pose_field_sd_px": em.fields, "independent_fraction": em.independent_fraction,
                                 "inflation": em.inflation()}
+            if em.levels is not None:
+                lv = em.levels
+                d["error_model"]["few_poses"] = {
+                    "sigma_inflation": dict(zip(em.names, lv.inflation.tolist())),
+                    "effective_dof": {n: (None if not np.isfinite(v) else float(v)) for n, v in zip(em.names, lv.dof)},
+                    "field_dof": lv.field_dof}
         elif self.why_not:
             d["error_model"] = {"not_computed": self.why_not}
+        d["too_small_to_trust_sigmas"] = self.too_small
         if self.resampled is not None:
             rs = self.resampled
             d["resampled"] = {"method": rs.method, "std": rs.std, "runs": len(rs.runs), "failed": rs.failed,
@@ -121,6 +132,10 @@ def assess_uncertainty(cal, obs, *, resample: str = "none", draws: int = 30, see
         worst = max(em.inflation().items(), key=lambda kv: kv[1])
         if worst[1] > DISAGREEMENT:
             report.warnings.append(_inflation_warning(em, worst))
+        small = _too_small_warning(em, len(obs.views))
+        if small:
+            report.too_small = True
+            report.warnings.append(small)
     if resample != "none":
         from .pose_resampling import resample_poses
 
@@ -143,6 +158,21 @@ def _inflation_warning(em, worst) -> str:
             + f"): the reported sigmas are up to {worst[1]:.1f}x the independent-residual ones ({worst[0]})")
 
 
+def _too_small_warning(em, n_poses: int) -> str | None:
+    """The warning for a session whose per-pose error levels rest on too few poses, or None."""
+    if em.levels is None:
+        return None
+    dof = dict(zip(em.names, em.levels.dof))
+    low = sorted((v, n) for n, v in dof.items() if v < MIN_DOF)
+    if not low:
+        return None
+    infl = dict(zip(em.names, em.levels.inflation))
+    return (f"this session ({n_poses} poses) is too small to trust its own sigmas: the per-pose error levels rest on "
+            f"few poses (effective degrees of freedom {low[0][0]:.1f} for {low[0][1]}, below {MIN_DOF} for {len(low)} "
+            f"of {len(dof)} parameters: those sigmas are uncertain by more than a third); they are inflated for it "
+            f"(up to {max(infl.values()):.2f}x) but may still be off; add poses (docs/calib.md, 'Honest uncertainty')")
+
+
 def uncertainty_table(report: UncertaintyReport, system_names=None) -> str:
     """Plain-text table: parameter, the adjustment's sigma, the reported one, the resampled spread."""
     rs = report.resampled
@@ -157,4 +187,6 @@ def uncertainty_table(report: UncertaintyReport, system_names=None) -> str:
         lines.append(line)
     if report.why_not:
         lines.append(f"(per-pose error model not computed: {report.why_not})")
+    if report.too_small:
+        lines.append("(too few poses to trust these sigmas: see the warning above)")
     return "\n".join(lines)

@@ -4,12 +4,32 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+try:       # property tests run the same examples on every machine and every run (no example database)
+    from hypothesis import settings as _hypothesis_settings
+
+    _hypothesis_settings.register_profile("sltwin", derandomize=True, database=None)
+    _hypothesis_settings.load_profile("sltwin")
+except ImportError:
+    pass
+
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
 
 
+_RUNNING = {}
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    _RUNNING["item"] = item            # before any fixture of the test is set up
+
+
 def shared_data(*parts) -> Path:
-    """Path of a real data set under ../shared/data, or skip the test when it is absent."""
+    """Path of a real data set under ../shared/data, or skip the test when it is absent. A test
+    that reads it must carry the ``realdata`` marker (``-m "not realdata"`` must leave it out)."""
+    item = _RUNNING.get("item")
+    if item is not None and item.get_closest_marker("realdata") is None:
+        pytest.fail(f"{item.nodeid} reads ../shared/data ({'/'.join(parts)}) without @pytest.mark.realdata")
     path = SHARED_DATA.joinpath(*parts)
     if not path.exists():
         pytest.skip(f"real data not present: {path}")

@@ -61,6 +61,7 @@ def dp_obs():
     return from_bouguet(d / "CamCalibResult_real.mat", d / "PrjCalibResult_real.mat")
 
 
+@pytest.mark.realdata
 def test_outlier_rule_on_the_papers_observations_rejects_two_noisy_views_not_outliers(dp_obs):
     cal = run_calibration(dp_obs, BAConfig())
     rule = outlier_summary(cal, dp_obs)
@@ -84,6 +85,7 @@ def test_views_of_equal_noise_keep_one_noise_level():
     assert cal.view_noise == {}
 
 
+@pytest.mark.realdata
 def test_reconstruct_takes_the_frequency_from_the_phase_file(tmp_path, capsys):
     from conftest import shared_data
     from unwrap.phase_io import read_phase, write_phase_file

@@ -91,13 +91,16 @@ def test_single_device_matches_bouguet_within_its_3_sigma_and_err_std(device, fn
     assert np.all(np.abs([d.cx - b.cc[0], d.cy - b.cc[1]]) <= b.cc_error)
     assert np.all(np.abs(d.distortion[:4] - b.kc[:4]) <= b.kc_error[:4])
     assert d.distortion[4] == 0.0
-    # the same estimator: agreement far inside the error bars (1e-6 of them)
-    assert np.all(np.abs([d.fx - b.fc[0], d.fy - b.fc[1]]) <= 1e-6 * b.fc_error)
+    # the same estimator: agreement far inside the error bars (Bouguet's 3-sigma); measured
+    # fc 5.8e-8, cc 1.9e-7, kc 1.9e-7 of them (camera; the projector 10x closer); README
+    assert np.all(np.abs([d.fx - b.fc[0], d.fy - b.fc[1]]) <= 3e-7 * b.fc_error)
+    assert np.all(np.abs([d.cx - b.cc[0], d.cy - b.cc[1]]) <= 1e-6 * b.cc_error)
+    assert np.all(np.abs(d.distortion[:4] - b.kc[:4]) <= 1e-6 * b.kc_error[:4])
     std = cal.ba.stats[device]["std_px"]
-    assert np.all(np.array(std) <= b.err_std * (1 + 1e-6))
+    assert np.all(np.abs(np.array(std) / b.err_std - 1) < 2e-9)          # measured 3.5e-10
     # our 3-sigma equals Bouguet's up to the degrees-of-freedom correction sqrt(m / (m - n))
     m, n = 2 * cal.ba.stats[device]["n"], len(cal.ba.free_names)
-    assert np.allclose(3 * cal.ba.std[f"{device}.fx"], b.fc_error[0] * np.sqrt(m / (m - n)), rtol=0.01)
+    assert np.allclose(3 * cal.ba.std[f"{device}.fx"], b.fc_error[0] * np.sqrt(m / (m - n)), rtol=3e-3)  # measured 7.9e-4
 
 
 @pytest.fixture(scope="module")
@@ -139,19 +142,21 @@ def test_camera_intrinsics_agree_with_mrcal_without_regularisation(dp_obs, n_dis
     d = cal.system.camera
     ours = np.r_[d.fx, d.fy, d.cx, d.cy, d.distortion]
     rel = np.abs(ours - theirs) / np.abs(theirs)
-    assert np.all(rel[:4] < 1e-6), rel
+    # measured: fx, fy 5e-10, cx, cy up to 3.5e-8 relative (README); the bound leaves room for the
+    # BLAS-dependent stop along the k2/k3 valley described below
+    assert np.all(rel[:4] < 2e-7), rel
     # the distortion terms in units of their own standard deviation: mrcal stops a little earlier
     # along the flat k2/k3 valley, and where it stops depends on the BLAS kernel (1.5e-5 relative
     # in k2 with OPENBLAS_CORETYPE=SkylakeX, measured) - 1e-3 sigma is the same optimum on any CPU
     names = ["k1", "k2", "p1", "p2", "k3"][:n_distortion]
     sigma = np.array([cal.ba.std[f"camera.{k}"] for k in names])
     assert np.all(np.abs(ours[4:] - theirs[4:]) < 1e-3 * sigma), np.abs(ours[4:] - theirs[4:]) / sigma
-    assert abs(rms - cal.ba.stats["camera"]["rms_px"]) < 1e-9
+    assert abs(rms - cal.ba.stats["camera"]["rms_px"]) < 1e-12           # measured 7.5e-16
     # started from our solution, mrcal does not move: ours is a minimum of its cost too
     st = cal.ba.state
     again, _, _ = mrcal_calibrate(obs, "camera", n_distortion, d.K, d.distortion,
                                   [st.poses[f"camera_board/{i}"] for i in range(len(obs.views))])
-    assert np.all(np.abs(ours - again) <= 1e-7 * np.abs(again))
+    assert np.all(np.abs(ours - again) <= 1e-12 * np.abs(again))          # measured 0
 
 
 # -- calib run CLI -----------------------------------------------------------------------------

@@ -14,6 +14,8 @@ import pytest
 from sltwin.cli import main
 from tests.conftest import REPO, shared_data
 
+pytestmark = pytest.mark.realdata
+
 UPSTREAM_FLAGS = ["--distortion", "4", "--fix", "camera.cx=843.5", "--fix", "camera.cy=675.5",
                   "--fix", "camera.k2=0", "--fix", "camera.p1=0", "--fix", "camera.p2=0",
                   "--fix", "projector.k2=0", "--fix", "projector.p1=0", "--fix", "projector.p2=0"]
@@ -83,8 +85,9 @@ def test_skull_reconstructed_with_our_calibration_matches_the_authors_point_clou
 @pytest.mark.slow
 def test_reported_uncertainty_matches_a_bootstrap_over_the_real_poses(run, tmp_path):
     """The default model (free principal point, 5 distortion terms, board warp) on the six real poses:
-    the reported sigmas (per-pose error model) against a bootstrap over poses. Measured (200 draws):
-    bootstrap / reported median 0.98 (0.57-1.62 over 26 parameters; leave-one-pose-out: 1.49);
+    the reported sigmas (per-pose error model, with the few-pose inflation) against a bootstrap over
+    poses. Measured (60 draws): bootstrap / reported median 0.91 (0.55-1.61 over 26 parameters; 0.98
+    with 200 draws before the inflation; leave-one-pose-out: 1.49);
     the adjustment's own independent-residual sigmas are up to 5.2x too small (median 3.2)."""
     _, out = run
     cal_dir = tmp_path / "default"
@@ -98,3 +101,10 @@ def test_reported_uncertainty_matches_a_bootstrap_over_the_real_poses(run, tmp_p
     assert np.median(independent) > 2.5, independent
     assert (cal_dir / "residuals_on_board.png").exists()
     assert any("cluster" in w for w in u["warnings"])            # the projector's rejections lie along two rows
+    # six poses: the per-pose levels are uncertain enough to inflate the sigmas a little (measured
+    # 1.04-1.12 for the intrinsics and the rig translation), not enough to distrust them
+    few = u["error_model"]["few_poses"]
+    names = [n for n in few["sigma_inflation"] if n.split(".")[0] in ("camera", "projector", "prj_cam")
+             and n.split(".")[-1] in ("fx", "fy", "cx", "cy", "t0", "t1", "t2")]
+    assert len(names) == 11 and all(1.02 < few["sigma_inflation"][n] < 1.2 for n in names), few["sigma_inflation"]
+    assert u["too_small_to_trust_sigmas"] is False and min(few["effective_dof"][n] for n in names) > 4.5

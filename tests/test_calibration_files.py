@@ -69,6 +69,7 @@ def test_mrcal_refuses_skew_it_cannot_hold_and_names_the_pixel_effect():
     assert "dropped" in report[0] and skew_effect_px(prj) == pytest.approx(0.1617, abs=1e-4)
 
 
+@pytest.mark.realdata
 def test_bouguet_pair_reads_the_papers_system_with_pose_1_as_world(dp_tpu_dir):
     from calib.io.bouguet import read_bouguet
 
@@ -84,6 +85,7 @@ def test_bouguet_pair_reads_the_papers_system_with_pose_1_as_world(dp_tpu_dir):
         assert np.sqrt(np.mean((q - r.points_px[i]) ** 2)) < 0.2
 
 
+@pytest.mark.realdata
 def test_slstudio_opencv_xml(tmp_path):
     path = shared_data("slstudio-ps2x3-calib", "calibration", "calibration.xml")
     s = load_system(path)
@@ -93,6 +95,7 @@ def test_slstudio_opencv_xml(tmp_path):
     np.testing.assert_allclose(s.projector.distortion, [-0.0314900056, 0, 0, 0, 0], rtol=1e-7)
 
 
+@pytest.mark.realdata
 def test_slmaster_opencv_yaml_needs_the_projector_size_it_does_not_store():
     path = shared_data("slmaster-monocular-12step-cgc", "caliInfo.yml")
     with pytest.raises(FormatError, match="projector image size is not stored"):

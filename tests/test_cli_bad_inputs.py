@@ -291,7 +291,8 @@ CASES = [
 ]
 
 
-@pytest.mark.parametrize("case, line, expected", CASES, ids=[c[0] for c in CASES])
+@pytest.mark.parametrize("case, line, expected", [pytest.param(*c, marks=pytest.mark.realdata) if "{dp}" in c[1] else c
+                                                   for c in CASES], ids=[c[0] for c in CASES])
 def test_bad_input_is_exit_2_with_a_message_naming_it_and_no_traceback(case, line, expected, files, tmp_path,
                                                                          capsys):
     if "{dp}" in line and not (SHARED_DATA / "dp-tpu").exists():

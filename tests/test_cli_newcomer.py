@@ -146,15 +146,31 @@ def test_calib_render_of_a_gray_code_scene_is_read_by_calib_unwrap_as_it_is(tmp_
     assert "v: method gray" in out and "quantised to 4 px" in out
 
 
-def test_the_compile_message_is_only_shown_when_the_kernel_is_not_cached():
-    from unwrap.fused_mf import fast_available, mf_unwrap_stacks
-    from unwrap.pipeline import _kernel_cold
+def test_the_compile_message_is_only_shown_when_the_kernel_is_not_cached(design_capture, monkeypatch, caplog):
+    import logging
 
-    stacks = [np.full((3, 4, 4), 100, np.uint8)] * 2
-    mf_unwrap_stacks(stacks, (1, 8))
-    assert _kernel_cold() is False   # compiled (and cached) now, or no numba at all
+    from unwrap import pipeline
+    from unwrap.fused_mf import fast_available, mf_unwrap_stacks
+
     if not fast_available():
         pytest.skip("numba not installed")
+    stacks = [np.full((3, 4, 4), 100, np.uint8)] * 2
+    mf_unwrap_stacks(stacks, (1, 8))
+    assert pipeline._kernel_cold() is False   # compiled (and cached) now
+    root, _ = design_capture
+    message = "first use of the fused kernel on this machine (compiled once and cached"
+    for cold in (True, False):
+        monkeypatch.setattr(pipeline, "_kernel_cold", lambda: cold)
+        caplog.clear()
+        with caplog.at_level(logging.INFO, logger="unwrap"):
+            out = unwrap_capture(root, progress=True)
+        shown = [r.getMessage() for r in caplog.records if message in r.getMessage()]
+        assert len(shown) == (2 if cold else 0), shown           # once per orientation (v, h) when cold
+        assert set(out) == {"v", "h"} and all(o.result.valid.any() for o in out.values())
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="unwrap"):
+        unwrap_capture(root)                                     # without progress: never
+    assert not any(message in r.getMessage() for r in caplog.records)
 
 
 def test_a_cameramodel_that_cannot_be_written_is_a_warning_that_says_so(tmp_path, caplog):

@@ -41,7 +41,8 @@ def test_draws_follow_the_covariance_and_move_the_projector_with_the_rig(tmp_pat
     assert abs(fx.std() / 0.5 - 1) < 0.05 and abs(cy.std() / 0.3 - 1) < 0.05
     assert abs(np.corrcoef(fx, k1)[0, 1] - 0.9) < 0.03
     s = draws[0]
-    np.testing.assert_allclose(s.camera.R, base.camera.R) and np.testing.assert_allclose(s.camera.t, base.camera.t)
+    np.testing.assert_allclose(s.camera.R, base.camera.R)
+    np.testing.assert_allclose(s.camera.t, base.camera.t)
     # the rig (projector relative to camera) moved by the drawn increments, the projector follows
     R_pc0 = base.projector.R @ base.camera.R.T
     R_pc = s.projector.R @ s.camera.R.T

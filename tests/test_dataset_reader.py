@@ -148,6 +148,7 @@ def test_reader_refuses_foreign_files_versions_pairs_and_subsets_clearly(twin_fi
     assert len(ds) == 2 and int(ds[0]["index"]) == 4
 
 
+@pytest.mark.realdata
 def test_real_skull_capture_reads_through_the_same_reader_with_its_point_cloud_reference(tmp_path):
     from synth.capture_export import export_capture
 
@@ -164,6 +165,7 @@ def test_real_skull_capture_reads_through_the_same_reader_with_its_point_cloud_r
     assert err < 0.02
 
 
+@pytest.mark.realdata
 def test_real_slmaster_capture_gray_reference_equals_unwraps_gray_decode(tmp_path):
     from synth.capture_export import export_capture
     from unwrap.pipeline import unwrap_capture

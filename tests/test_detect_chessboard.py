@@ -97,6 +97,7 @@ def test_charuco_without_marker_size_is_refused():
         detect_board(img, board)
 
 
+@pytest.mark.realdata
 def test_slstudio_real_board_all_6_poses_full_117_corners():
     root = shared_data("slstudio-ps2x3-calib", "calibration")
     board = Board(kind="checkerboard", rows=13, cols=9, spacing_mm=10.0)
@@ -112,6 +113,7 @@ def test_slstudio_real_board_all_6_poses_full_117_corners():
         assert 15 < np.median(det.feature_px) < 60
 
 
+@pytest.mark.realdata
 def test_opencv_sample_chessboards_all_13_left_images():
     root = shared_data("opencv-stereo-chessboard")
     board = Board(kind="checkerboard", rows=6, cols=9, spacing_mm=1.0)

@@ -41,9 +41,12 @@ def test_parity_section_scores_both_sides_and_states_a_verdict(two_noise_levels,
     from reports.html import to_markdown
     from reports.learned_parity import section
 
+    import h5py
+
     model = constant_model(tmp_path / "zero.pt", 0)
-    model_meta_ratio_ok = (8.0 / 48.0) >= 1 / 8                 # the tiny files hold MF (1, 8)
-    assert model_meta_ratio_ok
+    for path in two_noise_levels.values():                      # the tiny files hold MF (1, 8), 4 steps
+        with h5py.File(path, "r") as h5:
+            assert [float(f) for f in h5.attrs["frequencies"]] == [1.0, 8.0]
     (title, blocks), summary = section([two_noise_levels[1500]], [two_noise_levels[6000]], model, frequencies=(8,))
     rows = summary["rows"]
     assert [r["data"] for r in rows] == ["real", "twin"] and all(r["f"] == 8 for r in rows)
@@ -80,3 +83,37 @@ def test_verdict_names_a_twin_that_under_predicts_the_real_errors():
     v = verdict([row("real", 450, 370), row("twin", 102, 112)])
     assert "the twin under-predicts real errors 4.4x" in v and "behaves on the real capture" not in v
     assert "behaves on the real capture as on its twin" in verdict([row("real", 120, 110), row("twin", 100, 95)])
+
+
+@pytest.mark.slow
+def test_calib_report_with_learned_files_adds_the_parity_section(tmp_path, capsys):
+    """The passing case of `calib report --learned-real/--learned-twin/--learned-model`: the report
+    carries the learned parity section at the frequency the files hold (16, one of the section's),
+    and a zero-correction model scores as the traditional order on both."""
+    from calib import default_system
+    from calib.io.calibration_json import write_calibration_json
+    from sltwin.cli import main
+    from synth.dataset_export import export_dataset
+
+    files = {}
+    for fw in (1500, 6000):
+        d = tmp_path / f"fw{fw}"
+        d.mkdir()
+        cfg = tiny_config(d, samples=2, frequencies="[1, 16]", steps=4,
+                          effects=f"noise = {{full_well_e = {fw}, read_noise_e = 1}}\nexposure = 0.8")
+        export_dataset(cfg, d / "set.h5", progress=False)
+        files[fw] = d / "set.h5"
+    cal = write_calibration_json(default_system(), tmp_path / "calibration.json")
+    model = constant_model(tmp_path / "zero.pt", 0)
+    out = tmp_path / "rep"
+    assert main(["report", "--real", str(cal), "--twin", str(cal), "--learned-real", str(files[1500]),
+                 "--learned-twin", str(files[6000]), "--learned-model", str(model), "-o", str(out)]) == 0
+    assert "behaves on the real capture as on its twin" in capsys.readouterr().out
+    md = (out / "report.md").read_text()
+    assert "Verdict" in md
+    rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[1:-1]] for line in md.splitlines()
+            if line.startswith(("| real | 16 |", "| twin | 16 |"))}
+    assert sorted(rows) == ["real", "twin"]
+    for data, (_, f, samples, pixels, trad, filtered, learned, check) in rows.items():
+        assert samples == "2" and int(pixels) > 30_000 and check.endswith("ok")
+        assert learned == trad                                  # zero correction = the traditional order

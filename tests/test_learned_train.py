@@ -19,7 +19,8 @@ REPO = Path(__file__).resolve().parents[1]
 TINY = ["data.synthetic_samples=6", "data.synthetic_size=[32, 48]", "data.crop=[]", "data.orientations=['v']",
         "data.methods=['mf', 'nt']", "data.val_fraction=0.2", "model.width=4", "model.depth=1", "model.max_width=8",
         "optim.batch_size=2", "optim.steps=6", "optim.warmup_steps=1", "run.val_every=3", "run.checkpoint_every=2",
-        "run.log_every=1", "run.threads=1"]
+        "run.log_every=1", "run.threads=1", "run.device=cpu"]
+"""``run.device=cpu``: a runner with a GPU must not change what these CPU tests mean (AMP, NCCL)."""
 
 
 def _weights(path):
@@ -138,3 +139,21 @@ def test_two_cpu_processes_with_batch_b_take_the_step_of_one_process_with_batch_
     summary = json.loads((tmp_path / "two" / "metrics.json").read_text())
     assert summary["world_size"] == 2
     assert not (tmp_path / "two" / "rank1").exists()
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device (the CPU tests above pin run.device=cpu)")
+def test_the_cuda_training_path_with_amp_trains_resumes_and_loads_on_the_cpu(tmp_path):
+    """Where a GPU exists: the same tiny run on CUDA with mixed precision (autocast, and a gradient
+    scaler for float16) writes its files, its losses are finite, its weights load on the
+    CPU, and a resume continues from the saved step."""
+    cuda = [o for o in TINY if not o.startswith("run.device=")] + ["run.device=cuda", "run.amp=true"]
+    r = train(None, cuda + ["optim.steps=4"], tmp_path / "gpu", progress=False)
+    assert r.step == 4
+    rows = list(csv.DictReader(open(tmp_path / "gpu" / "train.csv")))
+    losses = [float(row["loss"]) for row in rows]
+    assert len(losses) == 4 and all(torch.isfinite(torch.tensor(losses)))
+    model, ck = load_model(tmp_path / "gpu" / "model.pt")            # device="cpu"
+    assert next(model.parameters()).device.type == "cpu"
+    assert all(torch.isfinite(p).all() for p in model.parameters())
+    r = train(resume=tmp_path / "gpu", overrides=["optim.steps=6"], progress=False)
+    assert r.step == 6 and len(list(csv.DictReader(open(tmp_path / "gpu" / "train.csv")))) == 6

@@ -77,6 +77,7 @@ def dp_tpu_report(tmp_path_factory):
     return out, summary
 
 
+@pytest.mark.realdata
 def test_dp_tpu_real_vs_twin_calibrations_agree_within_3_sigma(dp_tpu_report):
     _, summary = dp_tpu_report
     assert summary["beyond_3_sigma"] == []
@@ -106,6 +107,7 @@ def _browse(html_path: Path, screenshot: Path | None = None):
     return attrs, console_errors
 
 
+@pytest.mark.realdata
 def test_report_loads_in_a_real_browser_with_no_broken_image_and_no_console_error(dp_tpu_report):
     out, _ = dp_tpu_report
     shot = ARTIFACTS / "report_dp_tpu.png"
@@ -127,6 +129,7 @@ def test_the_browser_check_sees_a_broken_image(tmp_path):
     assert any("broken images: missing" in line for line in console_errors)
 
 
+@pytest.mark.realdata
 def test_fig3_real_phase_with_real_calibration_reproduces_with_the_papers_linear_method(tmp_path):
     d = shared_data("dp-tpu")
     summary = write_twin_report([d / "CamCalibResult_real.mat", d / "PrjCalibResult_real.mat"],

@@ -1,5 +1,6 @@
 """Analytic checks: a plane and a sphere rendered noise-free give closed-form depth and projector
-coordinates (1e-6 relative) and a decoded phase equal to the true phase (1e-3 rad RMS)."""
+coordinates (5e-12 relative; measured 1.4e-13 on the sphere's depth here, 1.8e-12 on an earlier build) and a decoded phase equal to the
+true phase (1e-7 rad RMS; measured 1.8e-8 - 2.1e-8, the float32 images' rounding; docs/synth.md)."""
 import numpy as np
 import pytest
 import torch
@@ -42,7 +43,7 @@ def ray_sphere(center, r):
 
 
 @pytest.mark.parametrize("kind", ["plane", "sphere"])
-def test_depth_and_projector_coordinates_equal_closed_form_to_1e6_relative(kind):
+def test_depth_and_projector_coordinates_equal_closed_form_to_5e12_relative(kind):
     system = default_system()
     obj = Plane("p", np.eye(3), [0, 0, 0]) if kind == "plane" else Sphere("s", np.eye(3), [5.0, -3.0, 10.0], radius_mm=40)
     ref = ray_plane if kind == "plane" else ray_sphere(np.array([5.0, -3.0, 10.0]), 40.0)
@@ -54,11 +55,11 @@ def test_depth_and_projector_coordinates_equal_closed_form_to_1e6_relative(kind)
     for ours, theirs in ((g.depth, depth), (g.u_p, u_p), (g.v_p, v_p)):
         a = ours.numpy()[hit]
         rel = np.abs(a - theirs[hit]) / np.maximum(np.abs(theirs[hit]), 1.0)
-        assert rel.max() < 1e-6, rel.max()
+        assert rel.max() < 5e-12, rel.max()          # measured <= 1.4e-13 (sphere depth; docs/synth.md)
 
 
 @pytest.mark.parametrize("kind", ["plane", "sphere"])
-def test_decoded_phase_equals_true_phase_to_1e3_rad_rms_away_from_edges(kind):
+def test_decoded_phase_equals_true_phase_to_1e7_rad_rms_away_from_edges(kind):
     system = small_system(2)
     obj = Plane("p", np.eye(3), [0, 0, 0]) if kind == "plane" else Sphere("s", np.eye(3), [0, 0, 0], radius_mm=50)
     scene = Scene(system, [obj], phase_sequence(("v", "h"), (1, 8, 48), 12))
@@ -78,9 +79,9 @@ def test_decoded_phase_equals_true_phase_to_1e3_rad_rms_away_from_edges(kind):
             Phi, order, valid = truth[o][f]
             err = wrap(phi - Phi)[inner]
             rms = float(np.sqrt(np.mean(err ** 2)))
-            assert rms < 1e-3, (o, f, rms)
+            assert rms < 1e-7, (o, f, rms)             # measured 1.8e-8 - 2.1e-8
             # the fringe order of the truth reproduces the absolute phase from the decoded one
-            assert np.all(np.abs(phi[inner] + 2 * np.pi * order[inner] - Phi[inner]) < 0.01)
+            assert np.all(np.abs(phi[inner] + 2 * np.pi * order[inner] - Phi[inner]) < 5e-7)   # measured <= 9.2e-8
 
 
 def test_geometry_is_computed_once_and_reused_for_another_stack():

@@ -92,6 +92,7 @@ def test_absent_or_zero_global_illumination_is_not_simulated_and_the_plan_says_s
     assert bool((zero.images == ref.images).all())
     on = render(Scene(system, [ball], pats, effects_from_table({"global_illumination": {"subsurface": 0.3}})))
     assert any(line.startswith("global illumination: object 0: fraction 0.3") for line in on.plan)
+    assert not bool((on.images == ref.images).all())             # and the images carry it
     for bad, msg in (({"subsurface": 1.5}, "subsurface"), ({"scatter_mm": 0}, "scatter_mm"),
                      ({"per_object": [[0.2]]}, r"per_object\[0\]"), ({"sss": 1}, "unknown key")):
         with pytest.raises(SynthError, match=msg):

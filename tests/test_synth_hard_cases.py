@@ -130,3 +130,14 @@ def test_effects_are_applied_only_when_asked_and_say_so():
     assert {"noise", "camera defocus"} <= set(full.timings)
     again = render(Scene(system, [Plane("p", np.eye(3), [0, 0, 0])], seq, eff))
     assert torch.equal(full.images, again.images)  # seeded
+    # what the plan says is what the images show: each effect alone changes them, none asked leaves
+    # them as the plain render's
+    assert torch.equal(render(Scene(system, [Plane("p", np.eye(3), [0, 0, 0])], seq, Effects())).images, plain.images)
+    small = small_system(8)
+    plain = render(Scene(small, [Plane("p", np.eye(3), [0, 0, 0])], seq))
+    for name, one in (("noise", Effects(noise=Noise(seed=3))), ("projector defocus", Effects(projector_defocus=Defocus(5.0, 600.0))),
+                      ("camera defocus", Effects(camera_defocus=Defocus(5.0, 600.0))), ("vignetting", Effects(vignetting=0.5)),
+                      ("projector gamma", Effects(projector_gamma=2.2)), ("ambient", Effects(ambient=0.05))):
+        alone = render(Scene(small, [Plane("p", np.eye(3), [0, 0, 0])], seq, one))
+        assert not torch.equal(alone.images, plain.images), name
+        assert not any(line.startswith(f"{name}: skipped") for line in alone.plan), (name, alone.plan)

@@ -31,6 +31,7 @@ def bunny_scene(system):
     return Mesh("bunny", R, [0, 0, 0], V, F, smooth=False), R
 
 
+@pytest.mark.realdata
 def test_mesh_depth_equals_independent_ray_triangle_intersection_on_sampled_pixels():
     system = small_system(4)
     mesh, R = bunny_scene(system)
@@ -99,6 +100,7 @@ def test_steps_have_vertical_walls_and_cast_shadows():
     assert int(g.shadow.sum()) > 0
 
 
+@pytest.mark.realdata
 @pytest.mark.parametrize("name", ["teapot.obj", "fandisk.obj"])
 def test_shared_meshes_load(name):
     V, F = load_mesh(shared_data("meshes", name))

@@ -47,6 +47,24 @@ def plane_phase_maps(system, noise_px, rng, frequencies=(16.0, 12.0)):
     return full, dict(zip("vh", frequencies)), truth
 
 
+def read_ply(path) -> np.ndarray:
+    """(N, 3) float64 vertices of a binary little-endian float32 x y z PLY (calib.triangulate.write_ply)."""
+    raw = path.read_bytes()
+    end = raw.index(b"end_header\n") + len(b"end_header\n")
+    header = raw[:end].decode().splitlines()
+    assert header[:2] == ["ply", "format binary_little_endian 1.0"], header
+    n = int(next(h.split()[2] for h in header if h.startswith("element vertex")))
+    assert [h.split()[-1] for h in header if h.startswith("property")] == ["x", "y", "z"]
+    assert len(raw) - end == 12 * n
+    return np.frombuffer(raw[end:], dtype="<f4").reshape(n, 3).astype(np.float64)
+
+
+def plane_distance(X) -> np.ndarray:
+    """Distance (mm) of points from the plane of :func:`plane_phase_maps` (n . X = 800, camera frame)."""
+    n = np.array([-0.2, 0.1, 1.0])
+    return np.abs(X @ n - 800.0) / np.linalg.norm(n)
+
+
 def test_conditioning_names_rows_for_a_vertical_baseline_and_columns_for_the_paper_rig():
     c = coordinate_conditioning(vertical_baseline_rig())
     assert c.better == "h" and c.ill_conditioned("v") and not c.ill_conditioned("h")
@@ -95,10 +113,18 @@ def test_reconstruct_command_uses_both_orientations_of_an_h5_and_says_so(tmp_pat
     cal = write_calibration_json(system, tmp_path / "calibration.json")
     h5 = write_phase_file(tmp_path / "unwrap.h5", {o: {"phase": maps[o], "frequency": freqs[o]} for o in "vh"})
     assert main(["reconstruct", "--phase", str(h5), "--calibration", str(cal), "-o", str(tmp_path / "a.ply")]) == 0
-    assert "(both coordinates)" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "(both coordinates)" in out
+    # the PLY read back: as many points as printed, on the known plane (camera frame = world)
+    both = read_ply(tmp_path / "a.ply")
+    assert f"{len(both)} points of " in out and len(both) > 0.9 * np.isfinite(maps["v"]).sum()
+    dist = {"both": plane_distance(both)}
+    assert np.median(dist["both"]) < 0.1 and np.percentile(dist["both"], 95) < 0.3    # measured 0.061 / 0.18 mm
     assert main(["reconstruct", "--phase", str(h5), "--orientation", "v", "--calibration", str(cal),
                  "-o", str(tmp_path / "b.ply")]) == 0
     assert "ill-conditioned" in capsys.readouterr().err
+    dist["v"] = plane_distance(read_ply(tmp_path / "b.ply"))
+    assert np.median(dist["v"]) > 5 * np.median(dist["both"])    # measured 1.39 mm: why the warning is given
     np.save(tmp_path / "p.npy", maps["h"])
     assert main(["reconstruct", "--phase", str(tmp_path / "p.npy"), "--calibration", str(cal),
                  "-o", str(tmp_path / "c.ply")]) == 2                  # no frequency in a .npy

@@ -27,6 +27,7 @@ def rendered():
     return real, twin_cal, phase_real, phase, info
 
 
+@pytest.mark.realdata
 def test_real_ball_fits_a_25_mm_sphere_about_870_mm_in_front_of_the_camera():
     _, real, _, phase_real = _dp_tpu()
     pose = fit_ball_pose(real, phase_real, 96.0)
@@ -38,6 +39,7 @@ def test_real_ball_fits_a_25_mm_sphere_about_870_mm_in_front_of_the_camera():
     assert np.linalg.norm(np.subtract(lin["centre_cam_mm"], pose["centre_cam_mm"])) < 1.0
 
 
+@pytest.mark.realdata
 def test_rendered_ball_decodes_to_its_true_phase_floor_below_a_thousandth_of_a_micron(rendered):
     real, _, phase_real, phase, info = rendered
     assert phase.dtype == np.float64 and phase.shape == phase_real.shape
@@ -51,6 +53,7 @@ def test_rendered_ball_decodes_to_its_true_phase_floor_below_a_thousandth_of_a_m
     assert info["pose"]["rendered_radius_mm"] == pytest.approx(floor["rendered"]["radius_mm"], abs=0.01)
 
 
+@pytest.mark.realdata
 def test_rendered_footprint_overlaps_the_real_one_and_has_its_pixel_count(rendered):
     _, _, phase_real, phase, info = rendered
     valid_real, valid_twin = np.isfinite(phase_real), np.isfinite(phase)
@@ -59,6 +62,7 @@ def test_rendered_footprint_overlaps_the_real_one_and_has_its_pixel_count(render
     assert iou == pytest.approx(info["footprint"]["iou"]) and iou > 0.95
 
 
+@pytest.mark.realdata
 def test_rendered_phase_noise_matches_the_real_phase_noise(rendered):
     _, _, phase_real, phase, info = rendered
     n = info["noise"]
@@ -75,6 +79,7 @@ def test_phase_noise_estimator_recovers_added_white_noise():
     assert phase_noise_rad(noisy, smooth) == pytest.approx(0.003, rel=0.05)
 
 
+@pytest.mark.realdata
 def test_twin_phase_cells_fill_and_a_foreign_system_is_not_at_the_floor(rendered):
     real, twin_cal, _, phase, info = rendered
     cells = {(name, m): sphere_from_phase(s, phase, 96.0, method=m)["rms_um"]
@@ -102,6 +107,7 @@ def cli_report(tmp_path_factory):
     return rc, out, stdout.getvalue(), stderr.getvalue()
 
 
+@pytest.mark.realdata
 def test_report_without_a_twin_phase_renders_it_and_fills_the_matrix(cli_report):
     import json
 
@@ -120,6 +126,7 @@ def test_report_without_a_twin_phase_renders_it_and_fills_the_matrix(cli_report)
     assert "twin (synth)" in (out / "report.md").read_text()
 
 
+@pytest.mark.realdata
 def test_twin_ball_report_loads_in_a_real_browser_with_no_broken_image(cli_report):
     from tests.test_report import ARTIFACTS, _browse
 
@@ -131,6 +138,7 @@ def test_twin_ball_report_loads_in_a_real_browser_with_no_broken_image(cli_repor
     assert shot.exists() and shot.stat().st_size > 10_000
 
 
+@pytest.mark.realdata
 def test_twin_with_another_camera_size_is_refused():
     _, real, _, phase_real = _dp_tpu()
     cam = real.camera
@@ -139,6 +147,7 @@ def test_twin_with_another_camera_size_is_refused():
         render_twin_ball_phase(real, small, phase_real, 96.0, progress=False)
 
 
+@pytest.mark.realdata
 def test_bad_ball_inputs_are_refused_with_a_clear_message():
     _, real, _, phase_real = _dp_tpu()
     with pytest.raises(SynthError, match="does not match the camera image"):
@@ -153,6 +162,7 @@ def test_bad_ball_inputs_are_refused_with_a_clear_message():
         render_twin_ball_phase(real, real, phase_real, 96.0, noise="loud", progress=False)
 
 
+@pytest.mark.realdata
 def test_twin_ball_render_without_a_real_phase_is_refused(tmp_path):
     from reports.twin_report import write_twin_report
 

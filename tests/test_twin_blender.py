@@ -7,7 +7,11 @@ from calib import default_system
 from twin_mapping.blender_check import bpy_available, check_twin_in_blender
 
 pytestmark = pytest.mark.blender
-TOL_PX = 1e-3
+TOL_PX = 3e-4
+"""Blender's float32 matrices against our float64 pinhole: measured max 4.8e-5 px (camera), 7.7e-5 px
+(projector, fy = 2 fx); README."""
+TOL_PX_WORLD_TO_CAMERA_VIEW = 1e-3
+"""bpy_extras' world_to_camera_view (float32 NDC): measured max 9.8e-5 px (camera), 2.5e-4 px (projector)."""
 
 
 @pytest.fixture(scope="module")
@@ -26,7 +30,7 @@ def test_blender_camera_matrices_project_points_onto_our_pinhole_pixels(blender_
 
 @pytest.mark.parametrize("kind", ["camera", "projector"])
 def test_blender_world_to_camera_view_agrees_too(blender_result, kind):
-    assert blender_result[kind]["max_px_world_to_camera_view"] < TOL_PX
+    assert blender_result[kind]["max_px_world_to_camera_view"] < TOL_PX_WORLD_TO_CAMERA_VIEW
 
 
 def test_blender_reads_back_the_twin_parameters(blender_result):

@@ -57,7 +57,7 @@ def test_mf_exact_on_noise_free_stack_up_to_96_periods_and_beyond(ladder, orient
     assert np.abs(res.prior - res.order).max() < 1e-9  # noise-free prior is the integer k
 
 
-@pytest.mark.parametrize("freqs", [(48, 47), (96, 95), (192, 191), (70, 64, 59), (96, 90, 85)])
+@pytest.mark.parametrize("freqs", [(48, 47), (96, 95), (192, 191), (384, 383), (70, 64, 59), (96, 90, 85)])
 def test_mw_exact_on_noise_free_stacks(freqs):
     phases = [_wrapped(f) for f in freqs]
     res = mw_unwrap(phases, freqs, width=W_P)
@@ -75,7 +75,7 @@ def test_mw_accepts_pitches_that_do_not_divide_the_width():
         mw_unwrap([_wrapped(W_P / p) for p in frac], pitches=frac, width=W_P)
 
 
-@pytest.mark.parametrize("pair", [(47, 48), (95, 96), (7, 96), (96, 97), (127, 128)])
+@pytest.mark.parametrize("pair", [(47, 48), (95, 96), (7, 96), (96, 97), (127, 128), (383, 384)])
 def test_nt_exact_on_noise_free_stacks(pair):
     phases = [_wrapped(f) for f in pair]
     res = nt_unwrap(phases, pair, width=W_P)

@@ -226,6 +226,16 @@ def speed_table(model, *, size=(480, 640), repeats: int = 5, device: str = "cpu"
         out["network_forward_ms"] = _time(fwd, repeats)
     out["learned_total_ms"] = _time(lambda: unwrap_learned("mf", phi[0], phi[1], mods[0], mods[1], valid, (1, 48),
                                                            width=912, model=(net, ck), on_outside="ignore"), repeats)
+    # what was timed computed the same thing: the fringe orders of the paths that should agree
+    ref = mf_unwrap(phi, (1, 48), width=912, valid=valid, on_unreliable="ignore")
+    fused = mf_unwrap_stacks(stacks, (1, 48), width=912).result
+    learned = unwrap_learned("mf", phi[0], phi[1], mods[0], mods[1], valid, (1, 48), width=912, model=(net, ck),
+                             on_outside="ignore")
+    both = np.asarray(ref.valid) & np.asarray(fused.valid)
+    out["valid_pixels"] = int(both.sum())
+    out["orders_frames_vs_phases"] = float(np.mean(np.asarray(fused.order)[both] == np.asarray(ref.order)[both]))
+    lv = learned.valid & np.asarray(ref.valid)
+    out["orders_learned_traditional_vs_phases"] = float(np.mean(learned.order_traditional[lv] == np.asarray(ref.order)[lv]))
     return out
 
 
