@@ -75,9 +75,9 @@ class Interreflection:
     2 (the second gathers the first bounce at the same patches)."""
 
     bounces: int = 1
-    patch_px: float = 16.0
+    patch_px: float = 32.0
     refine: int = 4
-    near: float = 4.0
+    near: float = 2.0
 
 
 @dataclass(frozen=True)

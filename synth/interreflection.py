@@ -19,7 +19,7 @@ values) evaluated at the patches; the sum is linear in them, so one transport se
 
 Patches: the surfaces the projector lights are exactly the nearest hits of projector rays, so
 the patches are sampled *from the projector* on a grid of ``patch_px / refine`` projector
-pixels (fine patches; rays of solid angle ``dOmega``, patch area ``dOmega d^2 / cos_p``, so a
+pixels (fine patches, each integrating the pattern over its footprint; rays of solid angle ``dOmega``, patch area ``dOmega d^2 / cos_p``, so a
 patch's emitted power ``value_0 A`` does not depend on the grazing angle), with the projector's
 own shadowing exact (only the nearest hit is lit) and surfaces the camera never sees included.
 Fine patches are grouped per (``patch_px`` cell, object) into coarse patches (area-weighted
@@ -216,11 +216,22 @@ def _kernel_dense(Xr, nr, Ye, ne, area):
     """(r, e) ``cos_r cos_e / (r^2 + A / pi)`` and r^2 for every receiver x emitter pair
     (receiver (r,3) points and normals, emitter (e,3) points, normals, areas (e,)). The
     point-to-disc form factor is ``A / pi`` times it; the receiver's rho / pi and the emitter's
-    value x area are applied outside: ``value_1 = rho_r / pi * sum_e (value_e A_e) k_e``."""
-    r2 = ((Xr * Xr).sum(1)[:, None] + (Ye * Ye).sum(1)[None, :] - 2 * Xr @ Ye.T).clamp(min=0)
-    cr = (nr @ Ye.T - (nr * Xr).sum(1)[:, None]).clamp(min=0)      # r cos_r
-    ce = (Xr @ ne.T - (ne * Ye).sum(1)[None, :]).clamp(min=0)      # r cos_e
-    return cr * ce / (r2.clamp(min=1e-300) * (r2 + area[None, :] / math.pi)), r2
+    value x area are applied outside: ``value_1 = rho_r / pi * sum_e (value_e A_e) k_e``.
+
+    Three matrix products with augmented vectors (coordinates centred on the emitters' mean to
+    keep r^2 = |x|^2 + |y|^2 - 2 x.y accurate), then in-place element-wise operations."""
+    o = Ye.mean(0)
+    X, Y = Xr - o, Ye - o
+    one_r, one_e = torch.ones_like(X[:, :1]), torch.ones_like(Y[:, :1])
+    xx, yy = (X * X).sum(1, keepdim=True), (Y * Y).sum(1, keepdim=True)
+    r2 = torch.cat([X, xx, one_r], 1) @ torch.cat([-2 * Y, one_e, yy], 1).T
+    r2.clamp_(min=1e-300)
+    k = torch.cat([nr, -(nr * X).sum(1, keepdim=True)], 1) @ torch.cat([Y, one_e], 1).T   # r cos_r
+    k.clamp_(min=0)
+    ce = torch.cat([X, one_r], 1) @ torch.cat([ne, -(ne * Y).sum(1, keepdim=True)], 1).T  # r cos_e
+    k.mul_(ce.clamp_(min=0))
+    ce = torch.add(r2, area[None, :], alpha=1 / math.pi).mul_(r2)
+    return k.div_(ce), r2
 
 
 class Transport:
@@ -267,15 +278,18 @@ class Transport:
                 k, r2 = _kernel_dense(Xr[rr], nr[rr], Ye, ne, Ae)
                 near = r2 < near_r2[ei][None, :] if refine else None
                 if near is not None:
-                    k = torch.where(near, torch.zeros_like(k), k)
+                    if bool(near.any()):
+                        k.masked_fill_(near, 0.0)
+                    else:
+                        near = None
                 occ = _occluded_dense(self.objects, skip, Xr[rr], Ye)
                 if occ is not None:
                     occ &= k > 0
                     self.stats["occluded pairs"] += int(occ.sum())
-                    k = torch.where(occ, torch.zeros_like(k), k)
-                self.stats["far pairs"] += int((k > 0).sum())
+                    k.masked_fill_(occ, 0.0)
+                self.stats["far pairs"] += int(torch.count_nonzero(k))
                 out[:, rr] += Se @ k.T
-                if near is not None and bool(near.any()):
+                if near is not None:
                     out += self._near(Xr, nr, rr, ei, near, src_f, skip)
         return out
 
@@ -369,10 +383,14 @@ def apply_interreflection(full: torch.Tensor, nl: torch.Tensor | None, scene, ge
         rx = torch.nan_to_num(rays.xy[hit], nan=0.0)
         vign = 1.0 - eff.vignetting * (1.0 - 1.0 / (1.0 + (rx ** 2).sum(1)) ** 2)
     f = T.fine
-    sig = None
+    # each fine patch integrates the pattern over its projector footprint (a box of ``step``
+    # px): a Gaussian of the box's variance step^2 / 12, with the projector's defocus if any
+    # (patterns finer than the patches average out instead of aliasing)
+    step = ir.patch_px / ir.refine
+    sig = torch.full((f.X.shape[0], 2), step / math.sqrt(12.0), dtype=F64)
     if eff.projector_defocus is not None:
-        sig = torch.stack([defocus_sigma(eff.projector_defocus, prj.fx, f.z_prj),
-                           defocus_sigma(eff.projector_defocus, prj.fy, f.z_prj)], 1)
+        sig = torch.sqrt(sig ** 2 + torch.stack([defocus_sigma(eff.projector_defocus, prj.fx, f.z_prj),
+                                                 defocus_sigma(eff.projector_defocus, prj.fy, f.z_prj)], 1) ** 2)
     u, v = f.uv[:, 0], f.uv[:, 1]
     _, _, basis = linear_model(scene.patterns, u, v, prj.size, eff, sig)
     values = basis
