@@ -59,9 +59,22 @@ def _ours(name, repeats):
     two, _ = ours_images(name, Interreflection(bounces=2))
     old, _ = ours_images(name, None, gi=GlobalIllumination(**OLD_TERM))
     plan = next(line for line in r1.plan if line.startswith("interreflection"))
-    return {"direct": direct, "geometry": res.geometry, "seconds": best, "plan": plan,
-            "maps": {"ours 1 bounce": bias_map(one, direct), "ours 2 bounces": bias_map(two, direct),
-                     "old term": bias_map(old, direct)}}
+    maps = {"ours 1 bounce": bias_map(one, direct), "ours 2 bounces": bias_map(two, direct),
+            "old term": bias_map(old, direct)}
+    extra = {}
+    if any(o.kind == "mesh" for o in scene_objects(name)):
+        t = time.perf_counter()
+        mv, _ = ours_images(name, Interreflection(mesh_visibility=True))
+        extra["ours 1 bounce + mesh visibility"] = time.perf_counter() - t
+        maps["ours 1 bounce + mesh visibility"] = bias_map(mv, direct)
+    return {"direct": direct, "geometry": res.geometry, "seconds": best, "plan": plan, "maps": maps,
+            "extra_seconds": extra}
+
+
+def scene_objects(name):
+    from synth.gi_bias import bias_scene
+
+    return bias_scene(name).objects
 
 
 def _figure(path, name, ref, maps, mask):
@@ -126,7 +139,7 @@ def main(argv=None) -> int:
                                                                    "steps": 8})
                 _log(a.quiet, f"[gi_bias] wrote {a.write_reference}")
         cmp = {k: compare(ref, m, mask) for k, m in ours["maps"].items()}
-        rows.append((name, cmp, noise, ours["seconds"], cyc_s, samples, ours["plan"]))
+        rows.append((name, cmp, noise, ours["seconds"], cyc_s, samples, ours["plan"], ours["extra_seconds"]))
         if a.figures:
             _figure(a.figures / f"{name}.png", name, ref, ours["maps"], mask)
 
@@ -143,15 +156,16 @@ def main(argv=None) -> int:
     print("\n## Time for the 8-frame stack (ours: geometry + every stage, 1 bounce; Cycles: its render times)\n")
     print("| scene | ours ms | Cycles s (samples) | speed-up | Cycles s at 64 samples (scaled) | speed-up at 64 |")
     print("|---|---|---|---|---|---|")
-    for name, _, _, ours_s, cyc_s, samples, _ in rows:
-        if cyc_s is None:
-            print(f"| {name} | {ours_s * 1e3:.0f} | (not run: --quick) | | | |")
-        else:
-            c64 = cyc_s * 64 / samples
-            print(f"| {name} | {ours_s * 1e3:.0f} | {cyc_s:.1f} ({samples}) | {cyc_s / ours_s:.0f}x | {c64:.1f} | "
-                  f"{c64 / ours_s:.0f}x |")
+    for name, _, _, ours_s, cyc_s, samples, _, extra in rows:
+        for label, sec in [("", ours_s)] + [(f" ({k})", v) for k, v in extra.items()]:
+            if cyc_s is None:
+                print(f"| {name}{label} | {sec * 1e3:.0f} | (not run: --quick) | | | |")
+            else:
+                c64 = cyc_s * 64 / samples
+                print(f"| {name}{label} | {sec * 1e3:.0f} | {cyc_s:.1f} ({samples}) | {cyc_s / sec:.1f}x | {c64:.1f} | "
+                      f"{c64 / sec:.1f}x |")
     print()
-    for name, *_, plan in rows:
+    for name, *_, plan, _ in rows:
         print(f"- {name}: {plan}")
     if a.figures:
         print(f"\nFigures: {a.figures}/<scene>.png")
