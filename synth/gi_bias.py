@@ -18,6 +18,7 @@ Frames: world mm; the camera looks down -z at the world origin from ~836 mm (par
 """
 from __future__ import annotations
 
+import functools
 import math
 import os
 import tempfile
@@ -63,6 +64,7 @@ def _rot_y(deg):
     return np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
 
 
+@functools.lru_cache(maxsize=8)
 def bias_scene(name: str, *, albedo: float = 0.8) -> BiasScene:
     """The scenes of the comparison:
 
@@ -71,7 +73,8 @@ def bias_scene(name: str, *, albedo: float = 0.8) -> BiasScene:
     - ``corner``: a concave 90 degree dihedral (two 120 x 160 mm walls folded along the world y
       axis, opening towards the camera), as a box corner.
     - ``bunny-wall``: the Stanford bunny (80 mm) 5 mm before the wall (meshes: self-occlusion).
-    """
+
+    Cached (the same objects are returned again: treat them as read-only)."""
     wall_R, wall_t, wall_size = np.eye(3), np.array([0.0, 0.0, -30.0]), (600.0, 600.0)
     if name == "ball-wall":
         r = DEFAULT_BALL_RADIUS_MM

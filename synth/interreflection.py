@@ -232,9 +232,8 @@ def _kernel_dense(Xr, nr, Ye, ne, area):
     k = torch.cat([nr, -(nr * X).sum(1, keepdim=True)], 1) @ torch.cat([Y, one_e], 1).T   # r cos_r
     k.clamp_(min=0)
     ce = torch.cat([X, one_r], 1) @ torch.cat([ne, -(ne * Y).sum(1, keepdim=True)], 1).T  # r cos_e
-    k.mul_(ce.clamp_(min=0))
-    ce = torch.add(r2, area[None, :], alpha=1 / math.pi).mul_(r2)
-    return k.div_(ce), r2
+    k.mul_(ce.clamp_(min=0)).div_(r2).clamp_(max=1.0)  # cos_r cos_e <= 1 (coincident points: 0 / 0)
+    return k.div_(torch.add(r2, area[None, :], alpha=1 / math.pi)), r2
 
 
 def _mesh_occluded(tris: list, Y: torch.Tensor, n: torch.Tensor, X: torch.Tensor) -> torch.Tensor:
@@ -356,7 +355,7 @@ class Transport:
         r2 = (d * d).sum(1)
         cr = (nr[Rn] * d).sum(1).clamp(min=0)
         ce = -(f.n[Fi] * d).sum(1)
-        k = cr * ce.clamp(min=0) / (r2.clamp(min=1e-300) * (r2 + f.area[Fi] / math.pi))
+        k = (cr * ce.clamp(min=0) / r2.clamp(min=1e-300)).clamp(max=1.0) / (r2 + f.area[Fi] / math.pi)
         pos = torch.nonzero(k > 0).squeeze(1)
         Rn, Fi, k = Rn[pos], Fi[pos], k[pos]
         occ = _occluded_pairs(self.objects, skip, Xr[Rn], f.X[Fi])
