@@ -31,10 +31,9 @@ not) other than a convex receiver's or emitter's own object (a convex surface ca
 pair both of whose cosines are positive). Meshes: by default not tested (the plan line says
 so): a concave mesh's self-shadowing of indirect light and a mesh standing between two other
 surfaces are not modelled, only the cosine terms (an over-estimate there); with
-``mesh_visibility`` the coarse pairs (not the near fine ones) are traced exactly against the
-meshes by synth.raycast, one shared-origin pass per coarse patch (slow: ~0.1-0.3 s a patch for a
-69k-triangle mesh on one core). Pairs of points on the
-same convex object (a plane, a sphere) exchange no light and are never evaluated.
+``mesh_visibility`` every pair is tested against the meshes by synth._segment_kernel (a uniform
+grid, 3-D DDA, Moeller-Trumbore; a mesh above 8000 triangles is replaced by its vertex
+clustering at 1/30 of its extent and the tolerance at both ends grows to that cell).
 
 Second bounce (``bounces = 2``): the coarse patches gather the first bounce the same way (coarse
 emitters only) and re-emit it, ``rho(y) / pi`` times their irradiance, to the receivers; surfaces
@@ -236,37 +235,27 @@ def _kernel_dense(Xr, nr, Ye, ne, area):
     return k.div_(torch.add(r2, area[None, :], alpha=1 / math.pi)), r2
 
 
-def _mesh_occluded(tris: list, Y: torch.Tensor, n: torch.Tensor, X: torch.Tensor) -> torch.Tensor:
-    """(m,) bool: the segment from the emitter point Y (3,) with normal n (3,) to receivers X
-    (m,3) meets one of the meshes ``tris`` ((T,3,3) world triangles each). Rays share one origin
-    (Y lifted 0.01 mm along n), so the shared-origin engine of synth.raycast traces them, in a
-    frame whose z axis is n; pairs within 3 degrees of the emitter's tangent plane are not
-    tested (their form factor is < 5 % of the normal one). A hit counts when it lies more than
-    0.02 mm before the receiver (the receiver's own triangle is not an occluder)."""
-    from .raycast import nearest_hits
+def _mesh_occluder(objects, max_triangles: int = 8000, divisions: int = 30):
+    """(SegmentGrid over the meshes' world triangles, end tolerance mm) or None without meshes. A
+    mesh larger than ``max_triangles`` is replaced by its vertex clustering at 1/``divisions``
+    of its largest extent (the tolerance then grows to that cell, so a segment leaving a surface does
+    not hit the coarser proxy of that same surface)."""
+    from ._segment_kernel import SegmentGrid, decimate
 
-    o = Y + 0.01 * n
-    a = torch.tensor([1.0, 0.0, 0.0], dtype=F64) if abs(float(n[0])) < 0.9 else torch.tensor([0.0, 1.0, 0.0], dtype=F64)
-    ex = torch.linalg.cross(a, n)
-    ex = ex / torch.linalg.norm(ex)
-    ey = torch.linalg.cross(n, ex)
-    Rf = torch.stack([ex, ey, n])
-    d = (X - o) @ Rf.T
-    dist = torch.linalg.norm(d, dim=1)
-    ok = d[:, 2] > 0.05 * dist
-    out = torch.zeros(X.shape[0], dtype=torch.bool)
-    if not bool(ok.any()):
-        return out
-    idx = torch.nonzero(ok).squeeze(1)
-    xy = d[idx, :2] / d[idx, 2:3]
-    span = float((xy.max(0).values - xy.min(0).values).max())
-    cell = max(span / 128.0, 1e-4)
-    for tri in tris:
-        s, hit, _ = nearest_hits((tri - o) @ Rf.T, xy, cell)
-        ray_len = torch.sqrt(1.0 + (xy ** 2).sum(1))
-        blocked = (hit >= 0) & (s * ray_len < dist[idx] - 0.02)
-        out[idx[blocked]] = True
-    return out
+    tris, eps = [], 0.02
+    for o in objects:
+        if not isinstance(o, Mesh):
+            continue
+        V = (o.V @ o.R.T + o.t).numpy()
+        F = o.F.numpy()
+        if F.shape[0] > max_triangles:
+            cell = float(np.ptp(V, axis=0).max()) / divisions
+            V, F = decimate(V, F, cell)
+            eps = max(eps, cell)
+        tris.append(V[F])
+    if not tris:
+        return None
+    return SegmentGrid(np.concatenate(tris)), eps
 
 
 class Transport:
@@ -287,9 +276,8 @@ class Transport:
         self.pairs = interacting_pairs(scene.objects)
         self.stats = {"fine patches": self.fine.X.shape[0], "coarse patches": self.coarse.X.shape[0],
                       "far pairs": 0, "near pairs (fine)": 0, "occluded pairs": 0}
-        #: world triangles of the meshes (occluders traced by synth.raycast), when ``mesh_visibility``
-        self.mesh_tris = [o.tri @ o.R.T + o.t for o in scene.objects if isinstance(o, Mesh)] \
-            if ir.mesh_visibility else []
+        #: the meshes as occluders (synth._segment_kernel), when ``mesh_visibility``
+        self.occluder = _mesh_occluder(scene.objects) if ir.mesh_visibility else None
         order = torch.argsort(self.parent, stable=True)  # children of each coarse patch (CSR)
         counts = torch.bincount(self.parent, minlength=self.coarse.X.shape[0])
         self.child_order, self.child_start, self.child_count = order, torch.cumsum(counts, 0) - counts, counts
@@ -325,22 +313,23 @@ class Transport:
                     occ &= k > 0
                     self.stats["occluded pairs"] += int(occ.sum())
                     k.masked_fill_(occ, 0.0)
-                if self.mesh_tris:
-                    self._mesh_visibility(k, Xr[rr], Ye, ne)
+                if self.occluder is not None:
+                    self._mesh_visibility(k, Xr[rr], Ye)
                 self.stats["far pairs"] += int(torch.count_nonzero(k))
                 out[:, rr] += Se @ k.T
                 if near is not None:
                     out += self._near(Xr, nr, rr, ei, near, src_f, skip)
         return out
 
-    def _mesh_visibility(self, k, Xr, Ye, ne):
+    def _mesh_visibility(self, k, Xr, Ye):
         """Zero the pairs of the dense block ``k`` (r, e) that a mesh blocks (in place)."""
-        for j in torch.nonzero((k > 0).any(0)).squeeze(1).tolist():
-            rows = torch.nonzero(k[:, j] > 0).squeeze(1)
-            occ = _mesh_occluded(self.mesh_tris, Ye[j], ne[j], Xr[rows])
-            if bool(occ.any()):
-                k[rows[occ], j] = 0.0
-                self.stats["occluded pairs"] += int(occ.sum())
+        i, j = torch.nonzero(k > 0, as_tuple=True)
+        if i.numel() == 0:
+            return
+        grid, eps = self.occluder
+        occ = torch.from_numpy(grid.occluded(Xr[i].numpy(), Ye[j].numpy(), eps, eps))
+        k[i[occ], j[occ]] = 0.0
+        self.stats["occluded pairs"] += int(occ.sum())
 
     def _near(self, Xr, nr, rr, ei, near, src_f, skip) -> torch.Tensor:
         """Near pairs, each coarse patch replaced by its fine children: (Q, r_all) additions."""
@@ -359,6 +348,10 @@ class Transport:
         pos = torch.nonzero(k > 0).squeeze(1)
         Rn, Fi, k = Rn[pos], Fi[pos], k[pos]
         occ = _occluded_pairs(self.objects, skip, Xr[Rn], f.X[Fi])
+        if self.occluder is not None and Rn.numel():
+            grid, eps = self.occluder
+            m_occ = torch.from_numpy(grid.occluded(Xr[Rn].numpy(), f.X[Fi].numpy(), eps, eps))
+            occ = m_occ if occ is None else occ | m_occ
         if occ is not None:
             self.stats["occluded pairs"] += int(occ.sum())
             k = torch.where(occ, torch.zeros_like(k), k)
@@ -458,5 +451,5 @@ def apply_interreflection(full: torch.Tensor, nl: torch.Tensor | None, scene, ge
                  "%d far + %d near pair(s), %d occluded (spheres and planes tested; meshes %s)",
                  ir.bounces, s["fine patches"], s["coarse patches"], ir.patch_px / ir.refine, ir.patch_px,
                  s["far pairs"], s["near pairs (fine)"], s["occluded pairs"],
-                 "traced on the coarse pairs" if ir.mesh_visibility else "not")
+                 "traced (segment grid)" if ir.mesh_visibility else "not")
     return full, nl, T.stats
