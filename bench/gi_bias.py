@@ -9,7 +9,8 @@ camera), 8 steps of vertical fringes at f = 1. Per scene and renderer the bias m
 per pixel with each of ``--seeds`` seeds (the reference is their circular mean; the RMS of two
 seeds' difference / sqrt 2 is one map's noise) against its own 1-sample direct frames.
 
-Rows: ours with synth.interreflection (1 and 2 bounces, default patches) and the old
+Rows: ours with synth.interreflection (1 and 2 bounces, default patches; on mesh scenes also
+without mesh visibility) and the old
 screen-space term (synth.global_illumination, ``interreflection`` 0.2 over 40 mm). Columns:
 pixels compared, Cycles bias RMS / p99 and noise, correlation and RMS difference / bias RMS per
 model, our time for the whole 8-frame stack (geometry included, minimum over ``--repeats``) and
@@ -64,9 +65,9 @@ def _ours(name, repeats):
             "old term": bias_map(old, direct)}
     extra = {}
     if any(o.kind == "mesh" for o in scene_objects(name)):
-        mv, rm = ours_images(name, Interreflection(mesh_visibility=True))
-        extra["ours 1 bounce + mesh visibility"] = rm.timings["total"]
-        maps["ours 1 bounce + mesh visibility"] = bias_map(mv, direct)
+        mv, rm = ours_images(name, Interreflection(mesh_visibility=False))
+        extra["ours 1 bounce, no mesh visibility"] = rm.timings["total"]
+        maps["ours 1 bounce, no mesh visibility"] = bias_map(mv, direct)
     return {"direct": direct, "geometry": res.geometry, "seconds": best, "plan": plan, "maps": maps,
             "extra_seconds": extra}
 
@@ -112,6 +113,47 @@ def _figure(path, name, ref, maps, mask):
     os.replace(tmp, path)
 
 
+def _print_tables(rows, anchor, a):
+    """The Markdown tables of :func:`main`."""
+    from synth.gi_bias import FINE_PERIODS
+
+    print(f"## Unit-phase interreflection bias, Cycles (4 bounces{', stored reference' if a.quick else ''}) vs ours\n")
+    print("| scene | pixels | Cycles bias RMS / p99 (rad) | fringes (x64) p99 | Cycles noise / seed | model | correlation "
+          "| RMS diff / bias RMS |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name, cmp, noise, *_ in rows:
+        c0 = cmp["ours 1 bounce"]
+        for k, c in cmp.items():
+            print(f"| {name} | {c0['pixels']} | {c0['bias_rms']:.4f} / {c0['bias_p99']:.3f} | "
+                  f"{c0['bias_p99'] * FINE_PERIODS / (2 * np.pi):.2f} | {noise:.4f} | {k} | {c['correlation']:.3f} | "
+                  f"{c['diff_over_bias']:.3f} |")
+    print("\n## Time for the 8-frame stack (ours: geometry + every stage, 1 bounce; Cycles: its render times)\n")
+    print("| scene | ours ms | Cycles s (samples) | speed-up | Cycles s at 64 samples (scaled) | speed-up at 64 |")
+    print("|---|---|---|---|---|---|")
+    for name, _, _, ours_s, cyc_s, samples, _, extra in rows:
+        for label, sec in [("", ours_s)] + [(f" ({k})", v) for k, v in extra.items()]:
+            if cyc_s is None:
+                print(f"| {name}{label} | {sec * 1e3:.0f} | (not run: --quick) | | | |")
+            else:
+                c64 = cyc_s * 64 / samples
+                print(f"| {name}{label} | {sec * 1e3:.0f} | {cyc_s:.1f} ({samples}) | {cyc_s / sec:.1f}x | {c64:.1f} | "
+                      f"{c64 / sec:.1f}x |")
+    if anchor:
+        print(f"\nSame-run anchor: one fresh Cycles frame at {a.anchor_samples} samples x 8 frames, against our "
+              "stack time above:\n")
+        print("| scene | Cycles s (8 x 1 frame, this run) | speed-up (ours 1 bounce) |")
+        print("|---|---|---|")
+        for name, _, _, ours_s, _, _, _, extra in rows:
+            for label, sec in [("", ours_s)] + [(f" ({k})", v) for k, v in extra.items()]:
+                if name in anchor:
+                    print(f"| {name}{label} | {anchor[name]:.1f} | {anchor[name] / sec:.0f}x |")
+    print()
+    for name, *_, plan, _ in rows:
+        print(f"- {name}: {plan}")
+    if a.figures:
+        print(f"\nFigures: {a.figures}/<scene>.png")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.gi_bias", description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="no Blender: ball-wall against the stored test reference")
@@ -127,7 +169,7 @@ def main(argv=None) -> int:
     ap.add_argument("--write-reference", type=Path, default=None)
     ap.add_argument("-q", "--quiet", action="store_true")
     a = ap.parse_args(argv)
-    from synth.gi_bias import FINE_PERIODS, compare, comparison_mask, cycles_bias, load_reference, save_reference
+    from synth.gi_bias import compare, comparison_mask, cycles_bias, load_reference, save_reference
 
     scenes = ["ball-wall"] if a.quick else a.scenes
     rows = []
@@ -160,40 +202,7 @@ def main(argv=None) -> int:
         if a.figures:
             _figure(a.figures / f"{name}.png", name, ref, ours["maps"], mask)
 
-    print(f"## Unit-phase interreflection bias, Cycles (4 bounces{', stored reference' if a.quick else ''}) vs ours\n")
-    print("| scene | pixels | Cycles bias RMS / p99 (rad) | fringes (x64) p99 | Cycles noise / seed | model | correlation "
-          "| RMS diff / bias RMS |")
-    print("|---|---|---|---|---|---|---|---|")
-    for name, cmp, noise, *_ in rows:
-        c0 = cmp["ours 1 bounce"]
-        for k, c in cmp.items():
-            print(f"| {name} | {c0['pixels']} | {c0['bias_rms']:.4f} / {c0['bias_p99']:.3f} | "
-                  f"{c0['bias_p99'] * FINE_PERIODS / (2 * np.pi):.2f} | {noise:.4f} | {k} | {c['correlation']:.3f} | "
-                  f"{c['diff_over_bias']:.3f} |")
-    print("\n## Time for the 8-frame stack (ours: geometry + every stage, 1 bounce; Cycles: its render times)\n")
-    print("| scene | ours ms | Cycles s (samples) | speed-up | Cycles s at 64 samples (scaled) | speed-up at 64 |")
-    print("|---|---|---|---|---|---|")
-    for name, _, _, ours_s, cyc_s, samples, _, extra in rows:
-        for label, sec in [("", ours_s)] + [(f" ({k})", v) for k, v in extra.items()]:
-            if cyc_s is None:
-                print(f"| {name}{label} | {sec * 1e3:.0f} | (not run: --quick) | | | |")
-            else:
-                c64 = cyc_s * 64 / samples
-                print(f"| {name}{label} | {sec * 1e3:.0f} | {cyc_s:.1f} ({samples}) | {cyc_s / sec:.1f}x | {c64:.1f} | "
-                      f"{c64 / sec:.1f}x |")
-    if anchor:
-        print(f"\nSame-run anchor: one fresh Cycles frame at {a.anchor_samples} samples x 8 frames, against our "
-              "stack time above:\n")
-        print("| scene | Cycles s (8 x 1 frame, this run) | speed-up (ours 1 bounce) |")
-        print("|---|---|---|")
-        for name, _, _, ours_s, *_ in rows:
-            if name in anchor:
-                print(f"| {name} | {anchor[name]:.1f} | {anchor[name] / ours_s:.0f}x |")
-    print()
-    for name, *_, plan, _ in rows:
-        print(f"- {name}: {plan}")
-    if a.figures:
-        print(f"\nFigures: {a.figures}/<scene>.png")
+    _print_tables(rows, anchor, a)
     return 0
 
 

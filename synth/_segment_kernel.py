@@ -79,6 +79,60 @@ def _bin(b0, b1, n):
     return start, items
 
 
+@njit(cache=True)
+def _clip(ox, oy, oz, dx, dy, dz, lo, h, n, t0, t1):
+    """[t0, t1] of the segment clipped to the grid's box (slabs); t0 > t1: outside."""
+    o3 = (ox, oy, oz)
+    d3 = (dx, dy, dz)
+    for a in range(3):
+        hi_a = lo[a] + h[a] * n[a]
+        if abs(d3[a]) < 1e-300:
+            if o3[a] < lo[a] or o3[a] > hi_a:
+                return 1.0, 0.0
+        else:
+            ta, tb = (lo[a] - o3[a]) / d3[a], (hi_a - o3[a]) / d3[a]
+            if ta > tb:
+                ta, tb = tb, ta
+            t0, t1 = max(t0, ta), min(t1, tb)
+    return t0, t1
+
+
+@njit(cache=True)
+def _cell_hit(c, ox, oy, oz, dx, dy, dz, tri, start, items, t_lo, t_hi):
+    """Whether a triangle binned in cell ``c`` meets the segment at t in (t_lo, t_hi)."""
+    for q in range(start[c], start[c + 1]):
+        t = items[q]
+        v0x, v0y, v0z = tri[t, 0, 0], tri[t, 0, 1], tri[t, 0, 2]
+        e1x, e1y, e1z = tri[t, 1, 0] - v0x, tri[t, 1, 1] - v0y, tri[t, 1, 2] - v0z
+        e2x, e2y, e2z = tri[t, 2, 0] - v0x, tri[t, 2, 1] - v0y, tri[t, 2, 2] - v0z
+        pvx, pvy, pvz = dy * e2z - dz * e2y, dz * e2x - dx * e2z, dx * e2y - dy * e2x
+        det = e1x * pvx + e1y * pvy + e1z * pvz
+        if abs(det) < 1e-15:
+            continue
+        inv = 1.0 / det
+        tvx, tvy, tvz = ox - v0x, oy - v0y, oz - v0z
+        b1 = (tvx * pvx + tvy * pvy + tvz * pvz) * inv
+        if b1 < 0.0 or b1 > 1.0:
+            continue
+        qvx, qvy, qvz = tvy * e1z - tvz * e1y, tvz * e1x - tvx * e1z, tvx * e1y - tvy * e1x
+        b2 = (dx * qvx + dy * qvy + dz * qvz) * inv
+        if b2 < 0.0 or b1 + b2 > 1.0:
+            continue
+        tt = (e2x * qvx + e2y * qvy + e2z * qvz) * inv
+        if t_lo < tt < t_hi:
+            return True
+    return False
+
+
+@njit(cache=True)
+def _axis_start(o, d, lo, h, c):
+    """DDA step, parameter increment per cell and parameter of the first cell boundary."""
+    if abs(d) < 1e-300:
+        return 1, 1e300, 1e300
+    step = 1 if d > 0 else -1
+    return step, h / abs(d), ((lo + (c + (1 if step > 0 else 0)) * h) - o) / d
+
+
 @njit(cache=True, parallel=True)
 def _trace(X, Y, tri, lo, h, n, start, items, eps_start, eps_end, out):
     for s in prange(X.shape[0]):
@@ -88,67 +142,21 @@ def _trace(X, Y, tri, lo, h, n, start, items, eps_start, eps_end, out):
         if L <= eps_start + eps_end:
             continue
         t_lo, t_hi = eps_start / L, 1.0 - eps_end / L
-        # clip [t_lo, t_hi] to the grid box (slabs)
-        t0, t1 = t_lo, t_hi
-        o3 = (ox, oy, oz)
-        d3 = (dx, dy, dz)
-        ok = True
-        for a in range(3):
-            hi_a = lo[a] + h[a] * n[a]
-            if abs(d3[a]) < 1e-300:
-                if o3[a] < lo[a] or o3[a] > hi_a:
-                    ok = False
-            else:
-                ta, tb = (lo[a] - o3[a]) / d3[a], (hi_a - o3[a]) / d3[a]
-                if ta > tb:
-                    ta, tb = tb, ta
-                t0, t1 = max(t0, ta), min(t1, tb)
-        if not ok or t0 > t1:
+        t0, t1 = _clip(ox, oy, oz, dx, dy, dz, lo, h, n, t_lo, t_hi)
+        if t0 > t1:
             continue
-        # DDA from the entry point
-        px, py, pz = ox + t0 * dx, oy + t0 * dy, oz + t0 * dz
-        ci = min(max(int((px - lo[0]) / h[0]), 0), n[0] - 1)
-        cj = min(max(int((py - lo[1]) / h[1]), 0), n[1] - 1)
-        ck = min(max(int((pz - lo[2]) / h[2]), 0), n[2] - 1)
-        si = 1 if dx > 0 else -1
-        sj = 1 if dy > 0 else -1
-        sk = 1 if dz > 0 else -1
-        inf = 1e300
-        tdx = h[0] / abs(dx) if abs(dx) > 1e-300 else inf
-        tdy = h[1] / abs(dy) if abs(dy) > 1e-300 else inf
-        tdz = h[2] / abs(dz) if abs(dz) > 1e-300 else inf
-        tmx = ((lo[0] + (ci + (1 if si > 0 else 0)) * h[0]) - ox) / dx if abs(dx) > 1e-300 else inf
-        tmy = ((lo[1] + (cj + (1 if sj > 0 else 0)) * h[1]) - oy) / dy if abs(dy) > 1e-300 else inf
-        tmz = ((lo[2] + (ck + (1 if sk > 0 else 0)) * h[2]) - oz) / dz if abs(dz) > 1e-300 else inf
+        ci = min(max(int((ox + t0 * dx - lo[0]) / h[0]), 0), n[0] - 1)
+        cj = min(max(int((oy + t0 * dy - lo[1]) / h[1]), 0), n[1] - 1)
+        ck = min(max(int((oz + t0 * dz - lo[2]) / h[2]), 0), n[2] - 1)
+        si, tdx, tmx = _axis_start(ox, dx, lo[0], h[0], ci)
+        sj, tdy, tmy = _axis_start(oy, dy, lo[1], h[1], cj)
+        sk, tdz, tmz = _axis_start(oz, dz, lo[2], h[2], ck)
         hit = False
         while True:
-            c = (ck * n[1] + cj) * n[0] + ci
-            for q in range(start[c], start[c + 1]):
-                t = items[q]
-                v0x, v0y, v0z = tri[t, 0, 0], tri[t, 0, 1], tri[t, 0, 2]
-                e1x, e1y, e1z = tri[t, 1, 0] - v0x, tri[t, 1, 1] - v0y, tri[t, 1, 2] - v0z
-                e2x, e2y, e2z = tri[t, 2, 0] - v0x, tri[t, 2, 1] - v0y, tri[t, 2, 2] - v0z
-                pvx, pvy, pvz = dy * e2z - dz * e2y, dz * e2x - dx * e2z, dx * e2y - dy * e2x
-                det = e1x * pvx + e1y * pvy + e1z * pvz
-                if abs(det) < 1e-15:
-                    continue
-                inv = 1.0 / det
-                tvx, tvy, tvz = ox - v0x, oy - v0y, oz - v0z
-                b1 = (tvx * pvx + tvy * pvy + tvz * pvz) * inv
-                if b1 < 0.0 or b1 > 1.0:
-                    continue
-                qvx, qvy, qvz = tvy * e1z - tvz * e1y, tvz * e1x - tvx * e1z, tvx * e1y - tvy * e1x
-                b2 = (dx * qvx + dy * qvy + dz * qvz) * inv
-                if b2 < 0.0 or b1 + b2 > 1.0:
-                    continue
-                tt = (e2x * qvx + e2y * qvy + e2z * qvz) * inv
-                if tt > t_lo and tt < t_hi:
-                    hit = True
-                    break
-            if hit:
+            if _cell_hit((ck * n[1] + cj) * n[0] + ci, ox, oy, oz, dx, dy, dz, tri, start, items, t_lo, t_hi):
+                hit = True
                 break
-            tnext = min(tmx, tmy, tmz)
-            if tnext > t1:
+            if min(tmx, tmy, tmz) > t1:
                 break
             if tmx <= tmy and tmx <= tmz:
                 ci += si

@@ -75,14 +75,14 @@ class Interreflection:
     2 (the second gathers the first bounce at the same patches). ``mesh_visibility``: test every
     pair against the scene's meshes (synth._segment_kernel: a uniform grid over the triangles, a
     mesh above 8000 triangles replaced by its vertex clustering at 1/30 of its extent; ~6x the
-    time of the effect on the bunny scene); off (default), meshes block no indirect light (an
+    time of the effect on the bunny scene; default); off, meshes block no indirect light (an
     over-estimate where a mesh shadows its own indirect light)."""
 
     bounces: int = 1
     patch_px: float = 32.0
     refine: int = 4
     near: float = 2.0
-    mesh_visibility: bool = False
+    mesh_visibility: bool = True
 
 
 @dataclass(frozen=True)

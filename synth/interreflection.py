@@ -28,12 +28,12 @@ except from those closer than ``near`` coarse sizes, which it replaces by their 
 
 Visibility between x and y_j: exact segment tests against every sphere and plane (bounded or
 not) other than a convex receiver's or emitter's own object (a convex surface cannot block a
-pair both of whose cosines are positive). Meshes: by default not tested (the plan line says
-so): a concave mesh's self-shadowing of indirect light and a mesh standing between two other
-surfaces are not modelled, only the cosine terms (an over-estimate there); with
-``mesh_visibility`` every pair is tested against the meshes by synth._segment_kernel (a uniform
+pair both of whose cosines are positive). Meshes: with ``mesh_visibility`` (default) every
+pair is tested against the meshes by synth._segment_kernel (a uniform
 grid, 3-D DDA, Moeller-Trumbore; a mesh above 8000 triangles is replaced by its vertex
-clustering at 1/30 of its extent and the tolerance at both ends grows to that cell).
+clustering at 1/30 of its extent and the tolerance at both ends grows to that cell); without
+it (the plan line says so) a concave mesh's self-shadowing of indirect light and a mesh standing
+between two other surfaces are not modelled, only the cosine terms (an over-estimate there).
 
 Second bounce (``bounces = 2``): the coarse patches gather the first bounce the same way (coarse
 emitters only) and re-emit it, ``rho(y) / pi`` times their irradiance, to the receivers; surfaces
@@ -448,8 +448,9 @@ def apply_interreflection(full: torch.Tensor, nl: torch.Tensor | None, scene, ge
     if log is not None:
         s = T.stats
         log.info("interreflection: %d bounce(s), %d fine / %d coarse patches (%.3g / %.3g projector px), "
-                 "%d far + %d near pair(s), %d occluded (spheres and planes tested; meshes %s)",
+                 "%d far + %d near pair(s), %d occluded (spheres and planes tested; meshes: %s)",
                  ir.bounces, s["fine patches"], s["coarse patches"], ir.patch_px / ir.refine, ir.patch_px,
                  s["far pairs"], s["near pairs (fine)"], s["occluded pairs"],
-                 "traced (segment grid)" if ir.mesh_visibility else "not")
+                 ("traced (segment grid)" if T.occluder is not None else "none in the scene")
+                 if ir.mesh_visibility else "not tested")
     return full, nl, T.stats
