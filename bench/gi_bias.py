@@ -113,6 +113,13 @@ def _figure(path, name, ref, maps, mask):
     os.replace(tmp, path)
 
 
+def _timings(rows):
+    """(scene, row label, our seconds, Cycles seconds, samples) for the default and extra rows."""
+    for name, _, _, ours_s, cyc_s, samples, _, extra in rows:
+        for label, sec in [("", ours_s)] + [(f" ({k})", v) for k, v in extra.items()]:
+            yield name, label, sec, cyc_s, samples
+
+
 def _print_tables(rows, anchor, a):
     """The Markdown tables of :func:`main`."""
     from synth.gi_bias import FINE_PERIODS
@@ -130,23 +137,21 @@ def _print_tables(rows, anchor, a):
     print("\n## Time for the 8-frame stack (ours: geometry + every stage, 1 bounce; Cycles: its render times)\n")
     print("| scene | ours ms | Cycles s (samples) | speed-up | Cycles s at 64 samples (scaled) | speed-up at 64 |")
     print("|---|---|---|---|---|---|")
-    for name, _, _, ours_s, cyc_s, samples, _, extra in rows:
-        for label, sec in [("", ours_s)] + [(f" ({k})", v) for k, v in extra.items()]:
-            if cyc_s is None:
-                print(f"| {name}{label} | {sec * 1e3:.0f} | (not run: --quick) | | | |")
-            else:
-                c64 = cyc_s * 64 / samples
-                print(f"| {name}{label} | {sec * 1e3:.0f} | {cyc_s:.1f} ({samples}) | {cyc_s / sec:.1f}x | {c64:.1f} | "
-                      f"{c64 / sec:.1f}x |")
+    for name, label, sec, cyc_s, samples in _timings(rows):
+        if cyc_s is None:
+            print(f"| {name}{label} | {sec * 1e3:.0f} | (not run: --quick) | | | |")
+        else:
+            c64 = cyc_s * 64 / samples
+            print(f"| {name}{label} | {sec * 1e3:.0f} | {cyc_s:.1f} ({samples}) | {cyc_s / sec:.1f}x | {c64:.1f} | "
+                  f"{c64 / sec:.1f}x |")
     if anchor:
         print(f"\nSame-run anchor: one fresh Cycles frame at {a.anchor_samples} samples x 8 frames, against our "
               "stack time above:\n")
         print("| scene | Cycles s (8 x 1 frame, this run) | speed-up (ours 1 bounce) |")
         print("|---|---|---|")
-        for name, _, _, ours_s, _, _, _, extra in rows:
-            for label, sec in [("", ours_s)] + [(f" ({k})", v) for k, v in extra.items()]:
-                if name in anchor:
-                    print(f"| {name}{label} | {anchor[name]:.1f} | {anchor[name] / sec:.0f}x |")
+        for name, label, sec, _, _ in _timings(rows):
+            if name in anchor:
+                print(f"| {name}{label} | {anchor[name]:.1f} | {anchor[name] / sec:.0f}x |")
     print()
     for name, *_, plan, _ in rows:
         print(f"- {name}: {plan}")
