@@ -51,7 +51,7 @@ def blender_twin(system) -> dict:
 def render_in_blender(system, meshes, patterns: np.ndarray, *, exposure: float, reference_distance_mm: float,
                       threads: int = 2, samples: int = 1, camera_dof: dict | None = None,
                       python: str | None = None, workdir=None, timeout: float = 600, subsurface: dict | None = None,
-                      bounces: int = 0) -> dict:
+                      bounces: int = 0, seed: int | None = None) -> dict:
     """Render ``patterns`` (K, H_p, W_p) in [0, 1] with Cycles in a subprocess.
 
     ``meshes``: list of ``(vertices_world (V,3) mm, faces (F,3), albedo, smooth)``.
@@ -59,6 +59,7 @@ def render_in_blender(system, meshes, patterns: np.ndarray, *, exposure: float, 
     scattering; needs ``bounces`` > 0 and ``samples`` > 1).
     ``camera_dof``: None (pinhole) or ``{"focus_mm": camera depth in focus, "aperture_mm":
     aperture diameter}`` (thin lens, circular aperture; needs ``samples`` > 1 to converge).
+    ``seed``: Cycles' sampling seed (None: Blender's default, 0).
     RETURNED VALUE: {"images": (K,H,W) float64 linear values in [0, 1] (16-bit PNG / 65535),
     "seconds_per_frame": list of Cycles render times, "wall_seconds": whole subprocess}.
     """
@@ -72,7 +73,7 @@ def render_in_blender(system, meshes, patterns: np.ndarray, *, exposure: float, 
     cfg = {"power_w": 4 * math.pi ** 2 * exposure * (reference_distance_mm / 1000.0) ** 2,
            "threads": int(threads), "samples": int(samples), "camera_dof": camera_dof,
            "projector_size": list(system.projector.size), "patterns": str(tmp / "patterns.npy"), "out": str(tmp),
-           "bounces": int(bounces),
+           "bounces": int(bounces), "seed": None if seed is None else int(seed),
            "objects": [{"vertices": np.asarray(V).tolist(), "faces": np.asarray(F).tolist(), "albedo": float(a),
                         "smooth": bool(s), "subsurface": subsurface} for V, F, a, s in meshes]}
     wall = run_in_blender("render", script, cfg, tmp, python=python, timeout=timeout)

@@ -117,16 +117,29 @@ def _optics_plan(eff, geometry, lit, plan):
         plan.info("global illumination: skipped (not asked for)")
     elif not gi_on:
         plan.info("global illumination: skipped (%s)", "zero fractions" if not gi.active else "nothing lit")
-    if eff.noise is None:
-        plan.info("sensor noise: skipped (not asked for)")
     return sig, cam_blur, gi_on
 
 
+def _interreflection_plan(scene, lit, plan) -> bool:
+    """Whether this render runs synth.interreflection (its skip goes to the plan)."""
+    from .interreflection import skip_reason
+
+    if scene.effects.interreflection is None:
+        plan.info("interreflection: skipped (not asked for)")
+        return False
+    why = "nothing lit" if lit.numel() == 0 else skip_reason(scene.objects)
+    if why:
+        plan.info("interreflection: skipped (%s)", why)
+        return False
+    return True
+
+
 def _linear_images(geometry, lit, idx, C, rows, other, p_other, K, eff, cam_blur, timings, t, *,
-                   gi=None, f_px=None, plan=None):
+                   gi=None, f_px=None, plan=None, scene=None):
     """The (K, H, W) float32 images before the sensor: basis rows over the whole image (ambient
     where unlit), global illumination (``gi``; ``f_px`` the camera focal length, px) and camera
-    defocus on the rows, then the pattern combinations. ``t``: when the pattern stage started
+    defocus on the rows, then the pattern combinations; ``scene``: given when
+    synth.interreflection runs (first, on the rows). ``t``: when the pattern stage started
     (its time goes to ``timings``)."""
     W, H = geometry.size
     N = W * H
@@ -139,6 +152,12 @@ def _linear_images(geometry, lit, idx, C, rows, other, p_other, K, eff, cam_blur
         nl = geometry.ambient_term.to(torch.float32).repeat(len(other), 1)
         nl[:, lit] += (geometry.radiance_scale[lit] * p_other).to(torch.float32)
     timings["patterns"] = time.perf_counter() - t
+    if scene is not None:
+        from .interreflection import apply_interreflection
+
+        t = time.perf_counter()
+        full, nl, _ = apply_interreflection(full, nl, scene, geometry, other, log=plan)
+        timings["interreflection"] = time.perf_counter() - t
     if gi is not None:
         # linear too: applied to the basis rows (and the other patterns' images)
         t = time.perf_counter()
@@ -203,6 +222,9 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
 
     t = time.perf_counter()
     sig, cam_blur, gi_on = _optics_plan(eff, geometry, lit, plan)
+    ir_on = _interreflection_plan(scene, lit, plan)
+    if eff.noise is None:
+        plan.info("sensor noise: skipped (not asked for)")
     u, v = geometry.u_p[lit], geometry.v_p[lit]
     psize = scene.system.projector.size
     # images = ambient + scale * p. Linear patterns: one matrix product (K, R) @ (R, N) over basis
@@ -215,7 +237,7 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
     p_other = nonlinear_values(scene.patterns, other, u, v, psize, eff, sig, log=plan) if other else None
     if lit.numel() == 0:
         plan.info("patterns: no camera pixel is lit by the projector (empty image apart from ambient light)")
-    fused = quantised and not cam_blur and not gi_on and eff.noise is None and not keep_linear
+    fused = quantised and not cam_blur and not gi_on and not ir_on and eff.noise is None and not keep_linear
     if fused:
         # nothing between the patterns and the quantiser acts across pixels: compute the lit
         # pixels in cache-sized chunks and quantise them at once; unlit pixels hold ambient only
@@ -227,7 +249,8 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
     else:
         images = _linear_images(geometry, lit, idx, C, rows, other, p_other, K, eff, cam_blur, timings, t,
                                 gi=eff.global_illumination if gi_on else None,
-                                f_px=max(scene.system.camera.fx, scene.system.camera.fy), plan=plan)
+                                f_px=max(scene.system.camera.fx, scene.system.camera.fy), plan=plan,
+                                scene=scene if ir_on else None)
         linear = images.clone() if keep_linear else None
         images = _sensor(images, eff, quantised, timings)
     timings["total"] = time.perf_counter() - t0

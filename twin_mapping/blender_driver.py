@@ -17,7 +17,7 @@ CONFIG.json ``job``:
   ``{"weight", "radius_mm", "method"}``: the Principled BSDF's subsurface scattering, white radius),
   ``bounces`` (optional: light bounces beyond the direct light), ``camera_dof`` (null or
   ``{"focus_mm", "aperture_mm"}``: thin-lens depth of field with a circular aperture of that
-  diameter, focused at that camera depth). Writes ``OUT/NNN.png`` (16-bit grey, linear) and
+  diameter, focused at that camera depth), ``seed`` (optional: Cycles' sampling seed). Writes ``OUT/NNN.png`` (16-bit grey, linear) and
   ``OUT/times.json`` (Cycles seconds per frame).
 """
 import json
@@ -88,6 +88,8 @@ def render(cfg):
         scene.cycles.transmission_bounces = 0
         scene.cycles.volume_bounces = 0
         scene.cycles.transparent_max_bounces = 0
+    if cfg.get("seed") is not None:  # Cycles' sampling pattern seed (two seeds measure its noise)
+        scene.cycles.seed = int(cfg["seed"])
     dof = cfg.get("camera_dof")
     if dof:
         cam = made["camera"].data
