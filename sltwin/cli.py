@@ -34,6 +34,7 @@ import platform
 import sys
 import traceback
 
+from .outputs import release_all
 from .commands import (convert, demo, evaluate, export, plan_fringes, reconstruct, render, render_board,
                        report, run, train, twin, unwrap)
 
@@ -120,6 +121,22 @@ def _versions() -> str:
             f"{platform.platform()}")
 
 
+def without_traceback(message: str) -> str:
+    """``message`` without a traceback quoted inside it (a data-loading worker's error carries
+    its worker's traceback in its text): the text before it and the traceback's last line.
+
+    >>> without_traceback("Caught ValueError in DataLoader worker process 0.\\nOriginal Traceback (most recent "
+    ...                   "call last):\\n  File \\"x.py\\", line 1\\nValueError: x.h5: bad")
+    'Caught ValueError in DataLoader worker process 0: ValueError: x.h5: bad'
+    """
+    head, sep, tail = message.partition("Traceback (most recent call last):")
+    if not sep:
+        return message
+    head = head.replace("Original", "").strip().rstrip(".:")
+    last = [line.strip() for line in tail.strip().splitlines() if line.strip()]
+    return f"{head}: {last[-1]}" if last else head
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     handler, levels = _show_progress(args)
@@ -131,12 +148,12 @@ def main(argv=None) -> int:
         if args.debug:
             traceback.print_exc()
         code, prefix = exit_code(args._module, exc)
-        print(f"calib {args.command}: error: {prefix}{exc}", file=sys.stderr)
+        print(f"calib {args.command}: error: {prefix}{without_traceback(str(exc))}", file=sys.stderr)
         return code
     except Exception as exc:                # a bug: one line, the traceback with --debug
         if args.debug:
             raise
-        print(f"calib {args.command}: internal error: {type(exc).__name__}: {exc}\n"
+        print(f"calib {args.command}: internal error: {type(exc).__name__}: {without_traceback(str(exc))}\n"
               f"  This is a bug in sltwin: run the same command with --debug for the traceback and "
               "report it.", file=sys.stderr)
         return 1
@@ -144,6 +161,7 @@ def main(argv=None) -> int:
         print(f"calib {args.command}: interrupted", file=sys.stderr)
         return 130
     finally:
+        release_all()
         for name, level in levels.items():
             logging.getLogger(name).removeHandler(handler)
             logging.getLogger(name).setLevel(level)

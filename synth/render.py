@@ -30,6 +30,7 @@ from .projection import linear_model, nonlinear_values
 
 F64 = torch.float64
 from .sensor import add_noise, camera_defocus, quantise
+from .sequence import check_fringe_periods
 from .truth import fringe_frequencies, phase_truth
 
 @dataclass
@@ -188,6 +189,7 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
     """Render every pattern of ``scene``. ``geometry`` reuses a previous geometry stage of the
     same scene pose (e.g. to render another pattern sequence). ``log``: a ``logging.Logger`` the
     plan lines also go to, at DEBUG (default: the ``synth`` logger)."""
+    check_fringe_periods(scene.patterns, scene.system.projector.size)
     plan = PlanLog.of(log)
     eff = scene.effects
     timings: dict = {}

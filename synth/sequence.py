@@ -67,6 +67,7 @@ def phase_sequence(orientations=("v", "h"), frequencies=(1, 8, 48), steps=12) ->
     steps_list = [steps] * len(frequencies) if isinstance(steps, int) else list(steps)
     if len(steps_list) != len(frequencies):
         raise SynthError(f"patterns: steps {steps_list} and frequencies {list(frequencies)} differ in length")
+    check_frequencies(frequencies)
     out = []
     for o in orientations:
         if o not in ("v", "h"):
@@ -78,6 +79,31 @@ def phase_sequence(orientations=("v", "h"), frequencies=(1, 8, 48), steps=12) ->
                 raise SynthError(f"patterns.steps: expected integers >= 3, got {n!r}")
             out += [PatternSpec(fringe_name(o, f, k), "fringe", o, float(f), k, n) for k in range(n)]
     return out
+
+
+def check_frequencies(frequencies, key: str = "patterns.frequencies") -> None:
+    """Refuse (:class:`SynthError`) a fringe ladder with a repeated frequency (equal to 1e-9,
+    e.g. ``8`` and ``8.0``: the same images twice under the same file names). One check for
+    ``calib render``, ``calib render-board`` and the dataset export (:func:`phase_sequence`)."""
+    fs = [float(f) for f in frequencies if isinstance(f, (int, float)) and not isinstance(f, bool)]
+    for i, f in enumerate(fs):
+        if any(math.isclose(f, g, rel_tol=1e-9) for g in fs[:i]):
+            raise SynthError(f"{key}: frequency {f:g} is given twice in {list(frequencies)}; give each frequency once")
+
+
+def check_fringe_periods(patterns, projector_size) -> None:
+    """Refuse (:class:`SynthError`) a fringe whose period is under 2 projector pixels (``v``:
+    across the width, ``h``: the height of ``projector_size`` (W, H)): such a pattern aliases on
+    the projector (e.g. 2000 periods across 912 px, a 0.46 px period). Checked by
+    :func:`synth.render.render` before any work, so for every command that renders."""
+    for p in patterns:
+        if p.kind != "fringe":
+            continue
+        extent = projector_size[0] if p.orientation == "v" else projector_size[1]
+        if extent / p.frequency < 2.0:
+            raise SynthError(f"patterns.frequencies: frequency {p.frequency:g} ({p.orientation}) has a period of "
+                             f"{extent / p.frequency:.2f} projector px across {extent} px; under 2 px the fringes "
+                             f"alias: at most {extent / 2:g} periods")
 
 
 def gray_sequence(orientation: str, size, bits: int | None = None, inverse: bool = False,

@@ -10,7 +10,7 @@ Inputs: whatever ``calib.load_system`` reads (calibration.json, OpenCV .xml/.yml
 """
 from __future__ import annotations
 
-from ..outputs import output_file
+from ..outputs import claim
 
 HELP = "a calibration from one file format into another (calibration.json, OpenCV YAML/XML, mrcal)"
 
@@ -25,15 +25,17 @@ def add_arguments(p):
                    help="largest corner shift (px) from dropping skew that a .cameramodel may accept (default 0.01)")
     p.add_argument("--camera-size", nargs=2, type=int, metavar=("W", "H"))
     p.add_argument("--projector-size", nargs=2, type=int, metavar=("W", "H"))
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
 
 
 def run(args) -> int:
     from calib.io import load_system, save_system
 
     for path in args.output:
-        output_file(path)
+        claim(path, "file", inputs=args.inputs)
     system = load_system(args.inputs, repair_rotation=args.repair_rotation, camera_size=args.camera_size,
                          projector_size=args.projector_size)
     for path in save_system(system, args.output, skew_tol_px=args.skew_tol):
-        print(f"wrote {path}")
+        if not args.quiet:
+            print(f"wrote {path}")
     return 0

@@ -36,14 +36,14 @@ def run(args) -> int:
 
     from pathlib import Path
 
-    from ..outputs import output_dir
+    from ..outputs import claim
 
     if bool(args.test) == bool(args.synthetic):
         raise CommandError("give either --test FILE ... or --synthetic N")
     for f in list(args.test) + list(args.real):
         if not Path(f).is_file():
             raise CommandError(f"{f}: no such dataset file (calib export writes them)")
-    output_dir(args.output)
+    claim(args.output, "dir", inputs=list(args.test) + list(args.real) + [args.model, args.prior_free, args.mse_only])
     runs = {}
     for item in args.training_run:
         if "=" not in item:

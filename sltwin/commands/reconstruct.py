@@ -23,7 +23,7 @@ Exit codes: 0 success; 2 invalid input.
 from __future__ import annotations
 
 from ..errors import CommandError
-from ..outputs import output_file
+from ..outputs import claim
 
 HELP = "absolute phase + calibration -> point cloud (PLY)"
 
@@ -108,7 +108,7 @@ def run(args) -> int:
     from calib import load_system
     from calib.triangulate import fit_sphere, points_from_phase, write_ply
 
-    output_file(args.output)
+    claim(args.output, "file", inputs=[args.phase, *args.calibration])
     paths = args.calibration if len(args.calibration) > 1 else args.calibration[0]
     system = load_system(paths, camera_size=args.camera_size, projector_size=args.projector_size)
     maps, freqs = _phase_maps(args, system)

@@ -5,7 +5,7 @@ black: the layout of unwrap.graycode_capture)."""
 from __future__ import annotations
 
 from ..errors import CommandError
-from ..outputs import output_dir
+from ..outputs import claim, fresh_dir
 
 HELP = "render the paper's calibration session from the twin"
 
@@ -25,23 +25,30 @@ def add_arguments(parser):
                         help="phase-shift fringes (default) or Gray code only (OpenCV's GrayCodePattern layout)")
     parser.add_argument("--gray-block", type=int, default=1,
                         help="Gray code: projector pixels per code step (default 1)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace a session (or render) already in OUT wholly, every pose of it; without it a "
+                             "folder that holds one is refused")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress lines, only errors and warnings")
 
 
 def run(args) -> int:
     from calib.io import load_system
-    from synth.board_session import render_board_session
+    from synth.board_session import render_board_session, session_patterns
     from synth.effects import Noise
 
-    output_dir(args.output)
+    claim(args.output, "dir", inputs=args.system)
     if args.gray_block < 1:
         raise CommandError(f"--gray-block: expected >= 1 projector px, got {args.gray_block}")
     if args.steps < 3:
         raise CommandError(f"--steps: expected >= 3, got {args.steps}")
     system = load_system(args.system)
+    session_patterns(system, args.pattern, args.steps, args.frequencies, args.gray_block)   # before any file
+    fresh_dir(args.output, "a rendered session", args.overwrite)
     truth = render_board_session(args.output, system, steps=args.steps, frequencies=args.frequencies,
                                  n_poses=args.poses, bits=args.bits, seed=args.seed,
                                  noise=None if args.no_noise else Noise(seed=args.seed),
                                  truth_h5=args.truth_h5, pattern=args.pattern, gray_block_px=args.gray_block)
-    print(f"wrote {len(truth['board_poses'])} poses to {args.output} (capture.toml, truth.json), "
-          f"{sum(truth['render_seconds']):.1f} s")
+    if not args.quiet:
+        print(f"wrote {len(truth['board_poses'])} poses to {args.output} (capture.toml, truth.json), "
+              f"{sum(truth['render_seconds']):.1f} s")
     return 0

@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 
 from ..errors import CommandError
-from ..outputs import output_dir
+from ..outputs import claim
 
 HELP = "twin-equivalence report (HTML + Markdown)"
 
@@ -74,7 +74,8 @@ def print_summary(summary: dict) -> None:
 def run(args) -> int:
     from reports.twin_report import write_twin_report
 
-    output_dir(args.output)
+    claim(args.output, "dir", inputs=[*args.real, *args.twin, args.phase_real, args.phase_twin, *args.learned_real,
+                                        *args.learned_twin])
     opts = ball_options(args)
     extra, parity = [], None
     if args.learned_real or args.learned_twin:

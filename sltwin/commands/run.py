@@ -14,7 +14,7 @@ written.
 from __future__ import annotations
 
 from ..errors import CommandError
-from ..outputs import output_dir
+from ..outputs import claim
 
 HELP = "calibrate camera + projector from board captures or point observations (seed + bundle adjustment)"
 
@@ -143,7 +143,7 @@ def run(args) -> int:
 
     if (args.captures is None) == (args.observations is None):
         raise CommandError("give either a CAPTURES folder or --observations FILE(S)")
-    output_dir(args.output)
+    claim(args.output, "dir", inputs=[args.captures, args.capture_toml, *(args.observations or [])])
     if args.draws < 3:
         raise CommandError(f"--draws: expected >= 3 bootstrap runs, got {args.draws}")
     config = ba_config(args)

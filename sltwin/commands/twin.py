@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from ..outputs import output_file
+from ..outputs import claim
 
 HELP = "calibration -> digital-twin parameters (+ Blender scene script)"
 
@@ -43,9 +43,9 @@ def write_twin(system, output, blender_script=None, paper: str = "auto") -> dict
 def run(args) -> int:
     from calib.io import load_system
 
-    output_file(args.output)
+    claim(args.output, "file", inputs=args.calibration)
     if args.blender_script:
-        output_file(args.blender_script, "--blender-script")
+        claim(args.blender_script, "file", inputs=args.calibration, option="--blender-script")
 
     system = load_system(args.calibration, repair_rotation=args.repair_rotation,
                          camera_size=args.camera_size, projector_size=args.projector_size)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from sltwin.errors import CommandError
 
-from ..outputs import output_dir
+from ..outputs import claim
 
 PRESETS = ("design", "slstudio", "slmaster", "kamino-phaseshift", "procam-graycode", "kamino")
 """unwrap.capture.PRESETS plus the former name ``kamino`` (kept literal: the parser is built without
@@ -78,7 +78,7 @@ def run(args) -> int:
 
     from unwrap.pipeline import unwrap_capture, write_results
 
-    output_dir(args.output)
+    claim(args.output, "dir", inputs=[args.capture_dir, args.model])
     if args.model is not None:
         from unwrap.learned.capture import unwrap_capture_learned
 

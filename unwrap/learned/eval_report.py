@@ -22,6 +22,7 @@ from .checkpoint import load_model
 from .evaluate import DROPS, TestSource, confidence_curve, score, speed_table
 from .metrics import ErrorCount
 from .paper import TABLE_S5, TABLE_S6
+from ..safe_output import save_figure, write_text
 
 log = logging.getLogger("unwrap.learned")
 METHODS = ("mf", "mw", "nt")
@@ -153,7 +154,7 @@ def _figures(out: Path, s5: dict, s6: dict, physics_name: str) -> list[str]:
         ax.grid(alpha=0.3)
         ax.legend()
     fig.tight_layout()
-    fig.savefig(out / "confidence.png", dpi=110)
+    save_figure(fig, out / "confidence.png", dpi=110)
     plt.close(fig)
     made.append("confidence.png")
     for f in sorted({k[1] for k in scored}):
@@ -176,7 +177,7 @@ def _figures(out: Path, s5: dict, s6: dict, physics_name: str) -> list[str]:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
         fig.tight_layout()
-        fig.savefig(out / "s6.png", dpi=110)
+        save_figure(fig, out / "s6.png", dpi=110)
         plt.close(fig)
         made.append("s6.png")
     return made
@@ -203,7 +204,7 @@ def error_map_figure(path: Path, ex: dict, model_name: str, title: str) -> str:
     fig.colorbar(im, ax=axes[2], fraction=0.04)
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
     return path.name
 
@@ -323,8 +324,8 @@ def run_evaluation(source: TestSource, out_dir, *, physics, prior_free=None, mse
                 res["training"][name] = json.loads(p.read_text())["train_samples_per_s"]
     res["figures"] = _figures(out, s5, res["s6"], ROW_PA)
     md = markdown(res)
-    (out / "eval.md").write_text(md)
-    (out / "eval.json").write_text(json.dumps(res, indent=1, default=_json_default))
+    write_text(out / "eval.md", md)
+    write_text(out / "eval.json", json.dumps(res, indent=1, default=_json_default))
     res["markdown"] = md
     return res
 
