@@ -138,7 +138,13 @@ def without_traceback(message: str) -> str:
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args, extra = parser.parse_known_args(argv)
+    trailing = getattr(getattr(args, "_module", None), "TRAILING_ITEMS", None)
+    if extra and trailing and not any(e.startswith("-") for e in extra):
+        setattr(args, trailing, list(getattr(args, trailing)) + extra)   # ``calib train CONFIG -o RUN key=value``
+    elif extra:
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
     handler, levels = _show_progress(args)
     if args.debug:
         logging.getLogger("sltwin").debug(f"calib {args.command}: {_versions()}")

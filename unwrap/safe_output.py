@@ -28,7 +28,7 @@ SYNOPSIS
     ...     OutputLock(root / "out").acquire()
     Traceback (most recent call last):
     ...
-    unwrap.errors.OutputError: ...out: another process is writing it (pid ...
+    unwrap.errors.OutputError: ...out: already being written by this process
     >>> check_not_input(root / "a.txt", [root / "a.txt"], "-o")
     Traceback (most recent call last):
     ...
@@ -166,10 +166,10 @@ class OutputLock:
                     continue
                 pid, host = holder
                 if pid == os.getpid() and host == socket.gethostname():
-                    raise OutputError(f"{self.path}: already being written by this process")
+                    raise OutputError(f"{self.path}: already being written by this process") from None
                 raise OutputError(f"{self.path}: another process is writing it (pid {pid} on {host}, lock "
                                   f"{self.lock_file}); wait for it to finish, or remove the lock file if that "
-                                  "process is gone")
+                                  "process is gone") from None
             with os.fdopen(fd, "w") as fh:
                 fh.write(me)
             self.held = True

@@ -83,6 +83,14 @@ def run(args) -> int:
             raise CommandError("--learned-real and --learned-twin go together")
         from reports.learned_parity import section
 
+        from ..inputs import dataset_files, model_of_kind
+
+        dataset_files(args.learned_real, "--learned-real", need_reference=True,
+                      needs="a real capture exported with its reference orders: calib export --capture DIR -o real.h5")
+        dataset_files(args.learned_twin, "--learned-twin",
+                      needs="twin renders of the same system: calib export CONFIG -o twin.h5")
+        model_of_kind(args.learned_model, "physics", "--learned-model")
+
         sec, parity = section(args.learned_real, args.learned_twin, args.learned_model)
         extra.append(sec)
     summary = write_twin_report(args.real, args.twin, args.output, extra_sections=extra, phases={

@@ -3,9 +3,16 @@ fringe-order network (unwrap.learned.train). Several processes: ``torchrun --npr
 sltwin.cli train CONFIG.toml -o RUN`` (gloo on CPU, NCCL on CUDA; only rank 0 writes)."""
 from __future__ import annotations
 
+import os
+
 from sltwin.errors import CommandError
 
+from ..outputs import claim
+
 HELP = "train the learned fringe-order network (config + overrides, resumable, torchrun for DDP)"
+
+#: ``calib`` passes items left after the options (``CONFIG -o RUN key=value``) to ``items``.
+TRAILING_ITEMS = "items"
 
 
 def add_arguments(parser):
@@ -37,9 +44,14 @@ def run(args) -> int:
     config, overrides = split_items(args.items)
     if args.resume and args.output:
         raise CommandError("--resume RUN continues in RUN; do not give -o as well")
+    if os.environ.get("RANK", "0") == "0":     # only rank 0 writes (torchrun): it alone holds the run folder
+        if args.resume:
+            claim(args.resume, "dir", option="--resume")
+        elif args.output:
+            claim(args.output, "dir", inputs=[config])
     r = train(config, overrides, args.output, resume=args.resume,
               deterministic=True if args.deterministic else None, progress=not args.quiet)
-    if r.run_dir is not None:
+    if r.run_dir is not None and not args.quiet:
         best = "n/a" if r.best_error == float("inf") else f"{100 * r.best_error:.3f} %"
         print(f"step {r.step}: final loss {r.final_loss:.4g}, best validation error {best}, "
               f"{r.samples_per_s:.2f} training samples/s")

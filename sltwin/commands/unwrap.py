@@ -87,6 +87,9 @@ def run(args) -> int:
         if args.max_error_rate is not None or args.noise_sigma is not None:
             raise CommandError("--max-error-rate / --noise-sigma set the threshold from the traditional decoders' "
                                "reliability model; with --model give --min-modulation instead")
+        from ..inputs import model_of_kind
+
+        model_of_kind(args.model, "physics", "--model")   # the prior-free baseline has no traditional prior
         results = unwrap_capture_learned(args.capture_dir, args.method or "mf", args.model, preset=args.preset,
                                          pose=args.pose, min_modulation=args.min_modulation,
                                          on_outside=args.outside, check_prior=not args.no_prior_check,
