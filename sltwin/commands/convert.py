@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from ..outputs import claim
 
+from ..argtypes import positive_float, positive_int
+
 HELP = "a calibration from one file format into another (calibration.json, OpenCV YAML/XML, mrcal)"
 
 
@@ -21,10 +23,10 @@ def add_arguments(p):
                    help="one .json, one .yml/.yaml/.xml, or two .cameramodel files (camera projector)")
     p.add_argument("--repair-rotation", action="store_true",
                    help="replace a rounded rotation by the nearest rotation instead of refusing it")
-    p.add_argument("--skew-tol", type=float, default=None, metavar="PX",
+    p.add_argument("--skew-tol", type=positive_float, default=None, metavar="PX",
                    help="largest corner shift (px) from dropping skew that a .cameramodel may accept (default 0.01)")
-    p.add_argument("--camera-size", nargs=2, type=int, metavar=("W", "H"))
-    p.add_argument("--projector-size", nargs=2, type=int, metavar=("W", "H"))
+    p.add_argument("--camera-size", nargs=2, type=positive_int, metavar=("W", "H"))
+    p.add_argument("--projector-size", nargs=2, type=positive_int, metavar=("W", "H"))
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
 
 

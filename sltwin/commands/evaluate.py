@@ -3,33 +3,9 @@
 (unwrap.learned.eval_report)."""
 from __future__ import annotations
 
-import argparse
-
 from sltwin.errors import CommandError
 
-
-def positive_int(text: str) -> int:
-    """argparse type: a whole number >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {value}")
-    return value
-
-
-def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    import math
-
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text}")
-    return value
+from ..argtypes import positive_float, positive_int
 
 HELP = "evaluate learned unwrapping: S5 / S6 layouts with the paper's numbers, real captures, speed"
 

@@ -25,6 +25,8 @@ from __future__ import annotations
 from ..errors import CommandError
 from ..outputs import claim
 
+from ..argtypes import positive_float, positive_int
+
 HELP = "absolute phase + calibration -> point cloud (PLY)"
 
 
@@ -32,16 +34,16 @@ def add_arguments(p):
     p.add_argument("--phase", required=True, help="absolute phase (.mat, .npy or DESIGN.md HDF5)")
     p.add_argument("--variable", help="variable name in a .mat file or dataset in an HDF5 file (default: the "
                                       ".mat's only 2-D array; the HDF5's ORIENTATION/phase)")
-    p.add_argument("--frequency", type=float, default=None,
+    p.add_argument("--frequency", type=positive_float, default=None,
                    help="periods across the projector pattern (default: the phase file's own, e.g. unwrap.h5's; "
                         "required for .mat/.npy maps, which do not store it)")
     p.add_argument("--orientation", choices=("auto", "v", "h", "both"), default="auto",
                    help="v: projector columns (u_p), h: rows (v_p), both: both coordinates; auto (default): "
                         "both when the file holds both, else the one it holds")
     p.add_argument("--calibration", nargs="+", required=True, help="calibration file(s) (calib.load_system)")
-    p.add_argument("--camera-size", nargs=2, type=int, metavar=("W", "H"),
+    p.add_argument("--camera-size", nargs=2, type=positive_int, metavar=("W", "H"),
                    help="camera image size, for calibration files that do not store it")
-    p.add_argument("--projector-size", nargs=2, type=int, metavar=("W", "H"),
+    p.add_argument("--projector-size", nargs=2, type=positive_int, metavar=("W", "H"),
                    help="projector image size, for calibration files that do not store it")
     p.add_argument("--method", choices=("distortion", "linear"), default="distortion")
     p.add_argument("--sphere", action="store_true", help="fit a sphere and print its RMS")

@@ -7,6 +7,8 @@ from __future__ import annotations
 from ..errors import CommandError
 from ..outputs import claim, fresh_dir
 
+from ..argtypes import positive_float, positive_int
+
 HELP = "render the paper's calibration session from the twin"
 
 
@@ -14,16 +16,16 @@ def add_arguments(parser):
     parser.add_argument("system", nargs="*", help="calibration file(s) of the system (default: built-in)")
     parser.add_argument("-o", "--output", required=True, help="capture folder to write")
     parser.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
-    parser.add_argument("--steps", type=int, default=12, help="phase steps per frequency (default 12)")
-    parser.add_argument("--frequencies", type=float, nargs="+", default=[1, 8, 48],
+    parser.add_argument("--steps", type=positive_int, default=12, help="phase steps per frequency (default 12)")
+    parser.add_argument("--frequencies", type=positive_float, nargs="+", default=[1, 8, 48],
                         help="fringe periods across the pattern (default 1 8 48)")
-    parser.add_argument("--poses", type=int, default=9, help="number of board poses (default 9)")
+    parser.add_argument("--poses", type=positive_int, default=9, help="number of board poses (default 9)")
     parser.add_argument("--bits", type=int, default=8, choices=(8, 10, 12, 16), help="image bit depth")
     parser.add_argument("--no-noise", action="store_true", help="noise-free images")
     parser.add_argument("--truth-h5", action="store_true", help="also write pose_XX/truth.h5")
     parser.add_argument("--pattern", choices=("phase-shift", "graycode"), default="phase-shift",
                         help="phase-shift fringes (default) or Gray code only (OpenCV's GrayCodePattern layout)")
-    parser.add_argument("--gray-block", type=int, default=1,
+    parser.add_argument("--gray-block", type=positive_int, default=1,
                         help="Gray code: projector pixels per code step (default 1)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace a session (or render) already in OUT wholly, every pose of it; without it a "

@@ -6,6 +6,8 @@ import argparse
 from ..errors import CommandError
 from ..outputs import claim
 
+from ..argtypes import positive_float
+
 HELP = "twin-equivalence report (HTML + Markdown)"
 
 
@@ -16,11 +18,11 @@ def add_arguments(p) -> None:
                    help="twin calibration: calibration.json, or a Bouguet .mat pair (camera, projector)")
     p.add_argument("--phase-real", metavar="FILE", help="real absolute phase map (.mat/.npy/.h5), vertical fringes")
     p.add_argument("--phase-twin", metavar="FILE", help="twin absolute phase map of the same object")
-    p.add_argument("--frequency", type=float, default=96.0, help="periods across the projector of the phase maps")
+    p.add_argument("--frequency", type=positive_float, default=96.0, help="periods across the projector of the phase maps")
     p.add_argument("--twin-ball-render", action=argparse.BooleanOptionalAction, default=None,
                    help="render the twin ball phase with synth at the real ball's fitted pose and add it to the "
                         "Fig. 3 matrix (default: on when --phase-real is given without --phase-twin)")
-    p.add_argument("--ball-frequencies", type=float, nargs="+", default=None, metavar="F",
+    p.add_argument("--ball-frequencies", type=positive_float, nargs="+", default=None, metavar="F",
                    help="fringe ladder of the twin ball render, ending at --frequency (default: 1 8 96)")
     p.add_argument("--twin-ball-system", choices=("ideal", "real"), default="ideal",
                    help="system that renders the twin ball: the real calibration without skew and distortion "

@@ -6,6 +6,8 @@ import json
 
 from ..outputs import claim
 
+from ..argtypes import positive_int
+
 HELP = "calibration -> digital-twin parameters (+ Blender scene script)"
 
 
@@ -19,8 +21,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="check the twin inside Blender (needs bpy): project points through Blender's cameras")
     p.add_argument("--repair-rotation", action="store_true",
                    help="replace a rounded rotation by the nearest rotation (SVD) instead of refusing it; reported")
-    p.add_argument("--camera-size", nargs=2, type=int, metavar=("W", "H"))
-    p.add_argument("--projector-size", nargs=2, type=int, metavar=("W", "H"))
+    p.add_argument("--camera-size", nargs=2, type=positive_int, metavar=("W", "H"))
+    p.add_argument("--projector-size", nargs=2, type=positive_int, metavar=("W", "H"))
     p.add_argument("--paper", choices=["auto", "yes", "no"], default="auto",
                    help="print the paper's table S3 beside ours (auto: when the system is the paper's)")
 

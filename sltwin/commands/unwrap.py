@@ -19,6 +19,8 @@ PRESETS = ("design", "slstudio", "slmaster", "kamino-phaseshift", "procam-grayco
 """unwrap.capture.PRESETS plus the former name ``kamino`` (kept literal: the parser is built without
 importing the library)."""
 
+from ..argtypes import positive_float
+
 HELP = "absolute phase, fringe order and masks of a fringe capture (HDF5 + PNG)"
 
 
@@ -38,7 +40,7 @@ def add_arguments(parser):
     threshold.add_argument("--max-error-rate", type=float, default=None, metavar="RATE",
                            help="instead: the modulation threshold at which the method's predicted fringe-order "
                                 "error rate is RATE (reliability model, this capture's steps and noise)")
-    parser.add_argument("--noise-sigma", type=float, default=None, metavar="GREY",
+    parser.add_argument("--noise-sigma", type=positive_float, default=None, metavar="GREY",
                         help="intensity noise per frame (default: estimated from the fit residuals; 3-step "
                              "captures need it for --max-error-rate)")
     parser.add_argument("--no-prior-check", action="store_true",

@@ -42,6 +42,7 @@ from .config import resolve_config, to_toml
 from .data import ResumableSampler, build_datasets
 from .errors import ConfigError, DatasetTooSmallError
 from .losses import LossWeights, composite_loss
+from .memory import check_training_memory, training_crop
 from .metrics import ErrorCount
 from .progress import StepBar
 from ..safe_output import save_figure, write_text
@@ -439,6 +440,7 @@ def train(config=None, overrides=(), out_dir=None, *, resume=None, deterministic
     """
     rank, world, local_rank = _dist_env()
     cfg, run_dir = _open_run(config, overrides, out_dir, resume)
+    check_training_memory(cfg, arch_from_config(cfg["model"]), training_crop(cfg))   # before any allocation
     if deterministic is not None:
         cfg["run"]["deterministic"] = bool(deterministic)
     set_deterministic(cfg["run"]["deterministic"])
