@@ -118,7 +118,7 @@ def read_orientation(oc: OrientationCapture, reader: FrameReader, progress: bool
     stacks = []
     for i, s in enumerate(sets):
         _log(progress, f"  [{oc.orientation}] {i + 1}/{len(sets)}: f = {s.frequency:g}, {len(s.files)} frames")
-        stacks.append(reader.stack(s.files))
+        stacks.append(reader.phase_stack(s.files))
     return stacks
 
 
