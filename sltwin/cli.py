@@ -154,7 +154,10 @@ def main(argv=None) -> int:
         if args.debug:
             traceback.print_exc()
         code, prefix = exit_code(args._module, exc)
-        print(f"calib {args.command}: error: {prefix}{without_traceback(str(exc))}", file=sys.stderr)
+        message = without_traceback(str(exc))
+        if isinstance(exc, OSError) and not exc.filename and getattr(args, "output", None):
+            message += f" (while writing {' '.join(map(str, args.output)) if isinstance(args.output, list) else args.output})"
+        print(f"calib {args.command}: error: {prefix}{message}", file=sys.stderr)
         return code
     except Exception as exc:                # a bug: one line, the traceback with --debug
         if args.debug:

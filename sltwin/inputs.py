@@ -86,3 +86,16 @@ def run_folder(path, option: str) -> str:
         what = "a run that never finished a session" if (p / "last.pt").is_file() else "not a run folder"
         raise CommandError(f"{option} {path}: no metrics.json there ({what}); give a run folder of calib train")
     return str(path)
+
+
+#: Names that stand for the built-in system (the paper's real system) where a calibration is asked.
+BUILTIN_NAMES = ("builtin", "built-in", "default")
+
+
+def calibration_paths(values) -> list:
+    """Calibration file arguments for ``calib.load_system``: a lone ``builtin`` (or ``built-in``,
+    ``default``) names the built-in system (no file), unless a file of that name exists."""
+    values = list(values or [])
+    if len(values) == 1 and values[0].lower() in BUILTIN_NAMES and not Path(values[0]).exists():
+        return []
+    return values

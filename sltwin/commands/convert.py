@@ -35,7 +35,9 @@ def run(args) -> int:
 
     for path in args.output:
         claim(path, "file", inputs=args.inputs)
-    system = load_system(args.inputs, repair_rotation=args.repair_rotation, camera_size=args.camera_size,
+    from ..inputs import calibration_paths
+
+    system = load_system(calibration_paths(args.inputs), repair_rotation=args.repair_rotation, camera_size=args.camera_size,
                          projector_size=args.projector_size)
     for path in save_system(system, args.output, skew_tol_px=args.skew_tol):
         if not args.quiet:

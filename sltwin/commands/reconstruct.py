@@ -40,7 +40,8 @@ def add_arguments(p):
     p.add_argument("--orientation", choices=("auto", "v", "h", "both"), default="auto",
                    help="v: projector columns (u_p), h: rows (v_p), both: both coordinates; auto (default): "
                         "both when the file holds both, else the one it holds")
-    p.add_argument("--calibration", nargs="+", required=True, help="calibration file(s) (calib.load_system)")
+    p.add_argument("--calibration", nargs="+", required=True,
+                   help="calibration file(s) (calib.load_system), or builtin: the built-in system")
     p.add_argument("--camera-size", nargs=2, type=positive_int, metavar=("W", "H"),
                    help="camera image size, for calibration files that do not store it")
     p.add_argument("--projector-size", nargs=2, type=positive_int, metavar=("W", "H"),
@@ -48,6 +49,7 @@ def add_arguments(p):
     p.add_argument("--method", choices=("distortion", "linear"), default="distortion")
     p.add_argument("--sphere", action="store_true", help="fit a sphere and print its RMS")
     p.add_argument("-o", "--output", required=True, help="PLY path")
+    p.add_argument("-q", "--quiet", action="store_true", help="print only the sphere fit (--sphere), warnings and errors")
 
 
 def phase_frequency(flag, stored, path) -> float:
@@ -111,7 +113,10 @@ def run(args) -> int:
     from calib.triangulate import fit_sphere, points_from_phase, write_ply
 
     claim(args.output, "file", inputs=[args.phase, *args.calibration])
-    paths = args.calibration if len(args.calibration) > 1 else args.calibration[0]
+    from ..inputs import calibration_paths
+
+    paths = calibration_paths(args.calibration)
+    paths = paths[0] if len(paths) == 1 else paths
     system = load_system(paths, camera_size=args.camera_size, projector_size=args.projector_size)
     maps, freqs = _phase_maps(args, system)
     X, q, ok = points_from_phase(system, maps, freqs, args.orientation, args.method)
@@ -119,7 +124,8 @@ def run(args) -> int:
         raise CommandError(f"{args.phase}: none of the {len(ok)} valid pixels triangulates with this calibration")
     used = "both coordinates" if len(maps) == 2 else ("columns (v)" if "v" in maps else "rows (h)")
     write_ply(args.output, X[ok])
-    print(f"{int(ok.sum())} points of {len(q)} valid pixels ({used}) -> {args.output}")
+    if not args.quiet:
+        print(f"{int(ok.sum())} points of {len(q)} valid pixels ({used}) -> {args.output}")
     if args.sphere:
         c, r, res = fit_sphere(X[ok])
         print(f"sphere: centre {np.round(c, 4).tolist()} mm, radius {r:.5f} mm, "

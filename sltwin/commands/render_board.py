@@ -43,7 +43,9 @@ def run(args) -> int:
         raise CommandError(f"--gray-block: expected >= 1 projector px, got {args.gray_block}")
     if args.steps < 3:
         raise CommandError(f"--steps: expected >= 3, got {args.steps}")
-    system = load_system(args.system)
+    from ..inputs import calibration_paths
+
+    system = load_system(calibration_paths(args.system))
     session_patterns(system, args.pattern, args.steps, args.frequencies, args.gray_block)   # before any file
     fresh_dir(args.output, "a rendered session", args.overwrite)
     truth = render_board_session(args.output, system, steps=args.steps, frequencies=args.frequencies,
