@@ -49,6 +49,7 @@ def run(args) -> int:
     for f in list(args.test) + list(args.real):
         if not Path(f).is_file():
             raise CommandError(f"{f}: no such dataset file (calib export writes them)")
+    claim(args.output, "dir", inputs=[*args.test, *args.real, args.model, args.prior_free, args.mse_only])
     for option, freqs in (("--s5", args.s5), ("--s6", args.s6)):
         low = [f for f in freqs if f <= 1]
         if low:
@@ -63,7 +64,6 @@ def run(args) -> int:
         model_of_kind(args.prior_free, "prior_free", "--prior-free")
     if args.mse_only:
         model_of_kind(args.mse_only, "physics", "--mse-only")
-    claim(args.output, "dir", inputs=list(args.test) + list(args.real) + [args.model, args.prior_free, args.mse_only])
     runs = {}
     for item in args.training_run:
         if "=" not in item:
