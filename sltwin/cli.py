@@ -104,6 +104,7 @@ def _show_progress(args) -> tuple[logging.Handler, dict]:
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter(getattr(args._module, "LOG_FORMAT", "%(message)s")))
     level = logging.DEBUG if args.debug else logging.WARNING if getattr(args, "quiet", False) else logging.INFO
+    handler.setLevel(level)   # also for a package's child logger that sets its own level (training's run log)
     saved = {}
     for name in LOGGERS:
         logger = logging.getLogger(name)

@@ -9,6 +9,7 @@ defect), ``{out}`` (a fresh output
 path of the case) and ``{dp}`` (the paper's dp-tpu data; the case is skipped without it).
 """
 import json
+import re
 import shutil
 
 import cv2
@@ -508,6 +509,26 @@ def test_bad_input_is_exit_2_with_a_message_naming_it_and_no_traceback(case, lin
     assert expected in captured.err, captured.err
     assert "Traceback" not in captured.err + captured.out
     assert f"calib {argv[0]}: error: " in captured.err
+    unknown = set(re.findall(r"(?<![\w/.-])--[a-z][a-z0-9-]*", captured.err)) - _all_options()
+    assert not unknown, f"the message suggests option(s) no command has: {unknown}: {captured.err}"
+
+
+def _all_options() -> set:
+    """Every option string of every ``calib`` command (a message may name another command's)."""
+    from sltwin.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command")
+    return {o for p in sub.choices.values() for a in p._actions for o in a.option_strings} | \
+        {o for a in parser._actions for o in a.option_strings}
+
+
+def test_readme_counts_the_rows():
+    from conftest import REPO
+
+    text = (REPO / "README.md").read_text()
+    counts = [int(n) for n in re.findall(r"on a table of (\d+) broken inputs", text)]
+    assert counts == [len(CASES)], (counts, len(CASES))
 
 
 def test_every_command_has_a_bad_input_case():
