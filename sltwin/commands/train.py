@@ -22,7 +22,8 @@ def add_arguments(parser):
     parser.add_argument("-o", "--output", default=None, help="run folder (default runs/<date-time>)")
     parser.add_argument("--resume", default=None, metavar="RUN", help="continue the run in this folder")
     parser.add_argument("--deterministic", action="store_true", help="deterministic kernels (slower)")
-    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or messages")
+    parser.add_argument("-q", "--quiet", action="store_true",
+                        help="no progress bar or progress messages (the result lines stay)")
 
 
 def split_items(items):
@@ -51,7 +52,7 @@ def run(args) -> int:
             claim(args.output, "dir", inputs=[config])
     r = train(config, overrides, args.output, resume=args.resume,
               deterministic=True if args.deterministic else None, progress=not args.quiet)
-    if r.run_dir is not None and not args.quiet:
+    if r.run_dir is not None:
         best = "n/a" if r.best_error == float("inf") else f"{100 * r.best_error:.3f} %"
         print(f"step {r.step}: final loss {r.final_loss:.4g}, best validation error {best}, "
               f"{r.samples_per_s:.2f} training samples/s")

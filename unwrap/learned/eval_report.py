@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from .checkpoint import load_model
+from .errors import ModelError
 from .evaluate import DROPS, TestSource, confidence_curve, score, speed_table
 from .metrics import ErrorCount
 from .paper import TABLE_S5, TABLE_S6
@@ -301,6 +302,13 @@ def run_evaluation(source: TestSource, out_dir, *, physics, prior_free=None, mse
     cache = _Cache(source, models, filtered_window)
     res: dict = {"source": source.label or (", ".join(map(str, source.files)) or "synthetic")}
     s5 = table_s5(cache, s5_frequencies, methods)
+    missing = [f"{m} {f:g}" for (m, f), s in s5["scored"].items() if s is None]
+    if missing and len(missing) == len(s5["scored"]):   # an empty table is no result
+        raise ModelError(f"{res['source']}: no cell of table S5 can be scored: the test data hold none of "
+                         f"(method, frequency) {missing} (the pairs 1 -> f of each method, both orientations "
+                         "looked for); give --s5 frequencies the data were exported with")
+    if missing:
+        log.warning("table S5: %s not in the test data: those cells stay empty", ", ".join(missing))
     res["s5"] = s5["table"]
     res["confidence"] = {f"{m.upper()}, {f:g}": confidence_curve(s, ROW_PA) for (m, f), s in s5["scored"].items()
                          if s is not None}

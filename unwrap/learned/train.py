@@ -269,6 +269,10 @@ def _open_run(config, overrides, out_dir, resume) -> tuple[dict, Path]:
     run_dir = Path(out_dir) if out_dir is not None else Path("runs") / time.strftime("%Y%m%d-%H%M%S")
     if (run_dir / "last.pt").exists():
         raise ConfigError(f"{run_dir} already holds a run (last.pt); use --resume {run_dir} or another -o")
+    begun = [n for n in ("config.toml", "train.csv", "val.csv", "log.txt") if (run_dir / n).exists()]
+    if begun:   # a run that never saved a checkpoint: its files would be mixed with this one's
+        raise ConfigError(f"{run_dir} holds the start of another run ({', '.join(begun)}, no checkpoint); "
+                          "remove it or choose another -o")
     return cfg, run_dir
 
 
