@@ -264,3 +264,73 @@ def test_a_worker_traceback_never_reaches_the_message():
             '  File "x.py", line 3, in f\n    raise X\nunwrap.errors.DatasetSchemaError: a.h5: sample 3 cannot be read')
     message = without_traceback(text)
     assert "Traceback" not in message and 'File "' not in message and message.endswith("sample 3 cannot be read")
+
+
+# ------------------------------------------------------------------ every writer on a full disk
+def _writers(tmp_path):
+    """(name, write(path)) of the toolkit's file writers, each given a small valid input."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from calib import default_system
+    from calib.io.calibration_json import write_calibration_json
+    from calib.triangulate import write_ply
+    from twin_mapping import to_twin
+    from twin_mapping.twin import write_twin_json
+    from unwrap.phase_io import write_phase_file
+    from unwrap.safe_output import save_figure
+
+    system = default_system()
+    fig = plt.figure()
+    return [("ply", "cloud.ply", lambda p: write_ply(p, np.ones((5, 3)))),
+            ("phase", "unwrap.h5", lambda p: write_phase_file(p, {"v": {"phase": np.ones((4, 5))}}, frequency=8.0)),
+            ("calibration", "calibration.json", lambda p: write_calibration_json(system, p)),
+            ("twin", "twin.json", lambda p: write_twin_json(to_twin(system), p)),
+            ("figure", "metrics.png", lambda p: save_figure(fig, p))]
+
+
+def test_every_writer_on_a_full_disk_keeps_the_previous_file_and_names_it(tmp_path, monkeypatch):
+    for name, file, write in _writers(tmp_path):
+        path = tmp_path / file
+        write(path)
+        before = path.read_bytes()
+        with monkeypatch.context() as m:
+            import unwrap.safe_output as so
+
+            m.setattr(so.os, "fsync", lambda fd: (_ for _ in ()).throw(OSError(errno.ENOSPC, "No space left")))
+            with pytest.raises(OSError) as info:
+                write(path)
+        assert info.value.errno == errno.ENOSPC and str(path) in str(info.value), name
+        assert path.read_bytes() == before, name
+    assert _leftovers(tmp_path) == []
+
+
+# ------------------------------------------------------------------ export resume with a damaged part
+@pytest.mark.slow
+def test_export_resume_renders_a_damaged_part_again_and_names_it(tmp_path, monkeypatch, caplog):
+    import h5py
+
+    from dataset_helpers import arrays_of, assert_same_arrays, tiny_config
+    from synth.dataset_export import export_dataset
+    from synth.dataset_writer import ShardWriter
+
+    cfg = tiny_config(tmp_path, samples=3)
+    ref = tmp_path / "ref.h5"
+    export_dataset(cfg, ref, progress=False)
+    out = tmp_path / "out.h5"
+    with monkeypatch.context() as m:                     # interrupted after the parts, before the shard file
+        m.setattr(ShardWriter, "assemble", lambda self: (_ for _ in ()).throw(KeyboardInterrupt()))
+        with pytest.raises(KeyboardInterrupt):
+            export_dataset(cfg, out, progress=False)
+    part = tmp_path / "out.h5.parts" / "sample_000000001.h5"
+    data = part.read_bytes()
+    part.write_bytes(data[: len(data) // 2])             # damaged since it was written
+    writer = ShardWriter(out, range(3), {}, "gzip", "x")
+    assert "damaged part" in writer.part_problem(1) and writer.part_problem(0) is None
+    with caplog.at_level("WARNING", logger="synth"):
+        assert main(["export", str(cfg), "-o", str(out), "-q"]) == 0
+    assert str(part) in caplog.text and "rendering that sample again" in caplog.text
+    with h5py.File(out) as h5:
+        assert bool(h5.attrs["complete"])
+    assert_same_arrays(arrays_of(ref), arrays_of(out))
