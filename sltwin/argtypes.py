@@ -17,43 +17,22 @@ import argparse
 import math
 
 
-def _number(text: str, kind, what: str):
-    try:
-        value = kind(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
-    if kind is float and not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected {what}, got {text}")
-    return value
+def _checked(kind, ok, what: str):
+    """An argparse type: ``text`` as ``kind`` (finite, for floats) for which ``ok(value)`` holds;
+    else ``ArgumentTypeError("expected WHAT, got TEXT")``, which argparse prints after the option."""
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+        if (kind is float and not math.isfinite(value)) or not ok(value):
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text}")
+        return value
+    parse.__doc__ = f"argparse type: {what}."
+    return parse
 
 
-def positive_int(text: str) -> int:
-    """A whole number >= 1."""
-    value = _number(text, int, "a whole number >= 1")
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {value}")
-    return value
-
-
-def positive_float(text: str) -> float:
-    """A finite number > 0."""
-    value = _number(text, float, "a finite number > 0")
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text}")
-    return value
-
-
-def nonnegative_float(text: str) -> float:
-    """A finite number >= 0."""
-    value = _number(text, float, "a finite number >= 0")
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text}")
-    return value
-
-
-def probability(text: str) -> float:
-    """A number in (0, 1)."""
-    value = _number(text, float, "a number between 0 and 1")
-    if not 0 < value < 1:
-        raise argparse.ArgumentTypeError(f"expected a number between 0 and 1 (exclusive), got {text}")
-    return value
+positive_int = _checked(int, lambda v: v >= 1, "a whole number >= 1")
+positive_float = _checked(float, lambda v: v > 0, "a finite number > 0")
+nonnegative_float = _checked(float, lambda v: v >= 0, "a finite number >= 0")
+probability = _checked(float, lambda v: 0 < v < 1, "a number between 0 and 1 (exclusive)")
