@@ -334,3 +334,28 @@ def test_export_resume_renders_a_damaged_part_again_and_names_it(tmp_path, monke
     with h5py.File(out) as h5:
         assert bool(h5.attrs["complete"])
     assert_same_arrays(arrays_of(ref), arrays_of(out))
+
+
+@pytest.mark.slow
+def test_the_second_of_two_concurrent_exports_is_told_the_pid_of_the_first(tmp_path):
+    from dataset_helpers import tiny_config
+
+    cfg = tiny_config(tmp_path, samples=12)
+    out = tmp_path / "data.h5"
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    cli = [sys.executable, "-m", "sltwin", "export", str(cfg), "-o", str(out), "-q"]
+    first = subprocess.Popen(cli, env=env, stderr=subprocess.PIPE, text=True)
+    lock = tmp_path / ".data.h5.lock"
+    deadline = time.time() + 120
+    while not lock.exists() and first.poll() is None and time.time() < deadline:
+        time.sleep(0.05)
+    assert lock.exists(), "the first export never took its lock"
+    second = subprocess.run(cli, env=env, capture_output=True, text=True, timeout=300)
+    assert first.wait(timeout=600) == 0, first.stderr.read()
+    assert second.returncode == 2 and f"another process is writing it (pid {first.pid}" in second.stderr, \
+        second.stderr
+    assert "Traceback" not in second.stderr and not lock.exists()
+    import h5py
+
+    with h5py.File(out) as h5:
+        assert bool(h5.attrs["complete"]) and int(h5.attrs["n_samples"]) == 12
