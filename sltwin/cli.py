@@ -17,10 +17,12 @@ Errors: every package's errors derive from one root per package (``calib.errors.
 ``unwrap.errors.UnwrapError``, ``twin_mapping.errors.TwinError``, ``synth.errors.SynthError``,
 ``reports.errors.ReportError``, ``sltwin.errors.CommandError``), all ``ValueError`` subclasses.
 ``main`` maps them, here and only here, to exit code 2 (or the command's ``exit_codes()``) with the
-message on stderr, never a traceback; so do file-system errors (``OSError``: the message names the
-path). Anything else is a bug: exit code 1 and a one-line message asking for ``--debug``, which
+message on stderr, never a traceback (not even one quoted in a message, as a data-loading worker's
+error carries); so do file-system errors (``OSError``: the message names the path, or the output
+being written). Anything else is a bug: exit code 1 and a one-line message asking for ``--debug``, which
 shows the traceback (of every error) for a bug report. Ctrl-C ends with 130. Outputs are checked
-before any work (:mod:`sltwin.outputs`).
+before any work and locked while the command runs (:func:`sltwin.outputs.claim`; released when it
+ends, however it ends).
 
 Progress: library packages log through one logger each (``calib``, ``unwrap``, ``twin_mapping``,
 ``synth``, ``reports``); ``main`` shows their INFO lines on stderr for the duration of the command
@@ -34,9 +36,9 @@ import platform
 import sys
 import traceback
 
-from .outputs import release_all
 from .commands import (convert, demo, evaluate, export, plan_fringes, reconstruct, render, render_board,
                        report, run, train, twin, unwrap)
+from .outputs import release_all
 
 #: (sub-command, module), in the order ``calib --help`` lists them.
 COMMANDS = [
@@ -156,8 +158,9 @@ def main(argv=None) -> int:
             traceback.print_exc()
         code, prefix = exit_code(args._module, exc)
         message = without_traceback(str(exc))
-        if isinstance(exc, OSError) and not exc.filename and getattr(args, "output", None):
-            message += f" (while writing {' '.join(map(str, args.output)) if isinstance(args.output, list) else args.output})"
+        output = getattr(args, "output", None)
+        if isinstance(exc, OSError) and not exc.filename and output:   # e.g. a full disk: say where
+            message += f" (while writing {' '.join(map(str, output)) if isinstance(output, list) else output})"
         print(f"calib {args.command}: error: {prefix}{message}", file=sys.stderr)
         return code
     except Exception as exc:                # a bug: one line, the traceback with --debug

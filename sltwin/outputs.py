@@ -10,6 +10,11 @@ used to end in a traceback. Every command calls one of these first:
   existing folder above it must be writable.
 
 Both raise :class:`sltwin.errors.CommandError` naming the option, the path and the problem.
+A command calls them through :func:`claim`, which also refuses an output that is one of the
+command's inputs and locks the output for this process (:mod:`unwrap.safe_output`; the locks are
+released by :func:`release_all` when ``calib`` ends the command); a command that fills a folder
+wholly (a render) also calls :func:`fresh_dir`, which refuses a folder holding anything unless
+``--overwrite`` (docs/outputs.md).
 
 SYNOPSIS
 

@@ -350,7 +350,8 @@ CASES = [
     ("export-combine-output-is-input", "export --combine {bad}/unwrap48.h5 {bad}/foreign.h5 -o {bad}/unwrap48.h5",
      "is also an input"),
     ("export-config-output-is-input", "export {bad}/scene.toml -o {bad}/scene.toml", "is also an input"),
-    ("export-capture-output-in-capture", "export --capture {cap}/good -o {cap}/good/real.h5", "inside the input folder"),
+    ("export-capture-output-in-capture", "export --capture {cap}/good -o {cap}/good/real.h5",
+     "inside the input folder"),
     ("convert-output-is-input", "convert {bad}/default.json -o {bad}/default.json", "is also an input"),
     ("convert-output-hard-link", "convert {bad}/default.json -o {bad}/hardlink.json", "is also an input"),
     ("convert-output-symlink", "convert {bad}/default.json -o {bad}/symlink.json", "is also an input"),
@@ -417,9 +418,11 @@ CASES = [
      "--frequency"),
     ("eval-synthetic-negative", "eval --synthetic -2 -o {out}", "--synthetic"),
     # issue 23, crashes: sizes that cannot fit, refused before allocating, naming the key
-    ("train-max-correction-absurd", "train data.synthetic_samples=8 model.max_correction=1000000 -o {out}", "model.max_correction = 1000000"),
+    ("train-max-correction-absurd", "train data.synthetic_samples=8 model.max_correction=1000000 -o {out}",
+     "model.max_correction = 1000000"),
     ("train-depth-absurd", "train data.synthetic_samples=8 model.depth=12 -o {out}", "model.depth = 12"),
-    ("train-batch-absurd", "train data.synthetic_samples=8 optim.batch_size=100000 -o {out}", "optim.batch_size = 100000"),
+    ("train-batch-absurd", "train data.synthetic_samples=8 optim.batch_size=100000 -o {out}",
+     "optim.batch_size = 100000"),
     ("train-width-absurd", "train data.synthetic_samples=8 model.width=4096 model.max_width=4096 -o {out}", "GB"),
     # issue 23, silently wrong: duplicated frames, models of the other kind, inputs giving empty tables
     ("unwrap-duplicated-frame", "unwrap {cap}/dup_frame -o {out}", "v_f008_n03.png: identical to"),
@@ -453,7 +456,8 @@ CASES = [
      "{bad}/unwrap48.h5 --learned-twin {bad}/unwrap48.h5 -o {out}", "is a phase file"),
     ("report-learned-real-truncated", "report --real {bad}/default.json --twin {bad}/default.json --learned-real "
      "{bad}/truncated.h5 --learned-twin {bad}/unwrap48.h5 -o {out}", "truncated.h5: not a readable HDF5 file"),
-    ("render-board-duplicate-frequencies", "render-board --frequencies 1 8 8 48 -o {out}", "frequency 8 is given twice"),
+    ("render-board-duplicate-frequencies", "render-board --frequencies 1 8 8 48 -o {out}",
+     "frequency 8 is given twice"),
     ("render-board-duplicate-float-frequency", "render-board --frequencies 1 8 8.0 -o {out}", "given twice"),
     ("render-board-aliased-frequency", "render-board --frequencies 1 8 2000 -o {out}", "alias"),
     ("render-duplicate-frequencies", "render {bad}/scene_dup.toml -o {out}", "given twice"),

@@ -37,8 +37,8 @@ def run(args) -> int:
         claim(path, "file", inputs=args.inputs)
     from ..inputs import calibration_paths
 
-    system = load_system(calibration_paths(args.inputs), repair_rotation=args.repair_rotation, camera_size=args.camera_size,
-                         projector_size=args.projector_size)
+    system = load_system(calibration_paths(args.inputs), repair_rotation=args.repair_rotation,
+                         camera_size=args.camera_size, projector_size=args.projector_size)
     for path in save_system(system, args.output, skew_tol_px=args.skew_tol):
         if not args.quiet:
             print(f"wrote {path}")

@@ -49,7 +49,8 @@ def add_arguments(p):
     p.add_argument("--method", choices=("distortion", "linear"), default="distortion")
     p.add_argument("--sphere", action="store_true", help="fit a sphere and print its RMS")
     p.add_argument("-o", "--output", required=True, help="PLY path")
-    p.add_argument("-q", "--quiet", action="store_true", help="print only the sphere fit (--sphere), warnings and errors")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="print only the sphere fit (--sphere), warnings and errors")
 
 
 def phase_frequency(flag, stored, path) -> float:

@@ -18,7 +18,8 @@ def add_arguments(p) -> None:
                    help="twin calibration: calibration.json, or a Bouguet .mat pair (camera, projector)")
     p.add_argument("--phase-real", metavar="FILE", help="real absolute phase map (.mat/.npy/.h5), vertical fringes")
     p.add_argument("--phase-twin", metavar="FILE", help="twin absolute phase map of the same object")
-    p.add_argument("--frequency", type=positive_float, default=96.0, help="periods across the projector of the phase maps")
+    p.add_argument("--frequency", type=positive_float, default=96.0,
+                   help="periods across the projector of the phase maps")
     p.add_argument("--twin-ball-render", action=argparse.BooleanOptionalAction, default=None,
                    help="render the twin ball phase with synth at the real ball's fitted pose and add it to the "
                         "Fig. 3 matrix (default: on when --phase-real is given without --phase-twin)")
