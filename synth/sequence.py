@@ -62,12 +62,20 @@ def fringe_name(orientation: str, frequency: float, step: int) -> str:
     return f"{orientation}_{frequency_tag(frequency)}_n{step:02d}"
 
 
+#: The most fringe images one sequence may ask for (far above any real ladder: 2 x 3 x 36 = 216).
+MAX_IMAGES = 10000
+
+
 def phase_sequence(orientations=("v", "h"), frequencies=(1, 8, 48), steps=12) -> list[PatternSpec]:
     """Phase-shift fringes for each orientation and frequency (``steps``: int or one per frequency)."""
     steps_list = [steps] * len(frequencies) if isinstance(steps, int) else list(steps)
     if len(steps_list) != len(frequencies):
         raise SynthError(f"patterns: steps {steps_list} and frequencies {list(frequencies)} differ in length")
     check_frequencies(frequencies)
+    total = len(orientations) * sum(int(n) if isinstance(n, int) else 0 for n in steps_list)
+    if total > MAX_IMAGES:   # refused before millions of pattern descriptions are built
+        raise SynthError(f"patterns: {total} fringe images ({len(orientations)} orientation(s) x steps {steps_list}); "
+                         f"at most {MAX_IMAGES} per sequence")
     out = []
     for o in orientations:
         if o not in ("v", "h"):

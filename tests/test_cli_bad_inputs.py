@@ -198,6 +198,8 @@ def _hardening_3_files(bad, cap):
     (bad / "nonempty" / "notes.txt").write_text("mine")
     (bad / "scene_dup.toml").write_text(SCENE.replace('kind = "white"', 'kind = "phase"\nfrequencies = [1, 8, 8.0]\n'
                                                                         "steps = 4"))
+    (bad / "scene_huge.toml").write_text(SCENE.replace('kind = "white"', 'kind = "phase"\nfrequencies = [1, 8]\n'
+                                                                         "steps = 10000000"))
     (bad / "scene_alias.toml").write_text(SCENE.replace('kind = "white"', 'kind = "phase"\nfrequencies = [1, 8, '
                                                                           "2000]\nsteps = 4"))
     with h5py.File(bad / "truth.h5", "w") as f:            # a render's ground truth
@@ -423,6 +425,8 @@ CASES = [
     ("train-depth-absurd", "train data.synthetic_samples=8 model.depth=12 -o {out}", "model.depth = 12"),
     ("train-batch-absurd", "train data.synthetic_samples=8 optim.batch_size=100000 -o {out}",
      "optim.batch_size = 100000"),
+    ("render-board-steps-absurd", "render-board --steps 100000 -o {out}", "600000 fringe images"),
+    ("render-steps-absurd", "render {bad}/scene_huge.toml -o {out}", "at most 10000 per sequence"),
     ("train-width-absurd", "train data.synthetic_samples=8 model.width=4096 model.max_width=4096 -o {out}", "GB"),
     # issue 23, silently wrong: duplicated frames, models of the other kind, inputs giving empty tables
     ("unwrap-duplicated-frame", "unwrap {cap}/dup_frame -o {out}", "v_f008_n03.png: identical to"),

@@ -359,3 +359,26 @@ def test_the_second_of_two_concurrent_exports_is_told_the_pid_of_the_first(tmp_p
 
     with h5py.File(out) as h5:
         assert bool(h5.attrs["complete"]) and int(h5.attrs["n_samples"]) == 12
+
+
+# ------------------------------------------------------------------ memory estimated before allocating
+def test_memory_is_estimated_before_allocating_and_refused_naming_the_key():
+    from synth.errors import SynthError
+    from synth.render import check_render_memory
+    from unwrap.learned.checkpoint import arch_from_config
+    from unwrap.learned.config import resolve_config
+    from unwrap.learned.errors import ConfigError
+    from unwrap.learned.memory import check_training_memory, training_bytes
+
+    assert check_render_memory(100, (640, 480), available=10e9) == 8 * 100 * 640 * 480
+    with pytest.raises(SynthError, match="8001 images of 640x480 px need about 19.7 GB, this machine has 10 GB"):
+        check_render_memory(8001, (640, 480), available=10e9)
+    cfg = resolve_config(None, ["data.synthetic_samples=8"])
+    arch = arch_from_config(cfg["model"])
+    base = check_training_memory(cfg, arch, (128, 128), available=16e9)
+    assert base == training_bytes(arch, 8, (128, 128)) and 1e7 < base < 2e9
+    # the estimate follows what the config asks for: 4 x the batch, about 4 x the memory
+    assert 3.0 < training_bytes(arch, 32, (128, 128)) / base < 4.5
+    deep = resolve_config(None, ["data.synthetic_samples=8", "model.depth=10"])
+    with pytest.raises(ConfigError, match=r"model.depth = 10: training would need about .* GB .* 16 GB available"):
+        check_training_memory(deep, arch_from_config(deep["model"]), (128, 128), available=16e9)

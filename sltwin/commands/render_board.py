@@ -37,16 +37,19 @@ def run(args) -> int:
     from calib.io import load_system
     from synth.board_session import render_board_session, session_patterns
     from synth.effects import Noise
+    from synth.render import check_render_memory
+
+    from ..inputs import calibration_paths
 
     claim(args.output, "dir", inputs=args.system)
     if args.gray_block < 1:
         raise CommandError(f"--gray-block: expected >= 1 projector px, got {args.gray_block}")
     if args.steps < 3:
         raise CommandError(f"--steps: expected >= 3, got {args.steps}")
-    from ..inputs import calibration_paths
-
     system = load_system(calibration_paths(args.system))
-    session_patterns(system, args.pattern, args.steps, args.frequencies, args.gray_block)   # before any file
+    # the patterns and the memory they need are checked before any file is written
+    specs, _ = session_patterns(system, args.pattern, args.steps, args.frequencies, args.gray_block)
+    check_render_memory(len(specs), system.camera.size)
     fresh_dir(args.output, "a rendered session", args.overwrite)
     truth = render_board_session(args.output, system, steps=args.steps, frequencies=args.frequencies,
                                  n_poses=args.poses, bits=args.bits, seed=args.seed,
