@@ -72,7 +72,10 @@ def save_atomic(obj: dict, path) -> Path:
             with open(tmp, "wb") as fh:
                 torch.save(obj, fh)
         except RuntimeError as exc:   # torch reports a failed write (a full disk) as a RuntimeError
-            raise OSError(errno.EIO, f"could not write the checkpoint ({str(exc).splitlines()[0]}); the previous "
+            text = str(exc)
+            if "write" not in text.lower() and "enforce fail" not in text:
+                raise                  # not the file: an object that cannot be saved
+            raise OSError(errno.EIO, f"could not write the checkpoint ({text.splitlines()[0][:200]}); the previous "
                           f"{path.name}, if any, is intact") from exc
     return path
 
