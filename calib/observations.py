@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from unwrap.safe_output import write_text
+
 from .errors import ObservationError
 
 DEVICES = ("camera", "projector")
@@ -206,5 +208,5 @@ def write_observations_json(obs: Observations, path) -> Path:
         out["views"].append(e)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(out, indent=1) + "\n")
+    write_text(path, json.dumps(out, indent=1) + "\n")
     return path

@@ -45,6 +45,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from unwrap.safe_output import atomic_path
+
 from .coordinate_choice import choose_orientation, warn_if_ill_conditioned
 from .errors import TriangulationError
 
@@ -347,7 +349,7 @@ def write_ply(path, points, colors=None):
     header.append("end_header")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "wb") as fh:
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:   # a full disk leaves no truncated PLY
         fh.write(("\n".join(header) + "\n").encode("ascii"))
         fh.write(np.ascontiguousarray(data).tobytes())
     return path

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.board_pose import cross_reprojection
+from unwrap.safe_output import write_text
 
 from .compare import parameter_rows, rig_rows
 from .errors import ReportError
@@ -208,8 +209,8 @@ def write_twin_report(real_paths, twin_paths, out_dir, *, title="Twin-equivalenc
     if ball_info is not None:
         summary["twin_ball"] = ball_info
     out.mkdir(parents=True, exist_ok=True)
-    (out / "report.html").write_text(to_html(title, sections))
-    (out / "report.md").write_text(to_markdown(title, sections))
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    write_text(out / "report.html", to_html(title, sections))
+    write_text(out / "report.md", to_markdown(title, sections))
+    write_text(out / "summary.json", json.dumps(summary, indent=2, default=float) + "\n")
     summary["paths"] = {k: str(out / f"report.{k}") for k in ("html", "md")}
     return summary

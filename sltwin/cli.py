@@ -17,10 +17,12 @@ Errors: every package's errors derive from one root per package (``calib.errors.
 ``unwrap.errors.UnwrapError``, ``twin_mapping.errors.TwinError``, ``synth.errors.SynthError``,
 ``reports.errors.ReportError``, ``sltwin.errors.CommandError``), all ``ValueError`` subclasses.
 ``main`` maps them, here and only here, to exit code 2 (or the command's ``exit_codes()``) with the
-message on stderr, never a traceback; so do file-system errors (``OSError``: the message names the
-path). Anything else is a bug: exit code 1 and a one-line message asking for ``--debug``, which
+message on stderr, never a traceback (not even one quoted in a message, as a data-loading worker's
+error carries); so do file-system errors (``OSError``: the message names the path, or the output
+being written). Anything else is a bug: exit code 1 and a one-line message asking for ``--debug``, which
 shows the traceback (of every error) for a bug report. Ctrl-C ends with 130. Outputs are checked
-before any work (:mod:`sltwin.outputs`).
+before any work and locked while the command runs (:func:`sltwin.outputs.claim`; released when it
+ends, however it ends).
 
 Progress: library packages log through one logger each (``calib``, ``unwrap``, ``twin_mapping``,
 ``synth``, ``reports``); ``main`` shows their INFO lines on stderr for the duration of the command
@@ -36,6 +38,7 @@ import traceback
 
 from .commands import (convert, demo, evaluate, export, plan_fringes, reconstruct, render, render_board,
                        report, run, train, twin, unwrap)
+from .outputs import release_all
 
 #: (sub-command, module), in the order ``calib --help`` lists them.
 COMMANDS = [
@@ -103,6 +106,7 @@ def _show_progress(args) -> tuple[logging.Handler, dict]:
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter(getattr(args._module, "LOG_FORMAT", "%(message)s")))
     level = logging.DEBUG if args.debug else logging.WARNING if getattr(args, "quiet", False) else logging.INFO
+    handler.setLevel(level)   # also for a package's child logger that sets its own level (training's run log)
     saved = {}
     for name in LOGGERS:
         logger = logging.getLogger(name)
@@ -120,8 +124,30 @@ def _versions() -> str:
             f"{platform.platform()}")
 
 
+def without_traceback(message: str) -> str:
+    """``message`` without a traceback quoted inside it (a data-loading worker's error carries
+    its worker's traceback in its text): the text before it and the traceback's last line.
+
+    >>> without_traceback("Caught ValueError in DataLoader worker process 0.\\nOriginal Traceback (most recent "
+    ...                   "call last):\\n  File \\"x.py\\", line 1\\nValueError: x.h5: bad")
+    'Caught ValueError in DataLoader worker process 0: ValueError: x.h5: bad'
+    """
+    head, sep, tail = message.partition("Traceback (most recent call last):")
+    if not sep:
+        return message
+    head = head.replace("Original", "").strip().rstrip(".:")
+    last = [line.strip() for line in tail.strip().splitlines() if line.strip()]
+    return f"{head}: {last[-1]}" if last else head
+
+
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args, extra = parser.parse_known_args(argv)
+    trailing = getattr(getattr(args, "_module", None), "TRAILING_ITEMS", None)
+    if extra and trailing and not any(e.startswith("-") for e in extra):
+        setattr(args, trailing, list(getattr(args, trailing)) + extra)   # ``calib train CONFIG -o RUN key=value``
+    elif extra:
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
     handler, levels = _show_progress(args)
     if args.debug:
         logging.getLogger("sltwin").debug(f"calib {args.command}: {_versions()}")
@@ -131,12 +157,16 @@ def main(argv=None) -> int:
         if args.debug:
             traceback.print_exc()
         code, prefix = exit_code(args._module, exc)
-        print(f"calib {args.command}: error: {prefix}{exc}", file=sys.stderr)
+        message = without_traceback(str(exc))
+        output = getattr(args, "output", None)
+        if isinstance(exc, OSError) and not exc.filename and output:   # e.g. a full disk: say where
+            message += f" (while writing {' '.join(map(str, output)) if isinstance(output, list) else output})"
+        print(f"calib {args.command}: error: {prefix}{message}", file=sys.stderr)
         return code
     except Exception as exc:                # a bug: one line, the traceback with --debug
         if args.debug:
             raise
-        print(f"calib {args.command}: internal error: {type(exc).__name__}: {exc}\n"
+        print(f"calib {args.command}: internal error: {type(exc).__name__}: {without_traceback(str(exc))}\n"
               f"  This is a bug in sltwin: run the same command with --debug for the traceback and "
               "report it.", file=sys.stderr)
         return 1
@@ -144,6 +174,7 @@ def main(argv=None) -> int:
         print(f"calib {args.command}: interrupted", file=sys.stderr)
         return 130
     finally:
+        release_all()
         for name, level in levels.items():
             logging.getLogger(name).removeHandler(handler)
             logging.getLogger(name).setLevel(level)

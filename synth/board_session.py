@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from unwrap.safe_output import write_text
+
 from .boards import BoardTexture
 from .effects import Effects, Noise
 from .errors import SynthError
@@ -30,7 +32,7 @@ from .output import write_pngs, write_truth_h5
 from .poses import rotation_xyz_deg
 from .render import render
 from .scene import Scene
-from .sequence import PatternSpec, gray_sequence, phase_sequence
+from .sequence import PatternSpec, check_fringe_periods, gray_sequence, phase_sequence
 
 #: (rx, ry) tilts in degrees: the 3 x 3 grid of the paper's (0 +- 10, 0 +- 20, 0).
 log = logging.getLogger(__name__)
@@ -185,7 +187,9 @@ def session_patterns(system, pattern: str, steps, frequencies, gray_block_px: in
         return specs, {"kind": "graycode", "block_px": int(gray_block_px), "inverse": True}
     if pattern != "phase-shift":
         raise SynthError(f"pattern: expected 'phase-shift' or 'graycode', got {pattern!r}")
-    return [PatternSpec("white", "white")] + phase_sequence(("v", "h"), frequencies, int(steps)), None
+    specs = [PatternSpec("white", "white")] + phase_sequence(("v", "h"), frequencies, int(steps))
+    check_fringe_periods(specs, system.projector.size)
+    return specs, None
 
 
 def render_board_session(out_dir, system=None, *, steps: int = 12, frequencies=(1, 8, 48), n_poses: int = 9,
@@ -251,7 +255,7 @@ def render_board_session(out_dir, system=None, *, steps: int = 12, frequencies=(
     if skewed:
         (progress or log.info)("the rendered system has skew (" + ", ".join(f"{d} {s:+.4g} px" for d, s in skewed.items())
                                + "): a calibration whose model contains the truth estimates it (calib run --skew)")
-    (out_dir / "capture.toml").write_text(capture_toml(
+    write_text(out_dir / "capture.toml", capture_toml(
         texture.board, [int(steps)] * len(freqs), freqs, system.camera.size, system.projector.size,
         {"bits": int(bits), "seed": int(seed), "noise": noise is not None, "software": "sltwin synth"},
         pattern=pattern_table))
@@ -262,5 +266,5 @@ def render_board_session(out_dir, system=None, *, steps: int = 12, frequencies=(
                   "effects": base.to_dict(), "noise": None if noise is None else vars(noise) if hasattr(noise, "__dict__") else str(noise),
                   "seed": int(seed), "jitter": None if jitter is None else [float(j) for j in jitter],
                   "render_seconds": timings})
-    (out_dir / "truth.json").write_text(json.dumps(truth, indent=1, default=str) + "\n")
+    write_text(out_dir / "truth.json", json.dumps(truth, indent=1, default=str) + "\n")
     return truth

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from unwrap.capture import load_capture, read_stack
+from unwrap.capture import check_distinct_frames, load_capture, read_stack
 from unwrap.dataset_schema import (FLAG_LOW_MODULATION, FLAG_OUT_OF_RANGE, FLAG_SATURATED, MASK_LIT, MASK_SURFACE,
                                    SCHEMA, SCHEMA_VERSION, encode_modulation, encode_phase)
 from unwrap.phase_shift import wrapped_phase
@@ -96,6 +96,7 @@ def _capture_sample(folder, preset, reference, cloud, system):
         phases, mods, flags = [], [], []
         for s in sets:
             stack = read_stack(s.files)
+            check_distinct_frames(stack, list(s.files))
             top = float(np.iinfo(stack.dtype).max) if np.issubdtype(stack.dtype, np.integer) else 1.0
             w = wrapped_phase(stack, s.shifts, min_modulation=0.02 * top)
             phases.append(np.where(w.valid, w.phase, np.nan))

@@ -188,7 +188,27 @@ class ShardWriter:
                 raise _disk_error(exc, meta, self.parts, 0) from None
         for stale in self.parts.glob("*.tmp"):
             stale.unlink()
+        for i in self.indices:              # a part damaged since it was written is rendered again
+            problem = self.part_problem(i) if self.part_path(i).exists() else None
+            if problem:
+                LOG.warning("%s: %s; rendering that sample again", self.part_path(i), problem)
+                self.part_path(i).unlink()
         return [i for i in self.indices if not self.part_path(i).exists()]
+
+    def part_problem(self, index: int) -> str | None:
+        """Why the finished part of sample ``index`` cannot be used (unreadable, another sample,
+        a dataset that does not decompress), or None when every dataset of it reads back."""
+        import h5py
+
+        try:
+            with h5py.File(self.part_path(index), "r") as part:
+                if int(part["sample_index"][0]) != index:
+                    return f"holds sample {int(part['sample_index'][0])}, not {index}"
+                for name, d in _datasets(part).items():
+                    d[...]                        # decompresses every chunk: a damaged one fails here
+        except (OSError, KeyError, ValueError, RuntimeError) as exc:
+            return f"damaged part ({type(exc).__name__}: {str(exc).split('(')[0].strip()[:120]})"
+        return None
 
     def done_count(self) -> int:
         return sum(self.part_path(i).exists() for i in self.indices)
@@ -244,6 +264,10 @@ class ShardWriter:
         missing = [i for i in self.indices if not self.part_path(i).exists()]
         if missing:
             raise ExportError(f"{self.out}: {len(missing)} sample(s) missing in {self.parts} (first {missing[:5]})")
+        for i in self.indices:     # every part verified before any is copied into the shard file
+            problem = self.part_problem(i)
+            if problem:
+                raise ExportError(f"{self.part_path(i)}: {problem}; rerun the export: it renders that sample again")
         tmp = self.out.with_name(self.out.name + ".tmp")
         S = len(self.indices)
         self._check_space(sum(self.part_path(i).stat().st_size for i in self.indices))

@@ -15,6 +15,7 @@ HDF5 layout (``truth.h5``), shaped like the camera image (H, W), chunked and gzi
 """
 from __future__ import annotations
 
+import io
 import json
 from pathlib import Path
 
@@ -52,6 +53,7 @@ def write_truth_h5(result, scene, path) -> Path:
 
     from calib.io.calibration_json import system_to_dict
     from unwrap.phase_io import write_phase_group
+    from unwrap.safe_output import write_bytes
 
     g = result.geometry
     W, H = g.size
@@ -62,7 +64,8 @@ def write_truth_h5(result, scene, path) -> Path:
     def img(x, *extra):
         return x.reshape(H, W, *extra).numpy()
 
-    with h5py.File(path, "w") as f:
+    buf = io.BytesIO()   # built in memory, written atomically: a full disk leaves no truncated file
+    with h5py.File(buf, "w") as f:
         def put(name, arr):
             arr = np.ascontiguousarray(arr)
             f.create_dataset(name, data=arr, chunks=(min(H, 64), min(W, 64)) + arr.shape[2:], **kw)
@@ -96,7 +99,7 @@ def write_truth_h5(result, scene, path) -> Path:
         f.attrs["bits"] = result.bits
         f.attrs["software"] = "sltwin synth"
         f.attrs["units"] = "mm, px, rad"
-    return path
+    return write_bytes(path, buf.getbuffer())
 
 
 def write_render(result, scene, out_dir) -> dict:

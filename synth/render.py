@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from .errors import SynthError
 from .geometry import Geometry, compute_geometry
 from .global_illumination import apply_global_illumination
 from .plan_log import PlanLog
@@ -30,6 +31,7 @@ from .projection import linear_model, nonlinear_values
 
 F64 = torch.float64
 from .sensor import add_noise, camera_defocus, quantise
+from .sequence import check_fringe_periods
 from .truth import fringe_frequencies, phase_truth
 
 @dataclass
@@ -202,11 +204,29 @@ def _sensor(images, eff, quantised: bool, timings):
     return images
 
 
+def check_render_memory(n_images: int, camera_size, available: int | None = None) -> int:
+    """Refuse (:class:`SynthError`) a render whose image stack cannot fit in memory: ``n_images``
+    float32 images of ``camera_size`` (W, H), about twice over (the stack and its noisy or
+    quantised copy), against 80 % of the available memory (``MemAvailable``); e.g.
+    ``--steps 100000`` asks for 600001 images. Returns the estimate in bytes."""
+    from unwrap.learned.memory import available_bytes
+
+    W, H = (int(v) for v in camera_size)
+    need = 2 * 4 * int(n_images) * W * H
+    available = available_bytes() if available is None else int(available)
+    if need > 0.8 * available:
+        raise SynthError(f"patterns: {n_images} images of {W}x{H} px need about {need / 1e9:.3g} GB, this machine "
+                         f"has {available / 1e9:.3g} GB available; render fewer steps or frequencies")
+    return need
+
+
 def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry: Geometry | None = None,
            log=None) -> RenderResult:
     """Render every pattern of ``scene``. ``geometry`` reuses a previous geometry stage of the
     same scene pose (e.g. to render another pattern sequence). ``log``: a ``logging.Logger`` the
     plan lines also go to, at DEBUG (default: the ``synth`` logger)."""
+    check_fringe_periods(scene.patterns, scene.system.projector.size)
+    check_render_memory(len(scene.patterns), scene.system.camera.size)
     plan = PlanLog.of(log)
     eff = scene.effects
     timings: dict = {}

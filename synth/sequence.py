@@ -62,11 +62,20 @@ def fringe_name(orientation: str, frequency: float, step: int) -> str:
     return f"{orientation}_{frequency_tag(frequency)}_n{step:02d}"
 
 
+#: The most fringe images one sequence may ask for (far above any real ladder: 2 x 3 x 36 = 216).
+MAX_IMAGES = 10000
+
+
 def phase_sequence(orientations=("v", "h"), frequencies=(1, 8, 48), steps=12) -> list[PatternSpec]:
     """Phase-shift fringes for each orientation and frequency (``steps``: int or one per frequency)."""
     steps_list = [steps] * len(frequencies) if isinstance(steps, int) else list(steps)
     if len(steps_list) != len(frequencies):
         raise SynthError(f"patterns: steps {steps_list} and frequencies {list(frequencies)} differ in length")
+    check_frequencies(frequencies)
+    total = len(orientations) * sum(int(n) if isinstance(n, int) else 0 for n in steps_list)
+    if total > MAX_IMAGES:   # refused before millions of pattern descriptions are built
+        raise SynthError(f"patterns: {total} fringe images ({len(orientations)} orientation(s) x steps {steps_list}); "
+                         f"at most {MAX_IMAGES} per sequence")
     out = []
     for o in orientations:
         if o not in ("v", "h"):
@@ -78,6 +87,31 @@ def phase_sequence(orientations=("v", "h"), frequencies=(1, 8, 48), steps=12) ->
                 raise SynthError(f"patterns.steps: expected integers >= 3, got {n!r}")
             out += [PatternSpec(fringe_name(o, f, k), "fringe", o, float(f), k, n) for k in range(n)]
     return out
+
+
+def check_frequencies(frequencies, key: str = "patterns.frequencies") -> None:
+    """Refuse (:class:`SynthError`) a fringe ladder with a repeated frequency (equal to 1e-9,
+    e.g. ``8`` and ``8.0``: the same images twice under the same file names). One check for
+    ``calib render``, ``calib render-board`` and the dataset export (:func:`phase_sequence`)."""
+    fs = [float(f) for f in frequencies if isinstance(f, (int, float)) and not isinstance(f, bool)]
+    for i, f in enumerate(fs):
+        if any(math.isclose(f, g, rel_tol=1e-9) for g in fs[:i]):
+            raise SynthError(f"{key}: frequency {f:g} is given twice in {list(frequencies)}; give each frequency once")
+
+
+def check_fringe_periods(patterns, projector_size) -> None:
+    """Refuse (:class:`SynthError`) a fringe whose period is under 2 projector pixels (``v``:
+    across the width, ``h``: the height of ``projector_size`` (W, H)): such a pattern aliases on
+    the projector (e.g. 2000 periods across 912 px, a 0.46 px period). Checked by
+    :func:`synth.render.render` before any work, so for every command that renders."""
+    for p in patterns:
+        if p.kind != "fringe":
+            continue
+        extent = projector_size[0] if p.orientation == "v" else projector_size[1]
+        if extent / p.frequency < 2.0:
+            raise SynthError(f"patterns.frequencies: frequency {p.frequency:g} ({p.orientation}) has a period of "
+                             f"{extent / p.frequency:.2f} projector px across {extent} px; under 2 px the fringes "
+                             f"alias: at most {extent / 2:g} periods")
 
 
 def gray_sequence(orientation: str, size, bits: int | None = None, inverse: bool = False,

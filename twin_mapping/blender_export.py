@@ -10,6 +10,8 @@ import json
 from importlib import resources
 from pathlib import Path
 
+from unwrap.safe_output import write_text
+
 _MAIN = '''
 
 TWIN = json.loads(r"""{twin_json}""")
@@ -34,5 +36,5 @@ def blender_script(twin: dict) -> str:
 def write_blender_script(twin: dict, path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(blender_script(twin))
+    write_text(path, blender_script(twin))
     return path

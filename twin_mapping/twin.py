@@ -18,6 +18,7 @@ import math
 from pathlib import Path
 
 from calib.system import SystemModel
+from unwrap.safe_output import write_text
 
 from .datasheets import datasheets_for
 from .errors import TwinError
@@ -68,7 +69,7 @@ def write_twin_json(twin: dict, path) -> Path:
     bad = _non_finite(twin)
     if bad:   # JSON has no inf / NaN: json.dumps would write the invalid tokens Infinity / NaN
         raise TwinError(f"{path}: not written: non-finite value(s) {', '.join(bad[:4])}")
-    path.write_text(json.dumps(twin, indent=2, allow_nan=False) + "\n")
+    write_text(path, json.dumps(twin, indent=2, allow_nan=False) + "\n")
     return path
 
 

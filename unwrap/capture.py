@@ -95,7 +95,45 @@ def read_image(path) -> np.ndarray:
         raise UnwrapError(f"cannot read image {path}")
     if img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    if img.dtype not in (np.uint8, np.uint16):
+        what = f"{img.dtype} frame"
+        if img.dtype.kind == "f":
+            finite = np.isfinite(img)
+            bad = img.size - int(np.count_nonzero(finite))
+            what = f"floating-point ({img.dtype}) frame" + (f" with {bad} NaN/inf pixel(s)" if bad else "")
+            if bad < img.size:
+                what += f", values {float(img[finite].min()):.4g} to {float(img[finite].max()):.4g}"
+        raise UnwrapError(f"{path}: {what}; capture frames must be 8- or 16-bit integer grey levels as the camera "
+                          "gave them (the modulation threshold is a share of their full scale): save them as 8/16-bit "
+                          "PNG or TIFF")
     return img
+
+
+def check_distinct_frames(stack: np.ndarray, files) -> None:
+    """Refuse (:class:`UnwrapError` naming both files) a phase-shift stack (N, H, W) in which two
+    frames are identical or nearly so (a frame saved twice, a step that did not move): they are
+    never a phase shift apart, and the decoded phase would be off by up to pi/N with nothing but a
+    high noise figure to show it. Near-identical: the mean absolute difference of the two frames is
+    under a quarter of what their phase shift gives (the stack's median of difference / |sin(pi
+    (j - i) / N)|, frames in step order); a stack without fringes (all dark) is left to the
+    modulation threshold."""
+    n = len(stack)
+    if n < 3:
+        return
+    step = max(1, int(np.ceil(np.sqrt(stack[0].size / 65536.0))))   # a subsample of about 65k pixels
+    sub = stack[:, ::step, ::step].astype(np.float64)
+    d = {(i, j): float(np.mean(np.abs(sub[i] - sub[j]))) for i in range(n) for j in range(i + 1, n)}
+    shift = {(i, j): abs(np.sin(np.pi * (j - i) / n)) for i, j in d}
+    scale = float(np.median([d[k] / shift[k] for k in d if shift[k] > 1e-9]))
+    if scale < 0.5:                      # no fringes at all (half a grey level)
+        return
+    for (i, j), dij in d.items():
+        if dij == 0.0 or dij < 0.25 * scale * shift[(i, j)]:
+            how = "identical" if dij == 0.0 else (f"nearly identical (mean difference {dij:.3g} grey levels, a "
+                                                  f"{2 * (j - i)}pi/{n} shift gives about {scale * shift[(i, j)]:.3g})")
+            raise UnwrapError(f"{files[j]}: {how} to {files[i]}; the frames of a phase-shift stack must each be "
+                              f"shifted by 2 pi/{n}: a frame saved twice or a step that did not move (check the "
+                              "capture)")
 
 
 class FrameReader:
@@ -130,6 +168,13 @@ class FrameReader:
     def stack(self, files) -> np.ndarray:
         """(N, H, W) stack of ``files``, each checked."""
         return np.stack([self.image(f) for f in files])
+
+    def phase_stack(self, files) -> np.ndarray:
+        """:meth:`stack` of a phase-shift set, whose frames must also differ
+        (:func:`check_distinct_frames`)."""
+        stack = self.stack(files)
+        check_distinct_frames(stack, list(files))
+        return stack
 
 
 def read_stack(files) -> np.ndarray:

@@ -176,6 +176,15 @@ class FringeOrderDataset(Dataset):
         return h
 
     def __getitem__(self, i: int) -> dict:
+        try:
+            return self._item(i)
+        except (OSError, KeyError, RuntimeError) as exc:   # a truncated or damaged file: name it and the sample
+            g = int(self.samples[i])
+            path = self.files[int(np.searchsorted(self._offsets, g, side="right") - 1)][0]
+            raise DatasetSchemaError(f"{path}: sample {g} cannot be read (a truncated or damaged file?): "
+                                     f"{type(exc).__name__}: {str(exc)[:200]}") from None
+
+    def _item(self, i: int) -> dict:
         g = int(self.samples[i])
         j = int(np.searchsorted(self._offsets, g, side="right") - 1)
         k = g - int(self._offsets[j])

@@ -134,8 +134,19 @@ def check_schema(h5, path="", *, require_complete: bool = True) -> dict:
     """Check that an open h5py file is a fringe-order dataset of a version this code reads.
 
     RETURNED VALUE: the root attributes (:func:`read_attrs`). Raises :class:`DatasetSchemaError`
-    naming the file and what is wrong."""
+    naming the file and what is wrong (also for attributes of the wrong shape or type, which
+    numpy and h5py would report without the file's name)."""
     name = path or getattr(h5, "filename", "?")
+    try:
+        return _check_schema(h5, name, require_complete)
+    except DatasetSchemaError:
+        raise
+    except (TypeError, ValueError, KeyError, OSError, json.JSONDecodeError) as exc:
+        raise DatasetSchemaError(f"{name}: not a readable fringe-order dataset: {type(exc).__name__}: "
+                                 f"{str(exc)[:200]}") from None
+
+
+def _check_schema(h5, name, require_complete: bool) -> dict:
     schema = h5.attrs.get("schema")
     if isinstance(schema, bytes):
         schema = schema.decode()

@@ -1,5 +1,5 @@
 """Exception and warning types of the unwrap package: ``UnwrapError``, its one error root (a
-``ValueError``), ``DatasetSchemaError`` and ``UnreliableFringesWarning``.
+``ValueError``), ``DatasetSchemaError``, ``OutputError`` and ``UnreliableFringesWarning``.
 
 Every error names the input, the offending value and what was expected.
 """
@@ -11,6 +11,11 @@ class UnwrapError(ValueError):
 
 class DatasetSchemaError(UnwrapError):
     """A file that is not a fringe-order dataset this code understands (or an incomplete one)."""
+
+
+class OutputError(UnwrapError):
+    """An output that cannot be written safely: locked by another process, or also an input
+    (:mod:`unwrap.safe_output`)."""
 
 
 class UnreliableFringesWarning(UserWarning):

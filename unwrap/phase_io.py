@@ -155,15 +155,20 @@ def write_phase_file(path, groups: dict, *, frequency: float | None = None, attr
                      compression: str = "gzip") -> Path:
     """Write a phase file: ``groups`` {orientation: keyword arguments of :func:`write_phase_group`
     (``phase`` required)}, file attributes ``attrs``; ``frequency`` is the default of every group.
-    Returns the path (its folder is created)."""
+    Returns the path (its folder is created). The file is built in memory and then written
+    atomically (:mod:`unwrap.safe_output`): a full disk leaves the previous file or none, and is
+    reported naming ``path``, never a half-written HDF5 file (or a crash inside the HDF5 library)."""
+    import io
+
     import h5py
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with h5py.File(path, "w") as f:
+    from .safe_output import write_bytes
+
+    buf = io.BytesIO()
+    with h5py.File(buf, "w") as f:
         f.attrs.update(attrs or {})
         for orientation, kw in groups.items():
             kw = dict(kw)
             kw.setdefault("frequency", frequency)
             write_phase_group(f, orientation, kw.pop("phase"), compression=compression, **kw)
-    return path
+    return write_bytes(path, buf.getbuffer())

@@ -31,6 +31,7 @@ from .patterns import projector_coordinate
 from .phase_io import write_phase_file
 from .phase_shift import fit_noise_sigma, wrapped_phase
 from .reliability import modulation_threshold, predicted_error_rate
+from .safe_output import save_figure
 from .temporal import Unwrapped, mf_unwrap, mw_unwrap, nt_unwrap
 
 METHODS = ("mf", "mw", "nt", "gray")
@@ -117,7 +118,7 @@ def read_orientation(oc: OrientationCapture, reader: FrameReader, progress: bool
     stacks = []
     for i, s in enumerate(sets):
         _log(progress, f"  [{oc.orientation}] {i + 1}/{len(sets)}: f = {s.frequency:g}, {len(s.files)} frames")
-        stacks.append(reader.stack(s.files))
+        stacks.append(reader.phase_stack(s.files))
     return stacks
 
 
@@ -359,5 +360,5 @@ def _previews(results, out: Path):
             fig.colorbar(im, ax=ax, fraction=0.046)
         fig.suptitle(f"{o}: method {u.method}, valid {100 * np.mean(u.valid):.1f} %")
         fig.tight_layout()
-        fig.savefig(out / f"{o}_unwrap.png", dpi=80)
+        save_figure(fig, out / f"{o}_unwrap.png", dpi=80)
         plt.close(fig)

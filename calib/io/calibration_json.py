@@ -8,6 +8,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from unwrap.safe_output import write_text
+
 from ..errors import FormatError
 from ..system import SystemModel
 
@@ -36,5 +38,5 @@ def read_calibration_json(path, *, repair_rotation: bool = False) -> SystemModel
 def write_calibration_json(system: SystemModel, path, **extra) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(system_to_dict(system, **extra), indent=2) + "\n")
+    write_text(path, json.dumps(system_to_dict(system, **extra), indent=2) + "\n")
     return path

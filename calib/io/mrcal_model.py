@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from unwrap.safe_output import atomic_path
+
 from ..device import DeviceModel
 from ..errors import FormatError
 from ..rotation import matrix_from_rotvec, rotvec_from_matrix
@@ -56,9 +58,9 @@ def write_cameramodel(device: DeviceModel, path, *, skew_tol_px: float = SKEW_TO
     """Write the device as a mrcal ``.cameramodel``; return the report lines."""
     model, report = to_cameramodel(device, skew_tol_px=skew_tol_px)
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     note = f"sltwin {device.kind}" + (f"; {'; '.join(report)}" if report else "")
-    model.write(str(path), note=note)
+    with atomic_path(path) as tmp:   # a failed write leaves the previous file
+        model.write(str(tmp), note=note)
     return report
 
 

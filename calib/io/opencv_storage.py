@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from unwrap.safe_output import atomic_path
+
 from ..device import DeviceModel
 from ..errors import FormatError
 from ..system import SystemModel
@@ -202,8 +204,13 @@ def write_opencv_storage(system: SystemModel, path) -> Path:
     cam, prj = system.camera, system.projector
     R = prj.R @ cam.R.T
     t = prj.t - R @ cam.t
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    with atomic_path(path) as tmp:   # a failed write leaves the previous file
+        _write_storage(cv2, tmp, path, cam, prj, R, t)
+    return path
+
+
+def _write_storage(cv2, tmp, path, cam, prj, R, t) -> None:
+    fs = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE)
     if not fs.isOpened():
         raise FormatError(f"{path}: OpenCV cannot open it for writing")
     try:
@@ -218,4 +225,3 @@ def write_opencv_storage(system: SystemModel, path) -> Path:
             fs.write(key, int(value))
     finally:
         fs.release()
-    return path

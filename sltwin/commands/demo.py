@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..outputs import output_dir
+from ..outputs import claim
 
 HELP = "the main job on the built-in default system"
 LOG_FORMAT = "   %(message)s"
@@ -20,6 +20,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     from ..demo import run_demo
 
-    output_dir(args.output)
+    claim(args.output, "dir", inputs=[args.data])
     run_demo(args.output, seed=args.seed, data=args.data)
     return 0

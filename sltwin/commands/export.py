@@ -16,7 +16,8 @@ def add_arguments(parser):
                                         "SLURM_ARRAY_TASK_ID/COUNT from the environment, else 0/1)")
     parser.add_argument("--combine", nargs="+", metavar="SHARD", help="join complete shards into OUTPUT")
     parser.add_argument("--capture", metavar="DIR", help="export a real capture folder (or a folder of them)")
-    parser.add_argument("--preset", help="capture layout (design, slstudio, slmaster, kamino; default: detected)")
+    parser.add_argument("--preset", help="capture layout (design, slstudio, slmaster, kamino-phaseshift, "
+                                         "procam-graycode; default: detected)")
     parser.add_argument("--reference", default="auto", choices=("auto", "gray", "cloud", "none"),
                         help="reference order of a capture (default: Gray code if any, else --reference-cloud)")
     parser.add_argument("--reference-cloud", help="point cloud (.mat 'xyz' or .npy, H x W x 3 mm) of the same view")
@@ -27,17 +28,22 @@ def add_arguments(parser):
 def run(args) -> int:
     import json
 
-    from synth.dataset_writer import ExportError, combine, parse_shard
+    from synth.dataset_writer import ExportError, combine, parse_shard, shard_from_environment, shard_path
+
+    from ..outputs import claim
 
     modes = sum(x is not None for x in (args.config, args.combine, args.capture))
     if modes != 1:
         raise ExportError("give exactly one of CONFIG, --combine SHARDS or --capture DIR")
     if args.combine:
+        claim(args.output, "file", inputs=args.combine)
         out = combine(args.combine, args.output)
         print(f"combined {len(args.combine)} shard(s) into {out} (virtual datasets, no data copied)")
         return 0
     if args.capture:
         from synth.capture_export import export_capture
+
+        claim(args.output, "file", inputs=[args.capture, args.reference_cloud, args.reference_system])
 
         s = export_capture(args.capture, args.output, preset=args.preset, reference=args.reference,
                            reference_cloud=args.reference_cloud, reference_system=args.reference_system)
@@ -47,6 +53,7 @@ def run(args) -> int:
         return 0
     from synth.dataset_export import export_dataset, format_summary
 
-    shard = parse_shard(args.shard) if args.shard else None
+    shard = parse_shard(args.shard) if args.shard else (shard_from_environment() or (0, 1))
+    claim(shard_path(args.output, *shard), "file", inputs=[args.config])
     print(format_summary(export_dataset(args.config, args.output, shard=shard, progress=not args.quiet)))
     return 0

@@ -1,20 +1,22 @@
 """``calib plan-fringes``: predicted fringe-order error rate vs number of images (Markdown table)."""
 from __future__ import annotations
 
+from ..argtypes import positive_float, probability
+
 HELP = "predicted fringe-order error rate vs number of images"
 
 
 def add_arguments(parser):
-    parser.add_argument("--sigma", type=float, default=2.0,
+    parser.add_argument("--sigma", type=positive_float, default=2.0,
                         help="intensity noise per frame (grey levels, default 2)")
-    parser.add_argument("--modulation", type=float, default=60.0,
+    parser.add_argument("--modulation", type=positive_float, default=60.0,
                         help="fringe modulation B (grey levels, default 60)")
     parser.add_argument("--steps", type=int, nargs="+", default=[3, 4, 6, 12],
                         help="step counts N to compare (default 3 4 6 12)")
     parser.add_argument("--sets", nargs="+", default=None,
                         help="frequency sets METHOD:F1,F2,... (mf, mw, nt, gray: the names of calib unwrap --method); default: a "
                              "standard list including the paper's mf:1,8,48")
-    parser.add_argument("--max-error-rate", type=float, default=1e-3,
+    parser.add_argument("--max-error-rate", type=probability, default=1e-3,
                         help="mark rows above this predicted error rate (default 1e-3)")
 
 

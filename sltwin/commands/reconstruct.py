@@ -23,7 +23,9 @@ Exit codes: 0 success; 2 invalid input.
 from __future__ import annotations
 
 from ..errors import CommandError
-from ..outputs import output_file
+from ..outputs import claim
+
+from ..argtypes import positive_float, positive_int
 
 HELP = "absolute phase + calibration -> point cloud (PLY)"
 
@@ -32,20 +34,23 @@ def add_arguments(p):
     p.add_argument("--phase", required=True, help="absolute phase (.mat, .npy or DESIGN.md HDF5)")
     p.add_argument("--variable", help="variable name in a .mat file or dataset in an HDF5 file (default: the "
                                       ".mat's only 2-D array; the HDF5's ORIENTATION/phase)")
-    p.add_argument("--frequency", type=float, default=None,
+    p.add_argument("--frequency", type=positive_float, default=None,
                    help="periods across the projector pattern (default: the phase file's own, e.g. unwrap.h5's; "
                         "required for .mat/.npy maps, which do not store it)")
     p.add_argument("--orientation", choices=("auto", "v", "h", "both"), default="auto",
                    help="v: projector columns (u_p), h: rows (v_p), both: both coordinates; auto (default): "
                         "both when the file holds both, else the one it holds")
-    p.add_argument("--calibration", nargs="+", required=True, help="calibration file(s) (calib.load_system)")
-    p.add_argument("--camera-size", nargs=2, type=int, metavar=("W", "H"),
+    p.add_argument("--calibration", nargs="+", required=True,
+                   help="calibration file(s) (calib.load_system), or builtin: the built-in system")
+    p.add_argument("--camera-size", nargs=2, type=positive_int, metavar=("W", "H"),
                    help="camera image size, for calibration files that do not store it")
-    p.add_argument("--projector-size", nargs=2, type=int, metavar=("W", "H"),
+    p.add_argument("--projector-size", nargs=2, type=positive_int, metavar=("W", "H"),
                    help="projector image size, for calibration files that do not store it")
     p.add_argument("--method", choices=("distortion", "linear"), default="distortion")
     p.add_argument("--sphere", action="store_true", help="fit a sphere and print its RMS")
     p.add_argument("-o", "--output", required=True, help="PLY path")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="print only the sphere fit (--sphere), warnings and errors")
 
 
 def phase_frequency(flag, stored, path) -> float:
@@ -108,8 +113,11 @@ def run(args) -> int:
     from calib import load_system
     from calib.triangulate import fit_sphere, points_from_phase, write_ply
 
-    output_file(args.output)
-    paths = args.calibration if len(args.calibration) > 1 else args.calibration[0]
+    claim(args.output, "file", inputs=[args.phase, *args.calibration])
+    from ..inputs import calibration_paths
+
+    paths = calibration_paths(args.calibration)
+    paths = paths[0] if len(paths) == 1 else paths
     system = load_system(paths, camera_size=args.camera_size, projector_size=args.projector_size)
     maps, freqs = _phase_maps(args, system)
     X, q, ok = points_from_phase(system, maps, freqs, args.orientation, args.method)
@@ -117,7 +125,8 @@ def run(args) -> int:
         raise CommandError(f"{args.phase}: none of the {len(ok)} valid pixels triangulates with this calibration")
     used = "both coordinates" if len(maps) == 2 else ("columns (v)" if "v" in maps else "rows (h)")
     write_ply(args.output, X[ok])
-    print(f"{int(ok.sum())} points of {len(q)} valid pixels ({used}) -> {args.output}")
+    if not args.quiet:
+        print(f"{int(ok.sum())} points of {len(q)} valid pixels ({used}) -> {args.output}")
     if args.sphere:
         c, r, res = fit_sphere(X[ok])
         print(f"sphere: centre {np.round(c, 4).tolist()} mm, radius {r:.5f} mm, "

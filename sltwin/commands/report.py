@@ -4,7 +4,9 @@ from __future__ import annotations
 import argparse
 
 from ..errors import CommandError
-from ..outputs import output_dir
+from ..outputs import claim
+
+from ..argtypes import positive_float
 
 HELP = "twin-equivalence report (HTML + Markdown)"
 
@@ -16,11 +18,12 @@ def add_arguments(p) -> None:
                    help="twin calibration: calibration.json, or a Bouguet .mat pair (camera, projector)")
     p.add_argument("--phase-real", metavar="FILE", help="real absolute phase map (.mat/.npy/.h5), vertical fringes")
     p.add_argument("--phase-twin", metavar="FILE", help="twin absolute phase map of the same object")
-    p.add_argument("--frequency", type=float, default=96.0, help="periods across the projector of the phase maps")
+    p.add_argument("--frequency", type=positive_float, default=96.0,
+                   help="periods across the projector of the phase maps")
     p.add_argument("--twin-ball-render", action=argparse.BooleanOptionalAction, default=None,
                    help="render the twin ball phase with synth at the real ball's fitted pose and add it to the "
                         "Fig. 3 matrix (default: on when --phase-real is given without --phase-twin)")
-    p.add_argument("--ball-frequencies", type=float, nargs="+", default=None, metavar="F",
+    p.add_argument("--ball-frequencies", type=positive_float, nargs="+", default=None, metavar="F",
                    help="fringe ladder of the twin ball render, ending at --frequency (default: 1 8 96)")
     p.add_argument("--twin-ball-system", choices=("ideal", "real"), default="ideal",
                    help="system that renders the twin ball: the real calibration without skew and distortion "
@@ -74,13 +77,22 @@ def print_summary(summary: dict) -> None:
 def run(args) -> int:
     from reports.twin_report import write_twin_report
 
-    output_dir(args.output)
+    claim(args.output, "dir", inputs=[*args.real, *args.twin, args.phase_real, args.phase_twin, *args.learned_real,
+                                        *args.learned_twin])
     opts = ball_options(args)
     extra, parity = [], None
     if args.learned_real or args.learned_twin:
         if not (args.learned_real and args.learned_twin):
             raise CommandError("--learned-real and --learned-twin go together")
         from reports.learned_parity import section
+
+        from ..inputs import dataset_files, model_of_kind
+
+        dataset_files(args.learned_real, "--learned-real", need_reference=True,
+                      needs="a real capture exported with its reference orders: calib export --capture DIR -o real.h5")
+        dataset_files(args.learned_twin, "--learned-twin",
+                      needs="twin renders of the same system: calib export CONFIG -o twin.h5")
+        model_of_kind(args.learned_model, "physics", "--learned-model")
 
         sec, parity = section(args.learned_real, args.learned_twin, args.learned_model)
         extra.append(sec)

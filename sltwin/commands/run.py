@@ -14,7 +14,9 @@ written.
 from __future__ import annotations
 
 from ..errors import CommandError
-from ..outputs import output_dir
+from ..outputs import claim
+
+from ..argtypes import nonnegative_float, positive_float
 
 HELP = "calibrate camera + projector from board captures or point observations (seed + bundle adjustment)"
 
@@ -57,8 +59,8 @@ def add_arguments(p):
                    help="hold a parameter at its seed, e.g. camera.k3 or projector.intrinsics, or at a given "
                         "value, e.g. camera.cx=843.5 (repeatable)")
     p.add_argument("--loss", choices=("linear", "huber", "cauchy"), default="linear")
-    p.add_argument("--loss-scale", type=float, default=3.0, help="robust loss scale, in residual sigmas")
-    p.add_argument("--outlier-threshold", type=float, default=5.0,
+    p.add_argument("--loss-scale", type=positive_float, default=3.0, help="robust loss scale, in residual sigmas")
+    p.add_argument("--outlier-threshold", type=nonnegative_float, default=5.0,
                    help="reject points beyond this many robust sigmas (0: keep all)")
     p.add_argument("--no-view-noise", action="store_true",
                    help="one noise level per device (default: a view whose residuals are more than twice the "
@@ -75,7 +77,7 @@ def add_arguments(p):
                    help="treat projector pixels as independent of the camera's detection errors (default: "
                         "model how a camera error moves the projector pixel read there, where the "
                         "observations carry dprj_dcam)")
-    p.add_argument("--skew-tol", type=float, default=0.01, help="px; see calib.io.mrcal_model")
+    p.add_argument("--skew-tol", type=positive_float, default=0.01, help="px; see calib.io.mrcal_model")
     p.add_argument("--no-skew-check", action="store_true",
                    help="skip the refit with skew free that tells whether a zero-skew model fits the data "
                         "(calib.skew_check; run when skew is not estimated; a needed skew is a warning)")
@@ -143,7 +145,7 @@ def run(args) -> int:
 
     if (args.captures is None) == (args.observations is None):
         raise CommandError("give either a CAPTURES folder or --observations FILE(S)")
-    output_dir(args.output)
+    claim(args.output, "dir", inputs=[args.captures, args.capture_toml, *(args.observations or [])])
     if args.draws < 3:
         raise CommandError(f"--draws: expected >= 3 bootstrap runs, got {args.draws}")
     config = ba_config(args)

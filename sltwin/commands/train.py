@@ -3,9 +3,16 @@ fringe-order network (unwrap.learned.train). Several processes: ``torchrun --npr
 sltwin.cli train CONFIG.toml -o RUN`` (gloo on CPU, NCCL on CUDA; only rank 0 writes)."""
 from __future__ import annotations
 
+import os
+
 from sltwin.errors import CommandError
 
+from ..outputs import claim
+
 HELP = "train the learned fringe-order network (config + overrides, resumable, torchrun for DDP)"
+
+#: ``calib`` passes items left after the options (``CONFIG -o RUN key=value``) to ``items``.
+TRAILING_ITEMS = "items"
 
 
 def add_arguments(parser):
@@ -15,7 +22,8 @@ def add_arguments(parser):
     parser.add_argument("-o", "--output", default=None, help="run folder (default runs/<date-time>)")
     parser.add_argument("--resume", default=None, metavar="RUN", help="continue the run in this folder")
     parser.add_argument("--deterministic", action="store_true", help="deterministic kernels (slower)")
-    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or messages")
+    parser.add_argument("-q", "--quiet", action="store_true",
+                        help="no progress bar or progress messages (the result lines stay)")
 
 
 def split_items(items):
@@ -37,6 +45,11 @@ def run(args) -> int:
     config, overrides = split_items(args.items)
     if args.resume and args.output:
         raise CommandError("--resume RUN continues in RUN; do not give -o as well")
+    if os.environ.get("RANK", "0") == "0":     # only rank 0 writes (torchrun): it alone holds the run folder
+        if args.resume:
+            claim(args.resume, "dir", option="--resume")
+        elif args.output:
+            claim(args.output, "dir", inputs=[config])
     r = train(config, overrides, args.output, resume=args.resume,
               deterministic=True if args.deterministic else None, progress=not args.quiet)
     if r.run_dir is not None:

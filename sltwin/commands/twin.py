@@ -4,7 +4,9 @@ from __future__ import annotations
 import argparse
 import json
 
-from ..outputs import output_file
+from ..outputs import claim
+
+from ..argtypes import positive_int
 
 HELP = "calibration -> digital-twin parameters (+ Blender scene script)"
 
@@ -19,13 +21,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="check the twin inside Blender (needs bpy): project points through Blender's cameras")
     p.add_argument("--repair-rotation", action="store_true",
                    help="replace a rounded rotation by the nearest rotation (SVD) instead of refusing it; reported")
-    p.add_argument("--camera-size", nargs=2, type=int, metavar=("W", "H"))
-    p.add_argument("--projector-size", nargs=2, type=int, metavar=("W", "H"))
+    p.add_argument("--camera-size", nargs=2, type=positive_int, metavar=("W", "H"))
+    p.add_argument("--projector-size", nargs=2, type=positive_int, metavar=("W", "H"))
+    p.add_argument("-q", "--quiet", action="store_true", help="write the files, print only warnings and errors")
     p.add_argument("--paper", choices=["auto", "yes", "no"], default="auto",
                    help="print the paper's table S3 beside ours (auto: when the system is the paper's)")
 
 
-def write_twin(system, output, blender_script=None, paper: str = "auto") -> dict:
+def write_twin(system, output, blender_script=None, paper: str = "auto", quiet: bool = False) -> dict:
     """Print the twin of ``system`` (with the paper's table S3 where it applies), write
     ``twin.json`` to ``output`` and, when asked, the Blender scene script; returns the twin."""
     from twin_mapping.blender_export import write_blender_script
@@ -33,23 +36,30 @@ def write_twin(system, output, blender_script=None, paper: str = "auto") -> dict
     from twin_mapping.twin import write_twin_json
 
     twin = twin_with_paper(system, paper)
-    print(format_twin_table(twin, "paper_table_s3" in twin))
-    print(f"\nwrote {write_twin_json(twin, output)}")
+    if not quiet:
+        print(format_twin_table(twin, "paper_table_s3" in twin))
+    path = write_twin_json(twin, output)
+    if not quiet:
+        print(f"\nwrote {path}")
     if blender_script:
-        print(f"wrote {write_blender_script(twin, blender_script)} (blender --background --python {blender_script})")
+        script = write_blender_script(twin, blender_script)
+        if not quiet:
+            print(f"wrote {script} (blender --background --python {blender_script})")
     return twin
 
 
 def run(args) -> int:
     from calib.io import load_system
 
-    output_file(args.output)
+    claim(args.output, "file", inputs=args.calibration)
     if args.blender_script:
-        output_file(args.blender_script, "--blender-script")
+        claim(args.blender_script, "file", inputs=args.calibration, option="--blender-script")
 
-    system = load_system(args.calibration, repair_rotation=args.repair_rotation,
+    from ..inputs import calibration_paths
+
+    system = load_system(calibration_paths(args.calibration), repair_rotation=args.repair_rotation,
                          camera_size=args.camera_size, projector_size=args.projector_size)
-    twin = write_twin(system, args.output, args.blender_script, args.paper)
+    twin = write_twin(system, args.output, args.blender_script, args.paper, quiet=args.quiet)
     if args.blender:
         from twin_mapping.blender_check import check_twin_in_blender
         result = check_twin_in_blender(system, twin=twin)

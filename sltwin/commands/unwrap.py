@@ -14,11 +14,13 @@ from __future__ import annotations
 
 from sltwin.errors import CommandError
 
-from ..outputs import output_dir
+from ..outputs import claim
 
 PRESETS = ("design", "slstudio", "slmaster", "kamino-phaseshift", "procam-graycode", "kamino")
 """unwrap.capture.PRESETS plus the former name ``kamino`` (kept literal: the parser is built without
 importing the library)."""
+
+from ..argtypes import positive_float
 
 HELP = "absolute phase, fringe order and masks of a fringe capture (HDF5 + PNG)"
 
@@ -39,7 +41,7 @@ def add_arguments(parser):
     threshold.add_argument("--max-error-rate", type=float, default=None, metavar="RATE",
                            help="instead: the modulation threshold at which the method's predicted fringe-order "
                                 "error rate is RATE (reliability model, this capture's steps and noise)")
-    parser.add_argument("--noise-sigma", type=float, default=None, metavar="GREY",
+    parser.add_argument("--noise-sigma", type=positive_float, default=None, metavar="GREY",
                         help="intensity noise per frame (default: estimated from the fit residuals; 3-step "
                              "captures need it for --max-error-rate)")
     parser.add_argument("--no-prior-check", action="store_true",
@@ -86,7 +88,7 @@ def run(args) -> int:
 
     from unwrap.pipeline import unwrap_capture, write_results
 
-    output_dir(args.output)
+    claim(args.output, "dir", inputs=[args.capture_dir, args.model])
     if args.no_gate and args.spatial is None:
         raise CommandError("--no-gate belongs to --spatial graphcut")
     if args.spatial is not None:
@@ -110,6 +112,9 @@ def run(args) -> int:
         if args.max_error_rate is not None or args.noise_sigma is not None:
             raise CommandError("--max-error-rate / --noise-sigma set the threshold from the traditional decoders' "
                                "reliability model; with --model give --min-modulation instead")
+        from ..inputs import model_of_kind
+
+        model_of_kind(args.model, "physics", "--model")   # the prior-free baseline has no traditional prior
         results = unwrap_capture_learned(args.capture_dir, args.method or "mf", args.model, preset=args.preset,
                                          pose=args.pose, min_modulation=args.min_modulation,
                                          on_outside=args.outside, check_prior=not args.no_prior_check,

@@ -54,7 +54,7 @@ def learned_orientation(oc, method: str, model, *, min_modulation=None, on_outsi
     i_lo, i_hi = _pair(method, freqs)
     w = {}
     for i in (i_lo, i_hi):
-        stack = reader.stack(sets[i].files)
+        stack = reader.phase_stack(sets[i].files)
         mm = check_min_modulation(min_modulation, stack.dtype)
         full = float(np.iinfo(stack.dtype).max) if np.issubdtype(stack.dtype, np.integer) else 1.0
         ph = wrapped_phase(stack, sets[i].shifts, min_modulation=mm)

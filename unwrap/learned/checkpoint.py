@@ -15,8 +15,7 @@ Writes go to a temporary file in the same folder, fsync'ed, then renamed over th
 """
 from __future__ import annotations
 
-import os
-import tempfile
+import errno
 from pathlib import Path
 
 import torch
@@ -65,19 +64,19 @@ def build_model(arch: dict) -> FringeUNet:
 
 def save_atomic(obj: dict, path) -> Path:
     """``torch.save(obj)`` to ``path`` atomically (temporary file + fsync + rename)."""
+    from ..safe_output import atomic_path
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            torch.save(obj, fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_path(path) as tmp:
+        try:
+            with open(tmp, "wb") as fh:
+                torch.save(obj, fh)
+        except RuntimeError as exc:   # torch reports a failed write (a full disk) as a RuntimeError
+            text = str(exc)
+            if "write" not in text.lower() and "enforce fail" not in text:
+                raise                  # not the file: an object that cannot be saved
+            raise OSError(errno.EIO, f"could not write the checkpoint ({text.splitlines()[0][:200]}); the previous "
+                          f"{path.name}, if any, is intact") from exc
     return path
 
 

@@ -19,9 +19,11 @@ from pathlib import Path
 import numpy as np
 
 from .checkpoint import load_model
+from .errors import ModelError
 from .evaluate import DROPS, TestSource, confidence_curve, score, speed_table
 from .metrics import ErrorCount
 from .paper import TABLE_S5, TABLE_S6
+from ..safe_output import save_figure, write_text
 
 log = logging.getLogger("unwrap.learned")
 METHODS = ("mf", "mw", "nt")
@@ -153,7 +155,7 @@ def _figures(out: Path, s5: dict, s6: dict, physics_name: str) -> list[str]:
         ax.grid(alpha=0.3)
         ax.legend()
     fig.tight_layout()
-    fig.savefig(out / "confidence.png", dpi=110)
+    save_figure(fig, out / "confidence.png", dpi=110)
     plt.close(fig)
     made.append("confidence.png")
     for f in sorted({k[1] for k in scored}):
@@ -176,7 +178,7 @@ def _figures(out: Path, s5: dict, s6: dict, physics_name: str) -> list[str]:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
         fig.tight_layout()
-        fig.savefig(out / "s6.png", dpi=110)
+        save_figure(fig, out / "s6.png", dpi=110)
         plt.close(fig)
         made.append("s6.png")
     return made
@@ -203,7 +205,7 @@ def error_map_figure(path: Path, ex: dict, model_name: str, title: str) -> str:
     fig.colorbar(im, ax=axes[2], fraction=0.04)
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
     return path.name
 
@@ -300,6 +302,13 @@ def run_evaluation(source: TestSource, out_dir, *, physics, prior_free=None, mse
     cache = _Cache(source, models, filtered_window)
     res: dict = {"source": source.label or (", ".join(map(str, source.files)) or "synthetic")}
     s5 = table_s5(cache, s5_frequencies, methods)
+    missing = [f"{m} {f:g}" for (m, f), s in s5["scored"].items() if s is None]
+    if missing and len(missing) == len(s5["scored"]):   # an empty table is no result
+        raise ModelError(f"{res['source']}: no cell of table S5 can be scored: the test data hold none of "
+                         f"(method, frequency) {missing} (the pairs 1 -> f of each method, both orientations "
+                         "looked for); give --s5 frequencies the data were exported with")
+    if missing:
+        log.warning("table S5: %s not in the test data: those cells stay empty", ", ".join(missing))
     res["s5"] = s5["table"]
     res["confidence"] = {f"{m.upper()}, {f:g}": confidence_curve(s, ROW_PA) for (m, f), s in s5["scored"].items()
                          if s is not None}
@@ -323,8 +332,8 @@ def run_evaluation(source: TestSource, out_dir, *, physics, prior_free=None, mse
                 res["training"][name] = json.loads(p.read_text())["train_samples_per_s"]
     res["figures"] = _figures(out, s5, res["s6"], ROW_PA)
     md = markdown(res)
-    (out / "eval.md").write_text(md)
-    (out / "eval.json").write_text(json.dumps(res, indent=1, default=_json_default))
+    write_text(out / "eval.md", md)
+    write_text(out / "eval.json", json.dumps(res, indent=1, default=_json_default))
     res["markdown"] = md
     return res
 

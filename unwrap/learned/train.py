@@ -42,8 +42,10 @@ from .config import resolve_config, to_toml
 from .data import ResumableSampler, build_datasets
 from .errors import ConfigError, DatasetTooSmallError
 from .losses import LossWeights, composite_loss
+from .memory import check_training_memory, training_crop
 from .metrics import ErrorCount
 from .progress import StepBar
+from ..safe_output import save_figure, write_text
 
 log = logging.getLogger("unwrap.learned")
 
@@ -224,7 +226,7 @@ def plot_metrics(run_dir: Path) -> Path | None:
     ax[1].set(xlabel="step", ylabel="fringe-order error rate [%]", title="validation")
     fig.tight_layout()
     path = run_dir / "metrics.png"
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path
 
@@ -267,6 +269,10 @@ def _open_run(config, overrides, out_dir, resume) -> tuple[dict, Path]:
     run_dir = Path(out_dir) if out_dir is not None else Path("runs") / time.strftime("%Y%m%d-%H%M%S")
     if (run_dir / "last.pt").exists():
         raise ConfigError(f"{run_dir} already holds a run (last.pt); use --resume {run_dir} or another -o")
+    begun = [n for n in ("config.toml", "train.csv", "val.csv", "log.txt") if (run_dir / n).exists()]
+    if begun:   # a run that never saved a checkpoint: its files would be mixed with this one's
+        raise ConfigError(f"{run_dir} holds the start of another run ({', '.join(begun)}, no checkpoint); "
+                          "remove it or choose another -o")
     return cfg, run_dir
 
 
@@ -308,6 +314,9 @@ class _Session:
                      "val_scenes": info["val_scenes"], "loss": cfg["loss"]}
         self.files = self.handler = None
         self.total = int(cfg["optim"]["steps"])
+        if resume is not None and self.step >= self.total:
+            raise ConfigError(f"--resume {run_dir}: the run is at step {self.step} and optim.steps is {self.total}; "
+                              f"nothing to train (give optim.steps=N with N > {self.step} to train further)")
         self.t_train, self.n_seen, self.last_loss, self.val_row = 0.0, 0, float("nan"), None
 
     def _restore(self, ck: dict):
@@ -324,7 +333,7 @@ class _Session:
         """Rank 0: the resolved config, the CSV logs (cut back to the checkpoint), log.txt."""
         if self.writer:
             self.run_dir.mkdir(parents=True, exist_ok=True)
-            (self.run_dir / "config.toml").write_text(to_toml(self.cfg))
+            write_text(self.run_dir / "config.toml", to_toml(self.cfg))
             self.files = RunFiles(self.run_dir, self.step if resumed else None)
             self.handler = _attach_file_log(self.run_dir)
             log.info("%s run %s: %d training items (%d scenes), %d validation items, %d step(s)/epoch, world %d, "
@@ -414,7 +423,7 @@ class _Session:
                    "threads": torch.get_num_threads(), "wall_s_this_session": time.perf_counter() - self.t_start,
                    "cpu_s_total": self.cpu_s(), "train_items": info["train_items"], "val_items": info["val_items"],
                    "train_scenes": len(info["train_scenes"]), "val_scenes": info["val_scenes"]}
-        (run_dir / "metrics.json").write_text(json.dumps(summary, indent=1))
+        write_text(run_dir / "metrics.json", json.dumps(summary, indent=1))
         plot_metrics(run_dir)
         log.removeHandler(self.handler)
         self.handler.close()
@@ -435,6 +444,7 @@ def train(config=None, overrides=(), out_dir=None, *, resume=None, deterministic
     """
     rank, world, local_rank = _dist_env()
     cfg, run_dir = _open_run(config, overrides, out_dir, resume)
+    check_training_memory(cfg, arch_from_config(cfg["model"]), training_crop(cfg))   # before any allocation
     if deterministic is not None:
         cfg["run"]["deterministic"] = bool(deterministic)
     set_deterministic(cfg["run"]["deterministic"])
