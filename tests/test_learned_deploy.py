@@ -1,0 +1,139 @@
+"""Learned inference at deployment speed (issue 22): the numpy features and decoding agree with
+the torch ones the model was trained with, ONNX (onnxruntime) gives the torch orders, an ONNX
+model runs without torch, and batches of captures stream through one loaded model."""
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _torch_batch(method, s, prior, order_trad, valid, freqs):
+    """The torch batch the learned path built before issue 22 (float32 maps, one item)."""
+    import torch
+
+    from unwrap.learned import features as Fe
+
+    z = lambda a: torch.from_numpy(np.where(valid, np.nan_to_num(np.asarray(a, dtype=np.float64)), 0.0)  # noqa: E731
+                                   .astype(np.float32))[None, None]
+    return {"prior": z(prior), "phase_low": z(s["phase_low"]), "phase_high": z(s["phase_high"]),
+            "modulation_low": z(s["modulation_low"]), "modulation_high": z(s["modulation_high"]),
+            "order_traditional": torch.from_numpy(order_trad)[None], "valid": torch.from_numpy(valid)[None],
+            "frequency_low": torch.tensor([float(freqs[0])], dtype=torch.float64),
+            "frequency_high": torch.tensor([float(freqs[1])], dtype=torch.float64),
+            "method": torch.tensor([Fe.METHOD_INDEX[method]])}
+
+
+def _scene(method="mf", freqs=(1, 48), size=(120, 160), index=3):
+    from unwrap.learned.synthetic import synthetic_sample
+    from unwrap.pair_decode import traditional
+
+    s = synthetic_sample(index, size=size, method=method, frequencies=freqs)
+    valid = np.asarray(s["valid"], bool) & np.isfinite(s["phase_low"]) & np.isfinite(s["phase_high"])
+    prior, order_trad, valid = traditional(method, np.nan_to_num(s["phase_low"]), np.nan_to_num(s["phase_high"]),
+                                           *freqs, 912.0, valid)
+    return s, prior, order_trad, valid
+
+
+def _near_rounding_boundary(batch, ok, tol=1e-4):
+    """Pixels whose prior or smoothed priors sit within ``tol`` of a rounding boundary (float32 ties)."""
+    import torch
+
+    from unwrap.learned import features as Fe
+
+    near = np.zeros(ok.shape, bool)
+    priors = [batch["prior"].double()] + [Fe.smoothed_prior(batch, torch.from_numpy(ok)[None], w)[0].double()
+                                          for w in Fe.SMOOTH_WINDOWS]
+    for p in priors:
+        frac = (p - torch.floor(p)).numpy()[0, 0]
+        near |= np.abs(frac - 0.5) < tol
+    return near
+
+
+@pytest.mark.parametrize("method,freqs", [("mf", (1, 48)), ("mw", (47, 48)), ("nt", (47, 48))])
+def test_numpy_features_match_the_torch_features(method, freqs):
+    from unwrap.learned import fast_features as FF
+    from unwrap.learned import features as Fe
+
+    s, prior, order_trad, valid = _scene(method, freqs)
+    batch = _torch_batch(method, s, prior, order_trad, valid, freqs)
+    for kind in ("physics", "prior_free"):
+        x_old, ok_old = Fe.make_inputs(batch, kind)
+        x_new, ok_new = FF.make_inputs(kind, method, prior, s["phase_low"], s["phase_high"], s["modulation_low"],
+                                       s["modulation_high"], order_trad, valid, freqs)
+        assert x_new.dtype == np.float32 and x_new.shape == tuple(x_old.shape)
+        assert np.array_equal(ok_new, ok_old[0].numpy())
+        diff = np.abs(x_new - x_old.numpy())
+        # channels 1-4 (smoothed priors) may flip only where a smoothed prior is a float32 tie
+        near = _near_rounding_boundary(batch, ok_new) if kind == "physics" else np.zeros_like(ok_new)
+        for c in range(x_new.shape[1]):
+            bad = (diff[0, c] > 2e-5) & ~near
+            assert not bad.any(), (kind, c, int(bad.sum()), float(diff[0, c].max()))
+
+
+def test_numpy_plane_filter_matches_torch_smoothing():
+    import torch
+
+    from unwrap.learned.fast_features import plane_filter
+    from unwrap.learned.smoothing import smooth_phase
+
+    rng = np.random.default_rng(1)
+    H, W = 70, 90
+    y, x = np.mgrid[0:H, 0:W].astype(float)
+    Phi = 0.03 * x - 0.02 * y + 0.1 * np.sin(x / 7) + rng.normal(0, 0.05, (H, W))
+    valid = (rng.random((H, W)) > 0.2) & ((x - 40) ** 2 + (y - 30) ** 2 < 900)
+    new = plane_filter(Phi, valid, (7, 15))
+    for fit in ("plane", "mean"):
+        got = plane_filter(Phi, valid, (7, 15), fit)
+        for w in (7, 15):
+            ref = smooth_phase(torch.from_numpy(Phi)[None, None], torch.from_numpy(valid)[None, None], w, fit)
+            np.testing.assert_allclose(got[w], ref[0, 0].numpy(), rtol=0, atol=1e-9)
+    assert np.allclose(new[7][valid], plane_filter(Phi, valid, (7,))[7][valid])
+
+
+def test_learned_orders_identical_to_the_torch_path_on_a_fixed_scene():
+    """The shipped model: the new path (numpy features, inference mode) gives the old path's
+    orders (torch features + torch decode) on every valid pixel, save float32 ties (counted)."""
+    from unwrap.learned.infer import predict, resolve_model, unwrap_learned
+
+    net, ck = resolve_model("learned")
+    for index in (0, 5):
+        s, prior, order_trad, valid = _scene("mf", (1, 48), size=(160, 224), index=index)
+        batch = _torch_batch("mf", s, prior, order_trad, valid, (1, 48))
+        old, conf_old = predict(net, ck, batch)
+        r = unwrap_learned("mf", s["phase_low"], s["phase_high"], s["modulation_low"], s["modulation_high"],
+                           s["valid"], (1, 48), width=912, model="learned", on_outside="ignore")
+        old = old[0].numpy()
+        differ = r.order != old
+        near = _near_rounding_boundary(batch, r.valid)
+        assert int((differ & ~near).sum()) == 0, int(differ.sum())
+        assert int(differ.sum()) <= max(2, int(near.sum()))
+        np.testing.assert_allclose(r.confidence[~differ], conf_old[0].numpy()[~differ], atol=2e-4)
+
+
+@pytest.mark.parametrize("method,freqs", [("mf", (1, 48)), ("mw", (47, 48))])
+def test_filtered_baseline_orders_unchanged(method, freqs):
+    """The filtered 15x15 baseline (numpy box filters now) gives the torch smoothing's orders."""
+    import torch
+
+    from unwrap._xp import round_order
+    from unwrap.learned.baselines import filtered_order
+    from unwrap.learned.smoothing import smoothed_prior
+
+    s, _, _, valid = _scene(method, freqs, size=(160, 200), index=2)
+    for fit in ("plane", "mean"):
+        got = filtered_order(method, s["phase_low"], s["phase_high"], freqs, valid, window=15, fit=fit, width=912)
+        t = lambda a: torch.from_numpy(np.where(valid, np.nan_to_num(a), 0.0))[None, None]  # noqa: E731
+        one = lambda f: torch.full((1, 1, 1, 1), float(f), dtype=torch.float64)  # noqa: E731
+        p, _ = smoothed_prior(t(s["phase_low"]), t(s["phase_high"]), one(freqs[0]), one(freqs[1]),
+                              torch.tensor(method == "mf").reshape(1, 1, 1, 1), torch.from_numpy(valid)[None, None],
+                              window=15, fit=fit, width=912)
+        p = p[0, 0].numpy()
+        ref = np.where(valid, np.clip(round_order(p), 0, round(freqs[1])), -1)
+        tie = np.abs(p - np.floor(p) - 0.5) < 1e-6
+        assert ((got != ref) & ~tie).sum() == 0 and (got >= 0).sum() > 1000
