@@ -108,6 +108,7 @@ def files(tmp_path_factory):
     bad.mkdir()
     (bad / "empty.xml").write_text("")
     (bad / "corrupt.pt").write_text("not a torch checkpoint")
+    (bad / "corrupt.onnx").write_text("not an onnx model")
     (bad / "train_unknown_key.toml").write_text("[optim]\nstpes = 10\n")
     (bad / "empty.yml").write_text("")
     (bad / "truncated.xml").write_text('<?xml version="1.0"?>\n<opencv_storage>\n<Kc type_id="opencv-matrix">\n'
@@ -283,6 +284,11 @@ CASES = [
     ("unwrap-model-gray", "unwrap {cap}/good --model learned --method gray -o {out}", "--method"),
     ("unwrap-model-max-error-rate", "unwrap {cap}/good --model learned --max-error-rate 1e-3 -o {out}",
      "--max-error-rate"),
+    # calib export-model / unwrap --model model.onnx (issue 22)
+    ("export-model-corrupt", "export-model {bad}/corrupt.pt -o {out}.onnx", "corrupt.pt"),
+    ("export-model-not-onnx", "export-model learned -o {out}.pt", ".onnx"),
+    ("unwrap-model-onnx-missing", "unwrap {cap}/good --model {bad}/nowhere.onnx -o {out}", "nowhere.onnx"),
+    ("unwrap-model-onnx-foreign", "unwrap {cap}/good --model {bad}/corrupt.onnx -o {out}", "corrupt.onnx"),
 ]
 
 

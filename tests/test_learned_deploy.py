@@ -137,3 +137,63 @@ def test_filtered_baseline_orders_unchanged(method, freqs):
         ref = np.where(valid, np.clip(round_order(p), 0, round(freqs[1])), -1)
         tie = np.abs(p - np.floor(p) - 0.5) < 1e-6
         assert ((got != ref) & ~tie).sum() == 0 and (got >= 0).sum() > 1000
+
+
+@pytest.fixture(scope="module")
+def onnx_model(tmp_path_factory):
+    from sltwin.cli import main
+
+    out = tmp_path_factory.mktemp("onnx") / "model.onnx"
+    assert main(["export-model", "learned", "-o", str(out), "-q"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    from bench.fringe_capture import write_capture
+
+    return write_capture(tmp_path_factory.mktemp("cap") / "scene", size=(320, 240), seed=4)
+
+
+def test_onnxruntime_gives_the_torch_orders_on_every_valid_pixel_of_a_capture(onnx_model, capture):
+    from unwrap.learned.capture import unwrap_capture_learned
+    from unwrap.learned.runtime import OnnxPredictor, load_predictor
+
+    pred = load_predictor(onnx_model)
+    assert isinstance(pred, OnnxPredictor) and pred.arch == load_predictor("learned").arch
+    assert load_predictor(onnx_model) is pred                     # loaded once per process
+    via_torch = unwrap_capture_learned(capture, "mf", "learned")
+    via_ort = unwrap_capture_learned(capture, "mf", onnx_model)
+    for o in ("v", "h"):
+        a, b = via_torch[o], via_ort[o]
+        assert np.array_equal(a.result.valid, b.result.valid) and a.result.valid.sum() > 50000
+        differ = (a.result.order != b.result.order) & a.result.valid
+        # a differing pixel is only acceptable where the two most probable corrections tie in float32
+        conf_t = a.extras["confidence"]
+        assert int(differ.sum()) == 0 or bool((conf_t[differ] < 0.5 + 1e-4).all()), int(differ.sum())
+        np.testing.assert_allclose(a.extras["confidence"], b.extras["confidence"], atol=1e-4)
+
+
+def test_calib_unwrap_with_an_onnx_model_never_imports_torch(onnx_model, capture, tmp_path):
+    code = ("import sys\nfrom sltwin.cli import main\n"
+            f"rc = main(['unwrap', {str(capture)!r}, '--model', {str(onnx_model)!r}, '-o', {str(tmp_path / 'o')!r}, "
+            "'--no-previews', '-q'])\n"
+            "assert rc == 0, rc\nassert 'torch' not in sys.modules, 'torch was imported'\nprint('ok')\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=600,
+                          env={**__import__("os").environ, "PYTHONPATH": str(ROOT)})
+    assert proc.returncode == 0 and proc.stdout.strip().endswith("ok"), proc.stderr[-2000:]
+    import h5py
+    with h5py.File(tmp_path / "o" / "unwrap.h5") as f:
+        assert "confidence" in f["v"] and "order_traditional" in f["h"]
+
+
+def test_onnx_path_keeps_the_hardening(onnx_model, capture, tmp_path):
+    """The frequency checks and the prior check run on the ONNX path as on the torch path."""
+    from unwrap.learned.errors import ModelError
+    from unwrap.learned.infer import unwrap_learned
+    from unwrap.learned.synthetic import synthetic_sample
+
+    s = synthetic_sample(0, size=(48, 64), method="mf", frequencies=(1, 400))
+    with pytest.raises(ModelError, match="frequency ratio 400"):
+        unwrap_learned("mf", s["phase_low"], s["phase_high"], s["modulation_low"], s["modulation_high"], s["valid"],
+                       (1, 400), width=912, model=onnx_model)
