@@ -197,3 +197,35 @@ def test_onnx_path_keeps_the_hardening(onnx_model, capture, tmp_path):
     with pytest.raises(ModelError, match="frequency ratio 400"):
         unwrap_learned("mf", s["phase_low"], s["phase_high"], s["modulation_low"], s["modulation_high"], s["valid"],
                        (1, 400), width=912, model=onnx_model)
+
+
+@pytest.mark.parametrize("learned", [False, True])
+def test_a_folder_of_captures_streams_with_one_model_and_a_summary(onnx_model, capture, tmp_path, capsys, learned):
+    import shutil
+
+    import h5py
+
+    from sltwin.cli import main
+    from unwrap.pipeline import unwrap_capture
+
+    batch = tmp_path / "batch"
+    for name in ("a", "b"):
+        shutil.copytree(capture, batch / name)
+    (batch / "c_broken").mkdir()
+    (batch / "c_broken" / "capture.toml").write_text("[pattern]\n")
+    model = ["--model", str(onnx_model)] if learned else []
+    rc = main(["unwrap", str(batch), *model, "-o", str(tmp_path / "out"), "--no-previews"])
+    cap = capsys.readouterr()
+    assert rc == 2 and "c_broken" in cap.err and "2 of 3 captures unwrapped" in cap.out
+    assert "capture/s" in cap.err                                              # the progress bar
+    single = unwrap_capture(capture) if not learned else None
+    for name in ("a", "b"):
+        with h5py.File(tmp_path / "out" / name / "unwrap.h5") as f:
+            assert ("confidence" in f["v"]) == learned
+            if single is not None:
+                assert np.array_equal(f["v"]["order"][()], single["v"].result.order)
+    assert not (tmp_path / "out" / "c_broken").exists()
+    # a list of captures works the same, and all good is exit 0
+    assert main(["unwrap", str(batch / "a"), str(batch / "b"), *model, "-o", str(tmp_path / "out2"),
+                 "--no-previews", "-q"]) == 0
+    assert (tmp_path / "out2" / "b" / "unwrap.h5").is_file()
