@@ -96,7 +96,13 @@ class _Model:
     def device(self, p, d):
         K = [[p[f"{d}.fx"], p[f"{d}.skew"], p[f"{d}.cx"]], [0.0, p[f"{d}.fy"], p[f"{d}.cy"]], [0.0, 0.0, 1.0]]
         dist = [p[f"{d}.{n}"] for n in DISTORTION[:len(self.state.dist[d])]]
-        return DeviceModel(size=self.obs.sizes[d], K=K, distortion=dist, kind=d)
+        key = (d, tuple(K[0]), tuple(K[1]), tuple(dist))
+        cache = self.__dict__.setdefault("_devices", {})
+        if key not in cache:                 # a pose's differences keep the devices: built once
+            if len(cache) > 8:
+                cache.clear()
+            cache[key] = DeviceModel(size=self.obs.sizes[d], K=K, distortion=dist, kind=d)
+        return cache[key]
 
     def pose(self, p, name):
         R0 = self.state.poses[name][0]
@@ -105,20 +111,28 @@ class _Model:
 
     def residuals(self, p, transfer: bool, views=None) -> np.ndarray:
         """(P, 2) residuals divided by each point's sigma, in the order of :func:`point_order`
-        (``views``: only those views' points, in the same order)."""
+        (``views``: only those views' points, in the same order). All views' points are projected
+        by one call per device."""
         cam, prj = self.device(p, "camera"), self.device(p, "projector")
         R_pc, t_pc = self.pose(p, "prj_cam")
-        out = []
-        for i, v in enumerate(self.obs.views):
-            if views is not None and i not in views:
-                continue
+        sel = [i for i in range(len(self.obs.views)) if views is None or i in views]
+        X_cam = []
+        for i in sel:
+            v = self.obs.views[i]
             R, t = self.pose(p, f"cam_board/{i}")
             X = v.points_board.copy()
             xn, yn = (X[:, 0] - self.mid[0]) / self.half[0], (X[:, 1] - self.mid[1]) / self.half[1]
             X[:, 2] += p["board_warp.cx"] * (1 - xn ** 2) + p["board_warp.cy"] * (1 - yn ** 2)
-            X_cam = X @ R.T + t
-            r_cam = cam.project_device(X_cam) - v.q.get("camera", np.nan)
-            r_prj = prj.project_device(X_cam @ R_pc.T + t_pc) - v.q.get("projector", np.nan)
+            X_cam.append(X @ R.T + t)
+        ends = np.cumsum([len(X) for X in X_cam])
+        allX = np.concatenate(X_cam)
+        q_cam = np.split(cam.project_device(allX), ends[:-1])
+        q_prj = np.split(prj.project_device(allX @ R_pc.T + t_pc), ends[:-1])
+        out = []
+        for i, qc, qp in zip(sel, q_cam, q_prj):
+            v = self.obs.views[i]
+            r_cam = qc - v.q.get("camera", np.nan)
+            r_prj = qp - v.q.get("projector", np.nan)
             if transfer and v.dprj_dcam is not None:
                 link = v.seen("camera") & np.all(np.isfinite(v.dprj_dcam), axis=(1, 2))
                 moved = np.einsum("kij,kj->ki", np.nan_to_num(v.dprj_dcam), np.nan_to_num(r_cam))
