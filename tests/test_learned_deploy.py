@@ -229,3 +229,18 @@ def test_a_folder_of_captures_streams_with_one_model_and_a_summary(onnx_model, c
     assert main(["unwrap", str(batch / "a"), str(batch / "b"), *model, "-o", str(tmp_path / "out2"),
                  "--no-previews", "-q"]) == 0
     assert (tmp_path / "out2" / "b" / "unwrap.h5").is_file()
+
+
+def test_plane_filter_numba_kernel_and_numpy_box_sums_agree(monkeypatch):
+    from unwrap.learned import fast_features as FF
+
+    rng = np.random.default_rng(7)
+    y, x = np.mgrid[0:50, 0:61].astype(float)
+    Phi = 0.05 * x + 0.01 * y + rng.normal(0, 0.1, x.shape)
+    valid = rng.random(x.shape) > 0.3
+    valid[:, :3] = False
+    fast = FF.plane_filter(Phi, valid, (7, 15))
+    monkeypatch.setattr(FF, "_kernel", lambda: None)
+    slow = FF.plane_filter(Phi, valid, (7, 15))
+    for w in (7, 15):
+        np.testing.assert_allclose(fast[w], slow[w], rtol=0, atol=1e-9)

@@ -5,16 +5,17 @@ The same quantities as :func:`unwrap.learned.features.make_inputs` / :func:`~unw
 (channel table there), computed in one pass:
 
 - the local plane fits of the coarse phase at both boxes (:data:`features.SMOOTH_WINDOWS`, 7 and
-  15 px) share one product stack (valid, phase, and their x / y / x^2 / y^2 / xy moments: 9
-  float64 planes) and each box is one unnormalised separable box filter of that stack
-  (``cv2.boxFilter``, running sums: O(1) per pixel whatever the box, zeros outside the image as
-  the torch cumulative sums); the plane is solved per pixel by Cramer's rule as in
-  :func:`unwrap.learned.smoothing.smooth_phase`;
+  15 px): with numba, one compiled kernel per box (:mod:`unwrap.learned._plane_kernel`: two
+  separable passes, moments about each box's centre, the plane solved in the same pass); without
+  it, both boxes share one product stack (valid, phase, and their x / y / x^2 / y^2 / xy moments:
+  9 float64 planes) filtered by unnormalised separable box filters (``cv2.boxFilter``, running
+  sums, zeros outside the image as the torch cumulative sums). Either way the plane is solved by
+  Cramer's rule with :func:`unwrap.learned.smoothing.smooth_phase`'s conditioning rule;
 - every other channel is elementwise float32, in the order and precision of the torch code (the
   phases are rounded to float32 before the float64 plane fit, as the torch batch holds them).
 
-The result agrees with the torch features within float rounding (box sums accumulated in
-another order: ~1e-12 rad on the filtered phase); an order can differ only where a smoothed
+The result agrees with the torch features within float rounding (sums accumulated in another
+order: ~1e-12 rad on the filtered phase); an order can differ only where a smoothed
 prior sits within that rounding of a rounding boundary (a float32 tie; counted by the tests).
 
 Shapes: phases / modulations (H, W); inputs (1, C, H, W) float32 C-contiguous; logits
@@ -64,11 +65,17 @@ def plane_filter(Phi: np.ndarray, valid: np.ndarray, windows=SMOOTH_WINDOWS, fit
     """{window: filtered ``Phi`` (H, W) float64} over the valid pixels of each box; invalid pixels
     keep ``Phi``. ``fit``: "plane" (local least-squares plane at the pixel; the box mean where the
     box has < 3 valid pixels or they are collinear) or "mean" (masked box mean).
-    Same algorithm and conditioning rule as :func:`unwrap.learned.smoothing.smooth_phase`."""
+    Same algorithm and conditioning rule as :func:`unwrap.learned.smoothing.smooth_phase`; with
+    numba, the plane runs as one compiled kernel (:mod:`unwrap.learned._plane_kernel`), else as
+    box sums of a product stack here."""
     if fit not in ("plane", "mean"):
         raise ValueError(f"fit {fit!r}: expected 'plane' or 'mean'")
     H, W = Phi.shape
     Phi = np.asarray(Phi, dtype=np.float64)
+    kernel = _kernel() if fit == "plane" else None
+    if kernel is not None:
+        ok = np.ascontiguousarray(valid, dtype=bool)
+        return {int(w) | 1: kernel(np.ascontiguousarray(Phi), ok, (int(w) | 1) // 2) for w in windows}
     v = np.asarray(valid, dtype=bool).astype(np.float64)
     P = np.where(v > 0, Phi, 0.0)
     if fit == "mean":
@@ -102,6 +109,15 @@ def plane_filter(Phi: np.ndarray, valid: np.ndarray, windows=SMOOTH_WINDOWS, fit
         plane = np.where(well, num / np.where(well, det, 1.0), mean)
         out[win] = np.where(v > 0, plane, Phi)
     return out
+
+
+def _kernel():
+    """The numba plane filter (:mod:`unwrap.learned._plane_kernel`), or None without numba."""
+    try:
+        from ._plane_kernel import plane_filter_kernel
+    except ImportError:
+        return None
+    return plane_filter_kernel
 
 
 def coarse_phase(method: str, phi_l: np.ndarray, phi_h: np.ndarray, f_l: float, f_h: float, width=None):

@@ -1,0 +1,239 @@
+"""What accuracy costs in time at deployment (issue 22): every row of the issue's table beside its
+anchor, measured in the same run.
+
+    python -m bench.deploy_speed [--repeats 3] [--views 100] [--baseline DIR] [--quick]
+
+Rows (times are minima over ``repeats``; the machine is shared, so read the ratios to the anchors):
+
+- ``calib run --observations`` on the paper's 9 real views (../shared/data/dp-tpu) and on a
+  simulated ``--views``-view joint session (bench.ba_scale's): wall time of the whole command
+  (a fresh process: start-up, imports, figures included), its peak resident memory, and the solve
+  time it reports; anchor: mrcal's ``optimize`` on the same number of simulated views (single
+  camera, bench.ba_scale's comparison) and our solve in the same process.
+- the learned path on one 640 x 480 orientation, MF (1, 48), 12 steps: input features, network
+  forward (torch under inference mode, and onnxruntime on the exported model), the whole path
+  (traditional prior + features + network + decode) on each runtime, and the filtered 15 x 15
+  baseline; anchor: the traditional decode from the frames and from the wrapped phases.
+- ``calib unwrap --model`` on a 900 x 700 capture (bench.fringe_capture; both orientations,
+  1/8/48 periods, 12 steps, previews written): wall time and peak memory of the command with the
+  shipped torch model and with its ONNX export; anchor: the traditional ``calib unwrap`` on it.
+- a batch of captures (``calib unwrap FOLDER``): captures/s, learned (ONNX) and traditional.
+
+``--baseline DIR``: an older checkout (``git archive REV | tar -x -C DIR``) run on the same inputs
+in the same run for the command-line rows and the learned rows its code has (its
+``unwrap.learned.evaluate.speed_table``): the before / after columns.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+DP_TPU = ROOT.parent / "shared" / "data" / "dp-tpu"
+# peak memory from /proc/self/status VmHWM: ru_maxrss would carry the parent's peak across fork + exec
+_RUNNER = ("import re, sys\nfrom sltwin.cli import main\nrc = main(sys.argv[1:])\n"
+           "hwm = re.search(r'VmHWM:\\s+(\\d+)', open('/proc/self/status').read())\n"
+           "sys.stderr.write('\\nPEAK_KB %s\\n' % (hwm.group(1) if hwm else 'nan'))\n"
+           "sys.exit(rc)\n")
+
+
+def run_cli(args, root: Path, repeats: int) -> dict:
+    """Wall seconds (min over repeats) and peak MB (max) of ``calib ARGS`` in a fresh process with
+    ``root`` first on the path."""
+    env = dict(os.environ, PYTHONPATH=str(root))
+    walls, peaks, err = [], [], None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        p = subprocess.run([sys.executable, "-c", _RUNNER, *map(str, args)], capture_output=True, text=True,
+                           env=env, cwd=root, timeout=3600)
+        walls.append(time.perf_counter() - t0)
+        kb = [float(line.split()[1]) for line in p.stderr.splitlines() if line.startswith("PEAK_KB")]
+        peaks.append(kb[-1] / 1024 if kb else float("nan"))
+        if p.returncode != 0:
+            err = (p.stderr.strip().splitlines() or [f"exit {p.returncode}"])[-1]
+    return {"wall_s": min(walls), "peak_mb": max(peaks), "error": err}
+
+
+def _best(fn, repeats: int) -> float:
+    fn()
+    best = float("inf")
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t)
+    return best * 1e3
+
+
+def learned_rows(onnx_path: Path, repeats: int) -> dict:
+    """Milliseconds of the learned path's parts on one 640 x 480 orientation (module docstring)."""
+    import numpy as np
+
+    from unwrap.fused_mf import mf_unwrap_stacks
+    from unwrap.learned import fast_features as FF
+    from unwrap.learned.baselines import filtered_order
+    from unwrap.learned.infer import unwrap_learned
+    from unwrap.learned.runtime import load_predictor
+    from unwrap.pair_decode import traditional
+    from unwrap.patterns import fringe_intensity
+    from unwrap.phase_shift import wrapped_phase
+    from unwrap.temporal import mf_unwrap
+
+    H, W = 480, 640
+    rng = np.random.default_rng(0)
+    u = np.tile(np.linspace(100, 800, W), (H, 1)) + rng.normal(0, 0.2, (H, W))
+    Phi = {f: 2 * np.pi * f * u / 912 for f in (1, 48)}
+    stacks = [np.clip(np.rint(255 * np.stack([fringe_intensity(Phi[f], n, 12, 0.5, 0.35) for n in range(12)])
+                              + rng.normal(0, 2, (12, H, W))), 0, 255).astype(np.uint8) for f in (1, 48)]
+    ws = [wrapped_phase(s) for s in stacks]
+    phi = [np.nan_to_num(w.phase) for w in ws]
+    mods = [w.B / 255.0 for w in ws]
+    valid = ws[0].valid & ws[1].valid
+    torch_pred, ort_pred = load_predictor("learned"), load_predictor(onnx_path)
+    prior, trad, ok = traditional("mf", phi[0], phi[1], 1.0, 48.0, 912.0, valid)
+    x, _ = FF.make_inputs("physics", "mf", prior, phi[0], phi[1], mods[0], mods[1], trad, ok, (1, 48))
+    import torch
+
+    out = {"threads_torch": torch.get_num_threads(), "providers_ort": ",".join(ort_pred.providers)}
+    out["traditional_from_frames_ms"] = _best(lambda: mf_unwrap_stacks(stacks, (1, 48), width=912), repeats)
+    out["traditional_from_phases_ms"] = _best(lambda: mf_unwrap(phi, (1, 48), width=912, valid=valid), repeats)
+    out["filtered_ms"] = _best(lambda: filtered_order("mf", phi[0], phi[1], (1, 48), valid, width=912), repeats)
+    out["features_ms"] = _best(lambda: FF.make_inputs("physics", "mf", prior, phi[0], phi[1], mods[0], mods[1], trad,
+                                                      ok, (1, 48)), repeats)
+    out["forward_torch_ms"] = _best(lambda: torch_pred.logits(x), repeats)
+    out["forward_ort_ms"] = _best(lambda: ort_pred.logits(x), repeats)
+    for name, model in (("torch", torch_pred), ("ort", ort_pred)):
+        out[f"whole_{name}_ms"] = _best(lambda m=model: unwrap_learned("mf", phi[0], phi[1], mods[0], mods[1], valid,
+                                                                       (1, 48), width=912, model=m,
+                                                                       on_outside="ignore"), repeats)
+    return out
+
+
+_OLD_LEARNED = ("import json, sys\nfrom unwrap.learned.evaluate import speed_table\n"
+                "from unwrap.learned.infer import shipped_model_path\n"
+                "print(json.dumps(speed_table(shipped_model_path(), repeats=int(sys.argv[1]))))\n")
+
+
+def baseline_learned(root: Path, repeats: int) -> dict:
+    """The older checkout's own learned speed table (its code: torch features, no ONNX)."""
+    p = subprocess.run([sys.executable, "-c", _OLD_LEARNED, str(repeats)], capture_output=True, text=True,
+                       env=dict(os.environ, PYTHONPATH=str(root)), cwd=root, timeout=3600)
+    return json.loads(p.stdout.strip().splitlines()[-1]) if p.returncode == 0 else {}
+
+
+def mrcal_anchor(views: int, repeats: int) -> dict:
+    """bench.ba_scale's single-camera comparison on ``views`` simulated views: our solve and mrcal's."""
+    from bench.ba_scale import _run_child
+
+    r = _run_child([views, "single", 5, repeats, 1], str(ROOT))
+    j = _run_child([views, "joint", 5, repeats, 0], str(ROOT))
+    return {"ours_single_s": r.get("solve_s"), "mrcal_single_s": r.get("mrcal_s"), "ours_joint_s": j.get("solve_s")}
+
+
+def _fmt(v, spec=".3g"):
+    return "-" if v is None or v != v else format(v, spec)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--views", type=int, default=100, help="views of the simulated joint session")
+    ap.add_argument("--captures", type=int, default=4, help="captures in the batch row")
+    ap.add_argument("--baseline", help="an older checkout to run beside (before / after columns)")
+    ap.add_argument("--quick", action="store_true", help="1 repeat, 20 views, a 450 x 350 capture, batch of 2")
+    args = ap.parse_args(argv)
+    size = (900, 700)
+    if args.quick:
+        args.repeats, args.views, args.captures, size = 1, 20, 2, (450, 350)
+    base = Path(args.baseline).resolve() if args.baseline else None
+    print(f"machine: {os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.1f} at start (shared: read the "
+          f"ratios); minimum of {args.repeats} run(s)\n")
+    with tempfile.TemporaryDirectory(prefix="deploy_speed_") as tmp:
+        tmp = Path(tmp)
+        from bench.ba_scale import _simulate
+        from bench.fringe_capture import write_capture
+        from calib.observations import write_observations_json
+        from unwrap.learned.runtime import export_onnx
+
+        obs_json = write_observations_json(_simulate(args.views), tmp / f"obs{args.views}.json")
+        onnx_path = export_onnx("learned", tmp / "model.onnx")
+        cap = write_capture(tmp / "caps" / "c0", size, seed=0)
+        for i in range(1, args.captures):
+            write_capture(tmp / "caps" / f"c{i}", size, seed=i)
+        roots = [("after", ROOT)] + ([("before", base)] if base else [])
+        rows = []
+
+        def cli(label, argv, out_name):
+            for tag, root in roots:
+                out = tmp / f"{out_name}_{tag}"
+                r = run_cli([*argv, "-o", out], root, args.repeats)
+                solve = None
+                if (out / "calibration.json").is_file():
+                    solve = json.loads((out / "calibration.json").read_text())["timings_s"].get("solve_s")
+                rows.append((f"{label} [{tag}]", r["wall_s"], r["peak_mb"], solve, r["error"]))
+
+        paper = [DP_TPU / "CamCalibResult_real.mat", DP_TPU / "PrjCalibResult_real.mat"]
+        if all(p.is_file() for p in paper):
+            cli("calib run --observations, paper's 9 views", ["run", "--observations", *paper, "-q"], "run9")
+        cli(f"calib run, {args.views}-view joint session", ["run", "--observations", obs_json, "-q"],
+            f"run{args.views}")
+        anchors = {v: mrcal_anchor(v, args.repeats) for v in (9, args.views)}
+        W, H = size
+        cli(f"calib unwrap (traditional), {W}x{H}", ["unwrap", cap], "trad")
+        cli(f"calib unwrap --model learned (torch), {W}x{H}", ["unwrap", cap, "--model", "learned"], "torch")
+        rows_onnx = [("after", ROOT)]
+        for tag, root in rows_onnx:
+            r = run_cli(["unwrap", cap, "--model", onnx_path, "-o", tmp / "onnx"], root, args.repeats)
+            rows.append((f"calib unwrap --model model.onnx (onnxruntime), {W}x{H} [{tag}]", r["wall_s"], r["peak_mb"],
+                         None, r["error"]))
+        print("## Command line (fresh process each)\n")
+        print("| command | wall s | peak MB | solve s (its own) | error |\n|---|---:|---:|---:|---|")
+        for name, w, pk, s, e in rows:
+            print(f"| {name} | {_fmt(w)} | {_fmt(pk, '.0f')} | {_fmt(s)} | {e or ''} |")
+        print("\n## Solve anchors (bench.ba_scale, simulated views, same run)\n")
+        print("| views | ours joint solve s | ours single-camera solve s | mrcal single-camera s |\n|---:|---:|---:|---:|")
+        for v, a in anchors.items():
+            print(f"| {v} | {_fmt(a['ours_joint_s'])} | {_fmt(a['ours_single_s'])} | {_fmt(a['mrcal_single_s'])} |")
+
+        batch = []
+        for label, extra in (("traditional", []), ("learned, onnxruntime", ["--model", onnx_path]),
+                             ("learned, torch", ["--model", "learned"])):
+            r = run_cli(["unwrap", tmp / "caps", *extra, "-o", tmp / f"batch_{len(batch)}", "-q", "--no-previews"],
+                        ROOT, 1)
+            batch.append((label, r))
+        print(f"\n## Batch: calib unwrap over a folder of {args.captures} captures {W}x{H} (one process, "
+              "no previews; wall includes start-up)\n")
+        print("| decode | wall s | captures/s | peak MB |\n|---|---:|---:|---:|")
+        for label, r in batch:
+            print(f"| {label} | {_fmt(r['wall_s'])} | {_fmt(args.captures / r['wall_s'])} | {_fmt(r['peak_mb'], '.0f')} |"
+                  + (f" error: {r['error']}" if r["error"] else ""))
+
+        lr = learned_rows(onnx_path, max(args.repeats, 3))
+        old = baseline_learned(base, max(args.repeats, 3)) if base else {}
+        anchor = lr["traditional_from_frames_ms"]
+        print(f"\n## Learned path, one 640x480 orientation, MF (1, 48), 12 steps (torch threads {lr['threads_torch']}, "
+              f"onnxruntime {lr['providers_ort']}; minimum of {max(args.repeats, 3)} calls)\n")
+        print("| part | ms | x traditional (frames) | before ms (baseline's code) |\n|---|---:|---:|---:|")
+        for key, name, okey in (("traditional_from_frames_ms", "traditional TPU from frames (anchor)",
+                                 "traditional_from_frames_ms"),
+                                ("traditional_from_phases_ms", "traditional TPU from phases", "traditional_from_phases_ms"),
+                                ("filtered_ms", "filtered 15x15 baseline", "filtered_ms"),
+                                ("features_ms", "input features (both plane fits, all channels)", None),
+                                ("forward_torch_ms", "network forward, torch", "network_forward_ms"),
+                                ("forward_ort_ms", "network forward, onnxruntime", None),
+                                ("whole_torch_ms", "whole learned path, torch", "learned_total_ms"),
+                                ("whole_ort_ms", "whole learned path, onnxruntime", None)):
+            print(f"| {name} | {lr[key]:.1f} | {lr[key] / anchor:.1f} | {_fmt(old.get(okey) if okey else None, '.1f')} |")
+        print(f"\nwhole path / forward: torch {lr['whole_torch_ms'] / lr['forward_torch_ms']:.2f}x, onnxruntime "
+              f"{lr['whole_ort_ms'] / lr['forward_ort_ms']:.2f}x; onnxruntime / torch forward "
+              f"{lr['forward_ort_ms'] / lr['forward_torch_ms']:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
