@@ -150,7 +150,7 @@ def onnx_model(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def capture(tmp_path_factory):
-    from bench.fringe_capture import write_capture
+    from bench.deploy_speed import write_capture
 
     return write_capture(tmp_path_factory.mktemp("cap") / "scene", size=(320, 240), seed=4)
 
