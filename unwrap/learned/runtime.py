@@ -90,6 +90,7 @@ class OnnxPredictor:
             providers = [p for p in ("CUDAExecutionProvider", "CPUExecutionProvider") if p in avail]
         opts = ort.SessionOptions()
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        opts.enable_cpu_mem_arena = False     # activations freed after each frame: the peak stays one forward's
         try:
             self.session = ort.InferenceSession(str(path), sess_options=opts, providers=providers)
         except Exception as exc:      # onnxruntime's own error types (InvalidProtobuf, Fail, ...)
