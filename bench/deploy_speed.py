@@ -117,28 +117,16 @@ def _best(fn, repeats: int) -> float:
 
 def learned_rows(onnx_path: Path, repeats: int) -> dict:
     """Milliseconds of the learned path's parts on one 640 x 480 orientation (module docstring)."""
-    import numpy as np
-
     from unwrap.fused_mf import mf_unwrap_stacks
     from unwrap.learned import fast_features as FF
     from unwrap.learned.baselines import filtered_order
+    from unwrap.learned.evaluate import speed_scene
     from unwrap.learned.infer import unwrap_learned
     from unwrap.learned.runtime import load_predictor
     from unwrap.pair_decode import traditional
-    from unwrap.patterns import fringe_intensity
-    from unwrap.phase_shift import wrapped_phase
     from unwrap.temporal import mf_unwrap
 
-    H, W = 480, 640
-    rng = np.random.default_rng(0)
-    u = np.tile(np.linspace(100, 800, W), (H, 1)) + rng.normal(0, 0.2, (H, W))
-    Phi = {f: 2 * np.pi * f * u / 912 for f in (1, 48)}
-    stacks = [np.clip(np.rint(255 * np.stack([fringe_intensity(Phi[f], n, 12, 0.5, 0.35) for n in range(12)])
-                              + rng.normal(0, 2, (12, H, W))), 0, 255).astype(np.uint8) for f in (1, 48)]
-    ws = [wrapped_phase(s) for s in stacks]
-    phi = [np.nan_to_num(w.phase) for w in ws]
-    mods = [w.B / 255.0 for w in ws]
-    valid = ws[0].valid & ws[1].valid
+    stacks, phi, mods, valid = speed_scene((480, 640))
     torch_pred, ort_pred = load_predictor("learned"), load_predictor(onnx_path)
     prior, trad, ok = traditional("mf", phi[0], phi[1], 1.0, 48.0, 912.0, valid)
     x, _ = FF.make_inputs("physics", "mf", prior, phi[0], phi[1], mods[0], mods[1], trad, ok, (1, 48))
