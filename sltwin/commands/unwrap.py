@@ -141,6 +141,7 @@ def run_batch(args, folders, decode) -> int:
         if item.error is None and not args.quiet:
             valid = ", ".join(f"{o} valid {100 * r.result.valid.mean():.1f} %" for o, r in item.result[0].items())
             print(f"{item.folder}: {valid}; wrote {item.result[1]} ({item.seconds:.2f} s)")
+        item.result = None              # streamed: a capture's maps are not kept once written
     print(summary(items, time.perf_counter() - t0))
     failed = [i for i in items if i.error is not None]
     if failed:
