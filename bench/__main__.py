@@ -9,8 +9,8 @@ from __future__ import annotations
 import sys
 import time
 
-from . import (ba_scale, calib_accuracy, calib_captures, detect_accuracy, export_speed, gi_bias, learned_speed,
-               outlier_rule, spatial_unwrap, synth_speed, unwrap_speed)
+from . import (ba_scale, calib_accuracy, calib_captures, deploy_speed, detect_accuracy, export_speed, gi_bias,
+               learned_speed, outlier_rule, spatial_unwrap, synth_speed, unwrap_speed)
 
 #: (name, main(argv) of the benchmark, arguments of its quick mode)
 BENCHMARKS = [
@@ -25,6 +25,7 @@ BENCHMARKS = [
     ("export_speed", export_speed.main, ["--quick"]),
     ("learned_speed", learned_speed.main, ["--quick"]),
     ("spatial_unwrap", spatial_unwrap.main, ["--quick"]),
+    ("deploy_speed", deploy_speed.main, ["--quick"]),
 ]
 
 

@@ -259,8 +259,10 @@ def summary_table(cal: Calibration, obs=None, skipped=None) -> str:
     return "\n".join(lines)
 
 
-def write_outputs(cal: Calibration, obs, out_dir, *, skew_tol_px: float = 0.01, extra: dict | None = None) -> dict:
-    """Write calibration.json, camera/projector.cameramodel, residuals.png; return {name: path or note}.
+def write_outputs(cal: Calibration, obs, out_dir, *, skew_tol_px: float = 0.01, extra: dict | None = None,
+                  figures: bool = True) -> dict:
+    """Write calibration.json, camera/projector.cameramodel, residuals.png (unless ``figures`` is
+    False); return {name: path or note}.
     ``extra``: more top-level keys for calibration.json (e.g. ``captures``, the image pipeline's summary)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -277,5 +279,6 @@ def write_outputs(cal: Calibration, obs, out_dir, *, skew_tol_px: float = 0.01, 
             written[f"{d}.cameramodel"] = out / f"{d}.cameramodel"
         except FormatError as exc:
             written[f"{d}.cameramodel"] = f"not written: {exc}"
-    written["residuals.png"] = plot_residuals(cal, obs, out / "residuals.png")
+    if figures:
+        written["residuals.png"] = plot_residuals(cal, obs, out / "residuals.png")
     return written

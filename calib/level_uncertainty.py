@@ -62,11 +62,12 @@ class LevelUncertainty:
     field_dof: dict
 
 
-def level_uncertainty(S, s0, mats, absorbed, lever, B, g, labels, *, seed: int = 0) -> LevelUncertainty:
+def level_uncertainty(S, s0, cross, lever, B, g, labels, *, seed: int = 0) -> LevelUncertainty:
     """The inflation and degrees of freedom (module docstring) of the global parameters ``g``
     (indices into the adjustment's parameters). ``S`` (L,): field variances (0: not kept); ``s0``:
-    independent variance; ``mats``/``absorbed``/``lever``: per field ``A_l``, ``(I - H) A_l``,
-    ``B J^T A_l``; ``B`` = (J^T J)^-1."""
+    independent variance; ``cross[l][k]`` = ``A_l^T (I - H) A_k`` (n_poses, n_poses), the fields'
+    matrices seen through the residual projection; ``lever``: per field ``B J^T A_l``; ``B`` =
+    (J^T J)^-1."""
     S = np.asarray(S, dtype=np.float64)
     kept = np.flatnonzero(S > 0)
     a = s0 * np.diag(B)[g]
@@ -74,8 +75,8 @@ def level_uncertainty(S, s0, mats, absorbed, lever, B, g, labels, *, seed: int =
         return LevelUncertainty(np.ones(len(g)), np.full(len(g), np.inf), {})
     nu = np.empty(len(kept))
     for i, l in enumerate(kept):
-        G = absorbed[l]
-        C = s0 * (G.T @ G) + sum(S[k] * (G.T @ mats[k]) @ (mats[k].T @ G) for k in kept)
+        # G = (I - H) A_l: G^T G = cross[l][l], G^T A_k = cross[l][k] (I - H symmetric, idempotent)
+        C = s0 * cross[l][l] + sum(S[k] * cross[l][k] @ cross[l][k].T for k in kept)
         nu[i] = np.trace(C) ** 2 / max(np.sum(C * C.T), 1e-300)        # tr(C)^2 / tr(C^2)
     b = np.stack([S[l] * np.sum(lever[l][g] ** 2, axis=1) for l in kept], axis=1)   # (G, K)
     v = a + b.sum(axis=1)

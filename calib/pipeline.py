@@ -31,7 +31,9 @@ SYNOPSIS
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+import resource
+import time
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from .bundle_adjustment import BAConfig
@@ -62,6 +64,19 @@ class CalibrationRun:
     observations: Observations
     captured: CaptureObservations | None
     written: dict
+    stages_s: dict = field(default_factory=dict)
+    peak_memory_mb: float = float("nan")
+
+
+#: ``figures="auto"``: the per-pose figures are drawn up to this many views (above: the summary
+#: figure ``residuals.png`` only; ``figures="all"`` draws them at any size).
+FEW_VIEWS = 12
+FIGURES = ("auto", "all", "summary", "none")
+
+
+def peak_memory_mb() -> float:
+    """Peak resident memory of this process so far (MB; Linux ``ru_maxrss`` is in kB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def resolve_board_warp(config: BAConfig, obs: Observations, board_warp) -> BAConfig:
@@ -100,7 +115,7 @@ def skew_check_outputs(obs: Observations, cal: Calibration, config: BAConfig) ->
 def calibrate_observations(obs: Observations, out, config: BAConfig | None = None, *,
                            skew_tol_px: float = 0.01, captured: CaptureObservations | None = None,
                            view_noise: bool = True, skew_check: bool = True, board_warp="auto",
-                           resample: str = "none", draws: int = 30) -> CalibrationRun:
+                           resample: str = "none", draws: int = 30, figures: str = "auto") -> CalibrationRun:
     """Calibrate from point observations and write the outputs into ``out`` (module docstring).
 
     A joint ``config`` with only one device observed falls back to single-device mode (logged).
@@ -112,7 +127,20 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
     (:func:`skew_check_outputs`; the result goes into ``calibration.json``).
     ``board_warp``: see :func:`resolve_board_warp`; ``resample``: "none", "jackknife" or
     "bootstrap" (``draws`` runs) beside the reported uncertainty (:mod:`calib.uncertainty`).
+    ``figures``: "auto" (every figure up to :data:`FEW_VIEWS` views, above only the summary
+    ``residuals.png``: the per-pose panels of 100 views cost more than the whole calibration),
+    "all", "summary" or "none". The result carries the wall seconds per stage and the peak memory
+    (also in ``calibration.json`` under ``run``).
     """
+    if figures not in FIGURES:
+        raise ValueError(f"figures: expected one of {FIGURES}, got {figures!r}")
+    stages, t0 = {}, time.perf_counter()
+
+    def lap(name):
+        nonlocal t0
+        now = time.perf_counter()
+        stages[name] = stages.get(name, 0.0) + now - t0
+        t0 = now
     config = resolve_board_warp(config or BAConfig(), obs, board_warp)
     devices = obs.devices()
     if config.mode == "joint" and len(devices) < 2:
@@ -120,6 +148,7 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
         config = replace(config, mode="single")
     log.info(f"{len(obs.views)} view(s) from {obs.source}; devices {devices}; mode {config.mode}")
     cal = reweight_views(obs, config) if view_noise else run_calibration(obs, config)
+    lap("seeds + adjustment + reweighting")
     if not cal.ba.converged:
         rms = ", ".join(f"{d} {cal.ba.stats[d]['rms_px']:.3g} px" for d in ("camera", "projector")
                         if cal.ba.stats.get(d, {}).get("rms_px") is not None)
@@ -130,15 +159,26 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
     extra = {} if captured is None else {"captures": captured.summary()}
     if skew_check:
         extra.update(skew_check_outputs(fitted, cal, config))
+        lap("skew check")
     # The error model (and any resampling) is estimated on the final fit: after reweight_views,
     # with the observations weighted as that adjustment weighted them (the rebuilt Jacobian checks
     # itself against the adjustment's sigmas, so it must see the same point sigmas).
     cal.uncertainty = assess_uncertainty(cal, fitted, resample=resample, draws=draws)
+    lap("uncertainty + residual diagnostics")
+    per_pose = figures == "all" or (figures == "auto" and len(obs.views) <= FEW_VIEWS)
+    if figures == "auto" and not per_pose:
+        log.info(f"{len(obs.views)} views: the per-pose figures are not drawn (--figures all draws them)")
+    extra["run"] = {"stages_s": dict(stages), "peak_memory_mb": peak_memory_mb(), "figures": figures}
     try:
-        written = write_outputs(cal, fitted, out, skew_tol_px=skew_tol_px, extra=extra or None)
-        written.update(plot_residual_diagnostics(cal, fitted, cal.uncertainty.diagnostics, out))
+        written = write_outputs(cal, fitted, out, skew_tol_px=skew_tol_px, extra=extra,
+                                figures=figures != "none")
+        lap("calibration.json + summary figure")
+        if per_pose:
+            written.update(plot_residual_diagnostics(cal, fitted, cal.uncertainty.diagnostics, out))
+            lap("per-pose figures")
         if captured is not None:
             written.update(write_capture_outputs(captured, out))
+            lap("capture outputs")
     except OSError as exc:
         raise OutputError(f"cannot write outputs to {out}: {exc}") from None
     for name, path in written.items():
@@ -146,13 +186,13 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
             log.warning(f"{name} not written: {path[len('not written: '):]}")
         else:
             log.info(f"wrote {name}: {path}")
-    return CalibrationRun(cal, obs, captured, written)
+    return CalibrationRun(cal, obs, captured, written, stages, peak_memory_mb())
 
 
 def calibrate_captures(folder, out, config: BAConfig | None = None, *, capture_toml=None, method=None,
                        strict: bool = False, degree: int = 2, skew_tol_px: float = 0.01,
                        view_noise: bool = True, skew_check: bool = True, board_warp="auto",
-                       resample: str = "none", draws: int = 30) -> CalibrationRun:
+                       resample: str = "none", draws: int = 30, figures: str = "auto") -> CalibrationRun:
     """Calibrate from the board captures in ``folder`` and write the outputs into ``out``.
 
     ARGUMENTS
@@ -164,11 +204,11 @@ def calibrate_captures(folder, out, config: BAConfig | None = None, *, capture_t
       pose cannot be used (default: skip it, and say so in the summary); degree: local polynomial
       degree of the projector-pixel fit (1 or 2).
     - skew_tol_px: see :func:`calib.io.mrcal_model.write_cameramodel`.
-    - view_noise, skew_check, board_warp, resample, draws: see :func:`calibrate_observations`.
+    - view_noise, skew_check, board_warp, resample, draws, figures: see :func:`calibrate_observations`.
     RETURNED VALUE: :class:`CalibrationRun`.
     """
     captured = observations_from_captures(folder, capture_toml=capture_toml, method=method, strict=strict,
                                           degree=degree, keep_images=True)
     return calibrate_observations(captured.observations, Path(out), config, skew_tol_px=skew_tol_px,
                                   captured=captured, view_noise=view_noise, skew_check=skew_check,
-                                  board_warp=board_warp, resample=resample, draws=draws)
+                                  board_warp=board_warp, resample=resample, draws=draws, figures=figures)

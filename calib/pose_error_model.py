@@ -91,24 +91,29 @@ class PoseErrorModel:
 
 
 def _field_matrices(aj, obs) -> tuple[list, list, np.ndarray]:
-    """Per-pose field bases over the inlier rows: ([A_l (m_in, n_poses)], [label], inlier rows)."""
+    """Per-pose field bases over the inlier rows: ([A_l (m_in, n_poses) sparse CSC], [label], inlier
+    rows). Each row of an A_l has one non-zero at most (its pose's column)."""
+    import scipy.sparse
+
     rows = np.flatnonzero(np.repeat(aj.inlier, 2))
     pos = np.full(2 * len(aj.inlier), -1)
     pos[rows] = np.arange(len(rows))
     allX = np.concatenate([v.points_board for v in obs.views])[:, :2]
     mid, half = (allX.max(0) + allX.min(0)) / 2, np.maximum((allX.max(0) - allX.min(0)) / 2, 1e-9)
+    xy = np.empty((len(aj.inlier), 2))
+    for i, v in enumerate(obs.views):
+        at = aj.view == i
+        xy[at] = (v.points_board[aj.index[at], :2] - mid) / half
     mats, labels = [], []
     for d in ("camera", "projector"):
+        pts = np.flatnonzero((aj.device == d) & aj.inlier)
         for c, coord in enumerate("uv"):
             for b, name in enumerate(BASIS):
-                A = np.zeros((len(rows), len(obs.views)))
-                for i, v in enumerate(obs.views):
-                    pts = np.flatnonzero((aj.view == i) & (aj.device == d) & aj.inlier)
-                    if not len(pts):
-                        continue
-                    xy = (v.points_board[aj.index[pts], :2] - mid) / half
-                    A[pos[2 * pts + c], i] = 1.0 if b == 0 else xy[:, b - 1]
-                if np.any(A):
+                val = np.ones(len(pts)) if b == 0 else xy[pts, b - 1]
+                keep = val != 0
+                A = scipy.sparse.csc_matrix((val[keep], (pos[2 * pts[keep] + c], aj.view[pts[keep]])),
+                                            shape=(len(rows), len(obs.views)))
+                if A.nnz:
                     mats.append(A)
                     labels.append(f"{d}.{coord}.{name}")
     return mats, labels, rows
@@ -117,32 +122,42 @@ def _field_matrices(aj, obs) -> tuple[list, list, np.ndarray]:
 def fit_pose_error_model(aj, obs) -> PoseErrorModel:
     """Estimate the per-pose error fields from the residuals and return the covariance they give
     (module docstring). ``aj``: :func:`calib.residual_jacobian.adjustment_jacobian` of the
-    calibration of ``obs``."""
+    calibration of ``obs``.
+
+    Computed without any (m x n_poses) or (m x m) dense matrix: with ``P_l = J^T A_l`` and
+    ``Q_l = B P_l`` (n x n_poses), ``A_k^T (I - H) A_l = A_k^T A_l - P_k^T Q_l`` and
+    ``|(I - H) A_l|_F^2 = trace(A_l^T (I - H) A_l) = |A_l|_F^2 - sum(P_l * Q_l)`` (I - H is a
+    symmetric projection); the sparse ``J`` and ``A_l`` make it O(points x parameters)."""
     mats, labels, rows = _field_matrices(aj, obs)
     J, r = aj.J[rows], aj.r[rows]
     m, n = J.shape
     if m - n < 2 * len(mats) or len(obs.views) < 3:
         raise UncertaintyError(f"{m} residuals for {n} parameters and {len(obs.views)} pose(s): too few to "
                                "estimate per-pose error fields")
-    B = np.linalg.inv(J.T @ J)
-    absorbed = [A - J @ (B @ (J.T @ A)) for A in mats]            # (I - H) A_l
+    dense = lambda X: X.toarray() if hasattr(X, "toarray") else np.asarray(X)  # noqa: E731
+    B = np.linalg.inv(dense(J.T @ J))
+    JT = J.T.tocsr()
+    P = [dense(JT @ A) for A in mats]                              # J^T A_l (n, n_poses)
+    lever = [B @ Pl for Pl in P]                                   # (J^T J)^-1 J^T A_l
+    trace = [float(A.multiply(A).sum()) - float(np.sum(Pl * Ql)) for A, Pl, Ql in zip(mats, P, lever)]
     M = np.zeros((len(mats) + 1, len(mats) + 1))
     T = np.zeros(len(mats) + 1)
+    cross = []                                                     # A_k^T (I - H) A_l (n_poses, n_poses)
     for k, A in enumerate(mats):
         T[k] = np.sum((A.T @ r) ** 2)
-        M[k, :-1] = [np.sum((A.T @ G) ** 2) for G in absorbed]
-        M[k, -1] = np.sum(A * absorbed[k])                        # trace(A^T (I - H) A)
+        cross.append([dense(A.T @ Al) - P[k].T @ lever[l] for l, Al in enumerate(mats)])
+        M[k, :-1] = [np.sum(X ** 2) for X in cross[k]]
+        M[k, -1] = trace[k]                                        # trace(A^T (I - H) A)
     T[-1] = r @ r
-    M[-1, :-1] = [np.sum(G ** 2) for G in absorbed]
+    M[-1, :-1] = trace                                             # |(I - H) A_l|_F^2
     M[-1, -1] = m - n
     S, s0 = _solve_components(M, T)
-    lever = [B @ (J.T @ A) for A in mats]                          # (n, n_poses) each
     cov = s0 * B + sum(s * L @ L.T for s, L in zip(S, lever))
     g = aj.global_index
     names = [aj.names[k] for k in g]
-    levels = level_uncertainty(S, s0, mats, absorbed, lever, B, g, labels)
+    levels = level_uncertainty(S, s0, cross, lever, B, g, labels)
     cov_g = cov[np.ix_(g, g)] * np.outer(levels.inflation, levels.inflation)
-    cov_ind = aj.covariance()[np.ix_(g, g)]
+    cov_ind = aj.sigma2 * B[np.ix_(g, g)]          # outliers' rows of J are 0: J^T J over the inliers is J's
     px = _whitening_px(aj)
     fields = {lab: float(np.sqrt(s)) * px[lab.split(".")[0]] for lab, s in zip(labels, S)}
     return PoseErrorModel(names, dict(zip(names, np.sqrt(np.diag(cov_g)).tolist())),

@@ -26,6 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse
 
 from .device import DeviceModel
 from .errors import UncertaintyError
@@ -40,8 +41,9 @@ SELF_CHECK_RTOL = 0.01
 class AdjustmentJacobian:
     """Whitened, weighted residuals of a solved adjustment and their Jacobian.
 
-    - names (n,): free parameters; J (m, n): d r / d parameter (rows: point k coordinate c at row
-      2 k + c); r (m,): residuals at the solution (0 for outliers).
+    - names (n,): free parameters; J (m, n) ``scipy.sparse.csr_matrix``: d r / d parameter (rows:
+      point k coordinate c at row 2 k + c; a board pose's columns are non-zero on its view's rows
+      only); r (m,): residuals at the solution (0 for outliers).
     - view, device, index (P,): the view, device and point index (into the view's board points)
       of each of the P = m / 2 points; inlier (P,) bool.
     - sigma2: residual variance ``r.r / (2 inliers - n)``; global_index: the parameters other
@@ -66,7 +68,7 @@ class AdjustmentJacobian:
 
     def covariance(self) -> np.ndarray:
         """The adjustment's model: ``sigma^2 (J^T J)^-1`` (n, n)."""
-        return self.sigma2 * np.linalg.inv(self.J.T @ self.J)
+        return self.sigma2 * np.linalg.inv((self.J.T @ self.J).toarray())
 
 
 def _parameters(state) -> dict:
@@ -94,26 +96,43 @@ class _Model:
     def device(self, p, d):
         K = [[p[f"{d}.fx"], p[f"{d}.skew"], p[f"{d}.cx"]], [0.0, p[f"{d}.fy"], p[f"{d}.cy"]], [0.0, 0.0, 1.0]]
         dist = [p[f"{d}.{n}"] for n in DISTORTION[:len(self.state.dist[d])]]
-        return DeviceModel(size=self.obs.sizes[d], K=K, distortion=dist, kind=d)
+        key = (d, tuple(K[0]), tuple(K[1]), tuple(dist))
+        cache = self.__dict__.setdefault("_devices", {})
+        if key not in cache:                 # a pose's differences keep the devices: built once
+            if len(cache) > 8:
+                cache.clear()
+            cache[key] = DeviceModel(size=self.obs.sizes[d], K=K, distortion=dist, kind=d)
+        return cache[key]
 
     def pose(self, p, name):
         R0 = self.state.poses[name][0]
         return (R0 @ matrix_from_rotvec(np.array([p[f"{name}.w{j}"] for j in range(3)])),
                 np.array([p[f"{name}.t{j}"] for j in range(3)]))
 
-    def residuals(self, p, transfer: bool) -> np.ndarray:
-        """(P, 2) residuals divided by each point's sigma, in the order of :func:`point_order`."""
+    def residuals(self, p, transfer: bool, views=None) -> np.ndarray:
+        """(P, 2) residuals divided by each point's sigma, in the order of :func:`point_order`
+        (``views``: only those views' points, in the same order). All views' points are projected
+        by one call per device."""
         cam, prj = self.device(p, "camera"), self.device(p, "projector")
         R_pc, t_pc = self.pose(p, "prj_cam")
-        out = []
-        for i, v in enumerate(self.obs.views):
+        sel = [i for i in range(len(self.obs.views)) if views is None or i in views]
+        X_cam = []
+        for i in sel:
+            v = self.obs.views[i]
             R, t = self.pose(p, f"cam_board/{i}")
             X = v.points_board.copy()
             xn, yn = (X[:, 0] - self.mid[0]) / self.half[0], (X[:, 1] - self.mid[1]) / self.half[1]
             X[:, 2] += p["board_warp.cx"] * (1 - xn ** 2) + p["board_warp.cy"] * (1 - yn ** 2)
-            X_cam = X @ R.T + t
-            r_cam = cam.project_device(X_cam) - v.q.get("camera", np.nan)
-            r_prj = prj.project_device(X_cam @ R_pc.T + t_pc) - v.q.get("projector", np.nan)
+            X_cam.append(X @ R.T + t)
+        ends = np.cumsum([len(X) for X in X_cam])
+        allX = np.concatenate(X_cam)
+        q_cam = np.split(cam.project_device(allX), ends[:-1])
+        q_prj = np.split(prj.project_device(allX @ R_pc.T + t_pc), ends[:-1])
+        out = []
+        for i, qc, qp in zip(sel, q_cam, q_prj):
+            v = self.obs.views[i]
+            r_cam = qc - v.q.get("camera", np.nan)
+            r_prj = qp - v.q.get("projector", np.nan)
             if transfer and v.dprj_dcam is not None:
                 link = v.seen("camera") & np.all(np.isfinite(v.dprj_dcam), axis=(1, 2))
                 moved = np.einsum("kij,kj->ki", np.nan_to_num(v.dprj_dcam), np.nan_to_num(r_cam))
@@ -168,19 +187,33 @@ def adjustment_jacobian(cal, obs) -> AdjustmentJacobian:
     px_per_unit = sigma / np.where(weight > 0, weight, np.nan)
     weight *= inlier
 
-    def whitened(p):
-        return (model.residuals(p, transfer) * weight[:, None]).ravel()
+    def whitened(p, i=None):
+        if i is None:
+            return (model.residuals(p, transfer) * weight[:, None]).ravel()
+        return (model.residuals(p, transfer, (i,)) * weight[view == i][:, None]).ravel()
 
     names = [n for n in ba.free_names if n in p0]
     if len(names) != len(ba.free_names):
         raise UncertaintyError(f"parameters the error model does not know: {sorted(set(ba.free_names) - set(p0))}")
-    J = np.empty((2 * len(r0), len(names)))
+    # A board pose moves only its own view's residuals: its columns are differenced on that view
+    # alone (the same numbers as over all views, whose other rows difference to exactly 0), and J
+    # is kept sparse (global columns dense, one 6-column block per view): O(points x globals).
+    rows_of = {i: np.repeat(view == i, 2) for i in range(len(obs.views))}
+    cols, rows, vals = [], [], []
     for j, n in enumerate(names):
         h = _step(n, p0[n])
         hi, lo = dict(p0), dict(p0)
         hi[n] += h
         lo[n] -= h
-        J[:, j] = (whitened(hi) - whitened(lo)) / (2 * h)
+        i = int(n.split("/")[1].split(".")[0]) if n.startswith("cam_board/") else None
+        col = (whitened(hi, i) - whitened(lo, i)) / (2 * h)
+        at = np.arange(2 * len(r0)) if i is None else np.flatnonzero(rows_of[i])
+        nz = col != 0
+        rows.append(at[nz])
+        vals.append(col[nz])
+        cols.append(np.full(int(nz.sum()), j))
+    J = scipy.sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                                shape=(2 * len(r0), len(names)))
     r = whitened(p0)
     out = AdjustmentJacobian(names, J, r, view, device, index, inlier, float(r @ r) / (2 * inlier.sum() - len(names)),
                              px_per_unit)

@@ -36,8 +36,8 @@ import platform
 import sys
 import traceback
 
-from .commands import (convert, demo, evaluate, export, plan_fringes, reconstruct, render, render_board,
-                       report, run, train, twin, unwrap)
+from .commands import (convert, demo, evaluate, export, export_model, plan_fringes, reconstruct, render,
+                       render_board, report, run, train, twin, unwrap)
 from .outputs import release_all
 
 #: (sub-command, module), in the order ``calib --help`` lists them.
@@ -55,6 +55,7 @@ COMMANDS = [
     ("export", export),
     ("train", train),
     ("eval", evaluate),
+    ("export-model", export_model),
 ]
 
 #: Loggers whose progress the command line shows.

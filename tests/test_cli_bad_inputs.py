@@ -109,6 +109,7 @@ def files(tmp_path_factory):
     bad.mkdir()
     (bad / "empty.xml").write_text("")
     (bad / "corrupt.pt").write_text("not a torch checkpoint")
+    (bad / "corrupt.onnx").write_text("not an onnx model")
     (bad / "train_unknown_key.toml").write_text("[optim]\nstpes = 10\n")
     (bad / "empty.yml").write_text("")
     (bad / "truncated.xml").write_text('<?xml version="1.0"?>\n<opencv_storage>\n<Kc type_id="opencv-matrix">\n'
@@ -504,6 +505,11 @@ CASES = [
     # issue 23, friction: the built-in system by name (the error is then about the phase, not the file)
     ("reconstruct-builtin-calibration", "reconstruct --phase {bad}/all_nan.npy --frequency 96 --calibration builtin "
      "-o {out}.ply", "no valid pixel"),
+    # calib export-model / unwrap --model model.onnx (issue 22)
+    ("export-model-corrupt", "export-model {bad}/corrupt.pt -o {out}.onnx", "corrupt.pt"),
+    ("export-model-not-onnx", "export-model learned -o {out}.pt", ".onnx"),
+    ("unwrap-model-onnx-missing", "unwrap {cap}/good --model {bad}/nowhere.onnx -o {out}", "nowhere.onnx"),
+    ("unwrap-model-onnx-foreign", "unwrap {cap}/good --model {bad}/corrupt.onnx -o {out}", "corrupt.onnx"),
 ]
 
 

@@ -44,6 +44,7 @@ from .dataset_schema import (FLAG_LOW_MODULATION, FLAG_OUT_OF_RANGE, FLAG_SATURA
                              DatasetSchemaError, check_schema, decode_modulation, decode_phase,
                              orientation_frequencies)
 from .errors import UnwrapError
+from .pair_decode import traditional  # noqa: F401  (moved there: torch-free)
 
 METHODS = ("mf", "mw", "nt")
 _BAD = FLAG_LOW_MODULATION | FLAG_SATURATED | FLAG_OUT_OF_RANGE
@@ -62,28 +63,6 @@ def _check_pair(method: str, f_lo: float, f_hi: float):
     if method == "nt":
         if f_lo != int(f_lo) or f_hi != int(f_hi) or math.gcd(int(f_lo), int(f_hi)) != 1:
             raise UnwrapError(f"nt pair ({f_lo:g}, {f_hi:g}): expected coprime whole numbers")
-
-
-def traditional(method: str, phi_lo, phi_hi, f_lo: float, f_hi: float, width: float, valid):
-    """(prior float64 (H,W), order int64 (H,W) -1 invalid, valid bool) of one method on wrapped
-    phases (rad), with unwrap's own decoders. ``order``: the method's order of the high
-    frequency clipped to [0, round(f_hi)]."""
-    from .temporal import mf_unwrap, mw_unwrap, nt_unwrap
-
-    if method == "mf":
-        r = mf_unwrap([phi_lo, phi_hi], (f_lo, f_hi), width=width, valid=valid)
-        k = r.levels[-1][2]
-    elif method == "mw":
-        r = mw_unwrap([phi_lo, phi_hi], (f_lo, f_hi), width=width, valid=valid)
-        k = r.levels[-1][2]
-    else:
-        r = nt_unwrap([phi_lo, phi_hi], (f_lo, f_hi), width=width, valid=valid)
-        k = r.levels[1][2]
-    prior = np.asarray(r.prior, dtype=np.float64)
-    ok = valid & np.isfinite(prior)
-    kmax = math.floor(f_hi + 0.5)
-    order = np.where(ok, np.clip(np.nan_to_num(np.asarray(k, dtype=np.float64)), 0, kmax), -1).astype(np.int64)
-    return np.where(ok, prior, 0.0), order, ok
 
 
 class FringeOrderDataset(Dataset):

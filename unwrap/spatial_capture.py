@@ -141,8 +141,8 @@ def unwrap_capture_spatial(folder, method: str = "mf", *, model=None, use_gate: 
     cap = load_capture(folder, preset, pose)
     net = None
     if model is not None:
-        from .learned.infer import resolve_model
-        net = resolve_model(model)
+        from .learned.runtime import load_predictor
+        net = load_predictor(model)      # torch or onnxruntime, loaded once
     out = {}
     for o, oc in cap.orientations.items():
         if not oc.sets:

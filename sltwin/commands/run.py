@@ -81,6 +81,9 @@ def add_arguments(p):
     p.add_argument("--no-skew-check", action="store_true",
                    help="skip the refit with skew free that tells whether a zero-skew model fits the data "
                         "(calib.skew_check; run when skew is not estimated; a needed skew is a warning)")
+    p.add_argument("--figures", choices=("auto", "all", "summary", "none"), default="auto",
+                   help="auto (default): every figure up to 12 views, above only the summary residuals.png; "
+                        "all: the per-pose panels at any number of views; summary; none")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
 
 
@@ -152,7 +155,7 @@ def run(args) -> int:
     extra = {"board_warp": {"auto": "auto", "on": True, "off": False}[args.board_warp],
              "resample": "none" if args.uncertainty == "model" else args.uncertainty, "draws": args.draws,
              "skew_tol_px": args.skew_tol, "skew_check": not args.no_skew_check,
-             "view_noise": not args.no_view_noise}
+             "view_noise": not args.no_view_noise, "figures": args.figures}
     if args.captures is not None:
         result = calibrate_captures(args.captures, args.output, config, capture_toml=args.capture_toml,
                                     method=args.method, strict=args.strict, degree=args.phase_fit_degree, **extra)
@@ -163,4 +166,7 @@ def run(args) -> int:
     if result.calibration.uncertainty is not None:
         print()
         print(uncertainty_table(result.calibration.uncertainty))
+    print()
+    print("run: " + ", ".join(f"{k} {v:.2f} s" for k, v in result.stages_s.items())
+          + f"; peak memory {result.peak_memory_mb:.0f} MB")
     return 0

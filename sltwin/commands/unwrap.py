@@ -9,6 +9,11 @@ only). Each orientation's line says the threshold, the noise and the predicted e
 pixels kept. A decode whose fringe-order priors are not near integers (wrong ladder or
 phase-shift convention) is refused unless ``--no-prior-check`` (the learned path checks the
 traditional prior of the pair it reads).
+
+Several captures (``calib unwrap A B C -o OUT`` or a folder of capture folders): streamed in one
+process with one loaded model (:mod:`unwrap.batch`), ``OUT/<capture name>/`` each, a progress bar
+with captures/s and a summary; a capture that is refused is named and skipped, and the command then
+ends with exit code 2 after writing the others.
 """
 from __future__ import annotations
 
@@ -26,7 +31,9 @@ HELP = "absolute phase, fringe order and masks of a fringe capture (HDF5 + PNG)"
 
 
 def add_arguments(parser):
-    parser.add_argument("capture_dir", help="capture folder (DESIGN.md layout or a scanner preset)")
+    parser.add_argument("capture_dir", nargs="+", metavar="CAPTURE_DIR",
+                        help="capture folder (DESIGN.md layout or a scanner preset); several, or a folder of "
+                             "capture folders: a batch (one OUT/<name>/ each, one loaded model)")
     parser.add_argument("--method", choices=["mf", "mw", "nt", "gray"], default=None,
                         help="temporal unwrapping method (default: the capture's: mf for the "
                              "DESIGN layout and slstudio, gray for slmaster, kamino-phaseshift and Gray-code-only "
@@ -83,14 +90,27 @@ def describe(o: str, r) -> str:
     return line
 
 
-def run(args) -> int:
-    import numpy as np
-
-    from unwrap.pipeline import unwrap_capture, write_results
-
-    claim(args.output, "dir", inputs=[args.capture_dir, args.model])
+def decoder(args):
+    """``decode(folder) -> {orientation: OrientationResult}`` with the options of the command; the
+    model (if any) is loaded once, before any capture, so a bad model fails at once."""
     if args.no_gate and args.spatial is None:
         raise CommandError("--no-gate belongs to --spatial graphcut")
+    model = None
+    if args.model is not None:
+        from unwrap.learned.runtime import load_predictor
+
+        from ..inputs import KIND_NAMES
+
+        if args.method not in (None, "mf", "mw", "nt"):
+            raise CommandError(f"--model works with --method mf, mw or nt, not {args.method}")
+        if args.spatial is None and (args.max_error_rate is not None or args.noise_sigma is not None):
+            raise CommandError("--max-error-rate / --noise-sigma set the threshold from the traditional decoders' "
+                               "reliability model; with --model give --min-modulation instead")
+        model = load_predictor(args.model)
+        kind = model.arch.get("kind")
+        if kind != "physics":           # the prior-free baseline has no traditional prior to correct
+            raise CommandError(f"--model {args.model}: a {KIND_NAMES.get(kind, kind)} model; --model takes a "
+                               "physics-aware one")
     if args.spatial is not None:
         from unwrap.spatial_capture import unwrap_capture_spatial
 
@@ -99,32 +119,29 @@ def run(args) -> int:
         if args.max_error_rate is not None:
             raise CommandError("--max-error-rate sets the traditional decoders' threshold; with --spatial give "
                                "--min-modulation")
-        results = unwrap_capture_spatial(args.capture_dir, args.method or "mf", model=args.model,
-                                         use_gate=not args.no_gate, preset=args.preset, pose=args.pose,
-                                         min_modulation=args.min_modulation, noise_sigma=args.noise_sigma,
-                                         check_prior=not args.no_prior_check, on_outside=args.outside,
-                                         progress=True)
-    elif args.model is not None:
+        return lambda folder, progress=True: unwrap_capture_spatial(
+            folder, args.method or "mf", model=model, use_gate=not args.no_gate, preset=args.preset,
+            pose=args.pose, min_modulation=args.min_modulation, noise_sigma=args.noise_sigma,
+            check_prior=not args.no_prior_check, on_outside=args.outside, progress=progress)
+    if model is not None:
         from unwrap.learned.capture import unwrap_capture_learned
 
-        if args.method not in (None, "mf", "mw", "nt"):
-            raise CommandError(f"--model works with --method mf, mw or nt, not {args.method}")
-        if args.max_error_rate is not None or args.noise_sigma is not None:
-            raise CommandError("--max-error-rate / --noise-sigma set the threshold from the traditional decoders' "
-                               "reliability model; with --model give --min-modulation instead")
-        from ..inputs import model_of_kind
+        return lambda folder, progress=True: unwrap_capture_learned(
+            folder, args.method or "mf", model, preset=args.preset, pose=args.pose,
+            min_modulation=args.min_modulation, on_outside=args.outside, check_prior=not args.no_prior_check,
+            progress=progress)
+    from unwrap.pipeline import unwrap_capture
 
-        model_of_kind(args.model, "physics", "--model")   # the prior-free baseline has no traditional prior
-        results = unwrap_capture_learned(args.capture_dir, args.method or "mf", args.model, preset=args.preset,
-                                         pose=args.pose, min_modulation=args.min_modulation,
-                                         on_outside=args.outside, check_prior=not args.no_prior_check,
-                                         progress=True)
-    else:
-        results = unwrap_capture(args.capture_dir, args.method, preset=args.preset, pose=args.pose,
-                                 min_modulation=args.min_modulation, max_error_rate=args.max_error_rate,
-                                 noise_sigma=args.noise_sigma, check_prior=not args.no_prior_check, progress=True)
-    path = write_results(results, args.output, previews=not args.no_previews,
-                         attrs={"capture": str(args.capture_dir)})
+    return lambda folder, progress=True: unwrap_capture(
+        folder, args.method, preset=args.preset, pose=args.pose, min_modulation=args.min_modulation,
+        max_error_rate=args.max_error_rate, noise_sigma=args.noise_sigma, check_prior=not args.no_prior_check,
+        progress=progress)
+
+
+def report(results, path) -> None:
+    """The per-orientation lines of one capture."""
+    import numpy as np
+
     for o, r in results.items():
         print(describe(o, r))
         if "confidence" in r.extras or "p_wrong_traditional" in r.extras:
@@ -135,4 +152,58 @@ def run(args) -> int:
                   if "confidence" in r.extras else f"   {u.method}: {int(changed.sum())} orders differ from the "
                   "traditional ones")
     print(f"wrote {path}")
+
+
+def run_batch(args, folders, decode) -> int:
+    """Several captures: streamed, one output sub-folder each, a summary (module docstring)."""
+    import time
+    from pathlib import Path
+
+    from unwrap.batch import output_names, stream, summary
+    from unwrap.pipeline import write_results
+
+    out = Path(args.output)
+    names = dict(zip(folders, output_names(folders)))
+    t0, items = time.perf_counter(), []
+
+    def decode_and_write(folder):
+        res = decode(folder, progress=False)
+        return res, write_results(res, out / names[folder], previews=not args.no_previews,
+                                  attrs={"capture": str(folder)})
+    for item in stream(folders, decode_and_write, progress=not args.quiet,
+                       label="unwrap" + (" (learned)" if args.model else "")):
+        items.append(item)
+        if item.error is None and not args.quiet:
+            valid = ", ".join(f"{o} valid {100 * r.result.valid.mean():.1f} %" for o, r in item.result[0].items())
+            print(f"{item.folder}: {valid}; wrote {item.result[1]} ({item.seconds:.2f} s)")
+        item.result = None              # streamed: a capture's maps are not kept once written
+    print(summary(items, time.perf_counter() - t0))
+    failed = [i for i in items if i.error is not None]
+    if failed:
+        raise CommandError(f"{len(failed)} of {len(items)} captures refused (the others were written): "
+                           + "; ".join(f"{i.folder}: {i.error}" for i in failed[:5]))
+    return 0
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from unwrap.batch import capture_folders, is_capture
+    from unwrap.errors import UnwrapError
+    from unwrap.pipeline import write_results
+
+    claim(args.output, "dir", inputs=[*args.capture_dir, args.model])
+    decode = decoder(args)
+    one = Path(args.capture_dir[0])
+    if len(args.capture_dir) > 1 or (one.is_dir() and not is_capture(one)
+                                     and any(q.is_dir() and is_capture(q) for q in one.iterdir())):
+        try:
+            folders = capture_folders(args.capture_dir)
+        except UnwrapError as exc:
+            raise CommandError(str(exc)) from None
+        return run_batch(args, folders, decode)
+    results = decode(one)
+    path = write_results(results, args.output, previews=not args.no_previews,
+                         attrs={"capture": str(args.capture_dir[0])})
+    report(results, path)
     return 0

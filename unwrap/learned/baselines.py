@@ -51,9 +51,7 @@ def filtered_order(method: str, phase_low, phase_high, frequencies, valid, *, wi
     projector pixels across the fringes (places the 2 pi cut of the coarse phase as
     unwrap.temporal does; optional).
     """
-    import torch
-
-    from .smoothing import smoothed_prior
+    from .fast_features import smoothed_priors
 
     if method not in ("mf", "mw", "nt"):
         raise ModelError(f"method {method!r}: expected 'mf', 'mw' or 'nt'")
@@ -62,12 +60,9 @@ def filtered_order(method: str, phase_low, phase_high, frequencies, valid, *, wi
         raise ModelError(f"{method} pair ({f_lo:g}, {f_hi:g}): the filtered baseline needs a beat of at most "
                          f"1 period (an absolute coarse phase); this pair's is {f_hi - f_lo:g}")
     valid = np.asarray(valid, dtype=bool)
-    t = lambda a: torch.from_numpy(np.where(valid, np.nan_to_num(np.asarray(a, dtype=np.float64)), 0.0))[None, None]  # noqa: E731
-    one = lambda f: torch.full((1, 1, 1, 1), f, dtype=torch.float64)  # noqa: E731
-    prior, _ = smoothed_prior(t(phase_low), t(phase_high), one(f_lo), one(f_hi),
-                              torch.tensor(method == "mf").reshape(1, 1, 1, 1), torch.from_numpy(valid)[None, None],
-                              window=window, fit=fit, width=width)
-    prior = prior[0, 0].numpy()
+    t = lambda a: np.where(valid, np.nan_to_num(np.asarray(a, dtype=np.float64)), 0.0)  # noqa: E731
+    priors, _ = smoothed_priors(method, t(phase_low), t(phase_high), f_lo, f_hi, valid, (window,), fit, width)
+    prior = priors[int(window) | 1]
     ok = valid & np.isfinite(prior)
     k = np.clip(round_order(np.where(ok, prior, 0.0)), 0, math.floor(f_hi + 0.5))
     return np.where(ok, k, -1).astype(np.int64)

@@ -28,7 +28,8 @@ from ..phase_shift import wrapped_phase
 from ..pipeline import OrientationResult, check_min_modulation
 from ..temporal import Unwrapped, constrain_to_pattern
 from .errors import ModelError
-from .infer import resolve_model, unwrap_learned
+from .infer import unwrap_learned
+from .runtime import load_predictor
 
 log = logging.getLogger("unwrap.learned")
 
@@ -91,7 +92,7 @@ def unwrap_capture_learned(folder, method: str = "mf", model="learned", *, prese
                            progress: bool = False) -> dict:
     """Every orientation of a capture folder by the network: {"v": OrientationResult, ...}."""
     cap = load_capture(folder, preset, pose)
-    net = resolve_model(model)
+    net = load_predictor(model)          # loaded once (cached per process), shared by the orientations
     out = {}
     for o, oc in cap.orientations.items():
         log.log(logging.INFO if progress else logging.DEBUG, "unwrap %s [%s] orientation %s, method %s + learned",

@@ -188,6 +188,22 @@ def _time(fn, repeats: int) -> float:
     return best * 1e3
 
 
+def speed_scene(size=(480, 640)):
+    """(two 12-step uint8 stacks at 1 and 48 periods, their wrapped phases, modulations (fraction
+    of full scale), valid mask) of a noisy linear ramp: the one orientation the speed rows time."""
+    from ..patterns import fringe_intensity
+    from ..phase_shift import wrapped_phase
+
+    H, W = size
+    rng = np.random.default_rng(0)
+    u = np.tile(np.linspace(100, 800, W), (H, 1)) + rng.normal(0, 0.2, (H, W))
+    Phi = {f: 2 * np.pi * f * u / 912 for f in (1, 48)}
+    stacks = [np.clip(np.rint(255 * np.stack([fringe_intensity(Phi[f], n, 12, 0.5, 0.35) for n in range(12)])
+                              + rng.normal(0, 2, (12, H, W))), 0, 255).astype(np.uint8) for f in (1, 48)]
+    ws = [wrapped_phase(s) for s in stacks]
+    return stacks, [np.nan_to_num(w.phase) for w in ws], [w.B / 255.0 for w in ws], ws[0].valid & ws[1].valid
+
+
 def speed_table(model, *, size=(480, 640), repeats: int = 5, device: str = "cpu") -> dict:
     """Milliseconds per frame (minimum over ``repeats``) of one orientation, MF (1, 48), 12 steps:
 
@@ -197,22 +213,12 @@ def speed_table(model, *, size=(480, 640), repeats: int = 5, device: str = "cpu"
     - ``network_forward``: the network alone; ``learned_total``: prior + features + network + decode.
     """
     from ..fused_mf import mf_unwrap_stacks
-    from ..patterns import fringe_intensity
     from ..temporal import mf_unwrap
     from .infer import unwrap_learned
 
     net, ck = model if isinstance(model, tuple) else load_model(model, device)
     H, W = size
-    rng = np.random.default_rng(0)
-    u = np.tile(np.linspace(100, 800, W), (H, 1)) + rng.normal(0, 0.2, (H, W))
-    Phi = {f: 2 * np.pi * f * u / 912 for f in (1, 48)}
-    stacks = [np.clip(np.rint(255 * np.stack([fringe_intensity(Phi[f], n, 12, 0.5, 0.35) for n in range(12)])
-                              + rng.normal(0, 2, (12, H, W))), 0, 255).astype(np.uint8) for f in (1, 48)]
-    from ..phase_shift import wrapped_phase
-    ws = [wrapped_phase(s) for s in stacks]
-    phi = [np.nan_to_num(w.phase) for w in ws]
-    mods = [w.B / 255.0 for w in ws]
-    valid = ws[0].valid & ws[1].valid
+    stacks, phi, mods, valid = speed_scene(size)
     x = torch.zeros(1, ck["arch"]["in_channels"], H, W, device=device)
     out = {"size": f"{W}x{H}", "threads": torch.get_num_threads(), "device": device}
     out["traditional_from_phases_ms"] = _time(lambda: mf_unwrap(phi, (1, 48), width=912, valid=valid), repeats)

@@ -7,7 +7,11 @@ SYNOPSIS
     r.order, r.confidence, r.order_traditional, r.frequency_check
 
 ``model``: ``"learned"`` (the checkpoint shipped with sltwin, :func:`shipped_model_path`), a
-checkpoint path, or a ``(model, checkpoint)`` pair from :func:`unwrap.learned.checkpoint.load_model`.
+checkpoint path (``.pt``: torch; ``.onnx``: onnxruntime, from ``calib export-model``), a
+``(model, checkpoint)`` pair from :func:`unwrap.learned.checkpoint.load_model`, or a predictor of
+:mod:`unwrap.learned.runtime`. A file is loaded once per process and reused. The inputs and the
+decoding are numpy (:mod:`unwrap.learned.fast_features`): this module does not import torch,
+and an ``.onnx`` model runs without it.
 
 Frequency range (:func:`check_frequency_range`): what the network sees depends on the frequency
 only through two quantities, and both are checked before it runs:
@@ -24,38 +28,29 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
-import torch
 
 from .. import _xp
-from ..dataset import traditional
-from . import features as Fe
-from .checkpoint import load_model
+from ..pair_decode import traditional
+from . import fast_features as FF
 from .errors import FrequencyRangeWarning, ModelError
+from .runtime import load_predictor, shipped_model_path  # noqa: F401  (shipped_model_path: public here)
 
 #: Refuse fringe periods on the camera shorter than this (px).
 MIN_PERIOD_PX = 3.0
 #: Ratio factor (relative to training) beyond which a warning / a refusal happens.
 WARN_RATIO, MAX_RATIO, MIN_RATIO = 2.5, 4.0, 1.0 / 8.0
 
-_SHIPPED = Path(__file__).resolve().parent / "data" / "shipped" / "model.pt"
-
-
-def shipped_model_path() -> Path:
-    """The checkpoint that ships with sltwin (trained on the twin; see docs/learned.md)."""
-    if not _SHIPPED.is_file():
-        raise ModelError(f"the shipped model is missing ({_SHIPPED}); reinstall sltwin or pass a checkpoint path")
-    return _SHIPPED
-
-
 def resolve_model(model, device="cpu"):
-    """(network in eval mode, checkpoint dict) from "learned", a path or a (model, ck) pair."""
+    """(network in eval mode, checkpoint dict) of a torch model: "learned", a ``.pt`` path or a
+    (model, ck) pair (loaded once per process: :func:`unwrap.learned.runtime.load_predictor`)."""
     if isinstance(model, tuple):
         return model
-    path = shipped_model_path() if model in (None, "learned", "default") else Path(model)
-    return load_model(path, device)
+    pred = load_predictor(model, device)
+    if pred.backend != "torch":
+        raise ModelError(f"{model}: an {pred.backend} model; this needs a torch checkpoint (.pt)")
+    return pred.net, pred.ck
 
 
 def coarse_ratio(method: str, f_lo: float, f_hi: float) -> float:
@@ -112,17 +107,22 @@ def check_frequency_range(meta: dict, method: str, frequencies, phase_high=None,
     return out
 
 
-@torch.no_grad()
 def predict(model, ck: dict, batch: dict, inputs=None):
-    """(order int64 (B,H,W) -1 invalid, confidence float32 (B,H,W)) of a collated batch.
+    """(order int64 (B,H,W) -1 invalid, confidence float32 (B,H,W)) of a collated torch batch
+    (training / evaluation; torch features of :mod:`unwrap.learned.features`).
 
     ``inputs``: the batch's ``features.make_inputs(batch, kind)`` when already computed (several
     models of one kind on the same data)."""
+    import torch
+
+    from . import features as Fe
+
     kind, K = ck["arch"]["kind"], ck["arch"]["max_correction"]
     dev = next(model.parameters()).device
-    batch = {k: (v.to(dev) if torch.is_tensor(v) else v) for k, v in batch.items()}
-    x = (inputs if inputs is not None else Fe.make_inputs(batch, kind))[0].to(dev)
-    return Fe.decode(model(x).float(), batch, kind, K)
+    with torch.inference_mode():
+        batch = {k: (v.to(dev) if torch.is_tensor(v) else v) for k, v in batch.items()}
+        x = (inputs if inputs is not None else Fe.make_inputs(batch, kind))[0].to(dev)
+        return Fe.decode(model(x).float(), batch, kind, K)
 
 
 @dataclass
@@ -147,32 +147,25 @@ def unwrap_learned(method: str, phase_low, phase_high, modulation_low, modulatio
     :func:`check_frequency_range`); log_probs: also return the per-pixel log-probabilities of the
     correction classes -K..K (the data term of :mod:`unwrap.spatial_orders`; physics-aware models).
     """
-    net, ck = resolve_model(model)
+    pred = load_predictor(model)
+    kind, K = pred.arch["kind"], int(pred.arch["max_correction"])
     f_lo, f_hi = (float(f) for f in frequencies)
     phi_lo, phi_hi = (np.asarray(a, dtype=np.float64) for a in (phase_low, phase_high))
     valid = np.asarray(valid, dtype=bool) & np.isfinite(phi_lo) & np.isfinite(phi_hi)
     if phi_lo.shape != phi_hi.shape or valid.shape != phi_hi.shape or phi_hi.ndim != 2:
         raise ModelError(f"phases {phi_lo.shape}, {phi_hi.shape} and valid {valid.shape}: expected one (H, W) shape")
-    check = check_frequency_range(ck["meta"], method, (f_lo, f_hi), phi_hi, valid, on_outside=on_outside)
+    check = check_frequency_range(pred.meta, method, (f_lo, f_hi), phi_hi, valid, on_outside=on_outside)
     prior, order_trad, valid = traditional(method, np.nan_to_num(phi_lo), np.nan_to_num(phi_hi), f_lo, f_hi,
                                            float(width), valid)
-    z = lambda a: torch.from_numpy(np.where(valid, np.nan_to_num(np.asarray(a, dtype=np.float64)), 0.0)  # noqa: E731
-                                   .astype(np.float32))[None, None]
-    batch = {"prior": z(prior), "phase_low": z(phi_lo), "phase_high": z(phi_hi),
-             "modulation_low": z(modulation_low), "modulation_high": z(modulation_high),
-             "order_traditional": torch.from_numpy(order_trad)[None], "valid": torch.from_numpy(valid)[None],
-             "frequency_low": torch.tensor([f_lo], dtype=torch.float64),
-             "frequency_high": torch.tensor([f_hi], dtype=torch.float64),
-             "method": torch.tensor([Fe.METHOD_INDEX[method]])}
+    x, ok = FF.make_inputs(kind, method, prior, phi_lo, phi_hi, modulation_low, modulation_high, order_trad, valid,
+                           (f_lo, f_hi))
+    logits = pred.logits(x)
+    order, conf = FF.decode(logits, order_trad, ok, f_hi, kind, K)
     if not log_probs:
-        order, conf = predict(net, ck, batch)
-        return LearnedResult(order[0].cpu().numpy(), conf[0].cpu().numpy(), order_trad, prior, valid, check)
-    if ck["arch"]["kind"] != "physics":
+        return LearnedResult(order, conf, order_trad, prior, valid, check)
+    if kind != "physics":
         raise ModelError("log_probs: only a physics-aware model outputs order-correction classes")
-    with torch.no_grad():
-        dev = next(net.parameters()).device
-        out = net(Fe.make_inputs(batch, ck["arch"]["kind"])[0].to(dev)).float()
-        order, conf = Fe.decode(out, {k: (v.to(dev) if torch.is_tensor(v) else v) for k, v in batch.items()},
-                                "physics", ck["arch"]["max_correction"])
-        lp = torch.log_softmax(out.double(), dim=1)[0].cpu().numpy()
-    return LearnedResult(order[0].cpu().numpy(), conf[0].cpu().numpy(), order_trad, prior, valid, check, lp)
+    z = np.asarray(logits[0], dtype=np.float64)                     # (2K + 1, H, W)
+    z = z - z.max(axis=0, keepdims=True)
+    lp = z - np.log(np.exp(z).sum(axis=0, keepdims=True))
+    return LearnedResult(order, conf, order_trad, prior, valid, check, lp)

@@ -1,0 +1,211 @@
+"""The network's inputs and the decoding of its outputs for ONE frame, in numpy (no torch): what
+inference runs (torch or onnxruntime); training keeps :mod:`unwrap.learned.features`.
+
+The same quantities as :func:`unwrap.learned.features.make_inputs` / :func:`~unwrap.learned.features.decode`
+(channel table there), computed in one pass:
+
+- the local plane fits of the coarse phase at both boxes (:data:`features.SMOOTH_WINDOWS`, 7 and
+  15 px): with numba, one compiled kernel per box (:mod:`unwrap.learned._plane_kernel`: two
+  separable passes, moments about each box's centre, the plane solved in the same pass); without
+  it, both boxes share one product stack (valid, phase, and their x / y / x^2 / y^2 / xy moments:
+  9 float64 planes) filtered by unnormalised separable box filters (``cv2.boxFilter``, running
+  sums, zeros outside the image as the torch cumulative sums). Either way the plane is solved by
+  Cramer's rule with :func:`unwrap.learned.smoothing.smooth_phase`'s conditioning rule;
+- every other channel is elementwise float32, in the order and precision of the torch code (the
+  phases are rounded to float32 before the float64 plane fit, as the torch batch holds them).
+
+The result agrees with the torch features within float rounding (sums accumulated in another
+order: ~1e-12 rad on the filtered phase); an order can differ only where a smoothed
+prior sits within that rounding of a rounding boundary (a float32 tie; counted by the tests).
+
+Shapes: phases / modulations (H, W); inputs (1, C, H, W) float32 C-contiguous; logits
+(1, K, H, W) any float dtype.
+
+SYNOPSIS
+
+    >>> import numpy as np
+    >>> from unwrap.learned.fast_features import plane_filter
+    >>> y, x = np.mgrid[0:20, 0:30].astype(float)
+    >>> Phi = 0.01 * x + 0.02 * y
+    >>> out = plane_filter(Phi, x < 12, (7,))[7]
+    >>> bool(np.allclose(out[x < 12], Phi[x < 12]))       # exact on a plane, even at the edge
+    True
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .._xp import TIE_BAND, wrap
+
+KINDS = ("physics", "prior_free")
+METHOD_INDEX = {"mf": 0, "mw": 1, "nt": 2}
+MODULATION_GAIN = 4.0
+SMOOTH_WINDOWS = (7, 15)
+_F32 = np.float32
+
+
+def _round_order32(x: np.ndarray) -> np.ndarray:
+    """unwrap's rounding (ties down) in float32, as torch computes it on a float32 tensor."""
+    return np.ceil(x - _F32(0.5 + TIE_BAND))
+
+
+def box_sum(stack: np.ndarray, window: int) -> np.ndarray:
+    """Sum over the ``window`` x ``window`` box centred on each pixel, zeros outside the image.
+
+    ``stack``: (H, W) or (H, W, C) float64 (C <= 512); same shape out. Separable running sums
+    (``cv2.boxFilter``), float64 throughout."""
+    import cv2
+
+    return cv2.boxFilter(stack, cv2.CV_64F, (window, window), normalize=False, borderType=cv2.BORDER_CONSTANT)
+
+
+def plane_filter(Phi: np.ndarray, valid: np.ndarray, windows=SMOOTH_WINDOWS, fit: str = "plane") -> dict:
+    """{window: filtered ``Phi`` (H, W) float64} over the valid pixels of each box; invalid pixels
+    keep ``Phi``. ``fit``: "plane" (local least-squares plane at the pixel; the box mean where the
+    box has < 3 valid pixels or they are collinear) or "mean" (masked box mean).
+    Same algorithm and conditioning rule as :func:`unwrap.learned.smoothing.smooth_phase`; with
+    numba, the plane runs as one compiled kernel (:mod:`unwrap.learned._plane_kernel`), else as
+    box sums of a product stack here."""
+    if fit not in ("plane", "mean"):
+        raise ValueError(f"fit {fit!r}: expected 'plane' or 'mean'")
+    H, W = Phi.shape
+    Phi = np.asarray(Phi, dtype=np.float64)
+    kernel = _kernel() if fit == "plane" else None
+    if kernel is not None:
+        ok = np.ascontiguousarray(valid, dtype=bool)
+        return {int(w) | 1: kernel(np.ascontiguousarray(Phi), ok, (int(w) | 1) // 2) for w in windows}
+    v = np.asarray(valid, dtype=bool).astype(np.float64)
+    P = np.where(v > 0, Phi, 0.0)
+    if fit == "mean":
+        planes = [v, P]
+    else:
+        x = np.arange(W, dtype=np.float64)[None, :]
+        y = np.arange(H, dtype=np.float64)[:, None]
+        vx, vy = v * x, v * y
+        planes = [v, P, vx, vy, vx * x, vy * y, vx * y, P * x, P * y]
+    stack = np.stack(planes, axis=-1)
+    out = {}
+    for win in windows:
+        win = int(win) | 1
+        s = box_sum(stack, win)
+        S0, SP = s[..., 0], s[..., 1]
+        mean = np.where(S0 > 0.5, SP / np.maximum(S0, 1.0), P)
+        if fit == "mean":
+            out[win] = np.where(v > 0, mean, Phi)
+            continue
+        Bx, By, Bxx, Byy, Bxy, BPx, BPy = (s[..., i] for i in range(2, 9))
+        # moments about each box's own centre pixel (as smoothing.smooth_phase)
+        Sx, Sy = Bx - x * S0, By - y * S0
+        Sxx = Bxx - 2 * x * Bx + x * x * S0
+        Syy = Byy - 2 * y * By + y * y * S0
+        Sxy = Bxy - x * By - y * Bx + x * y * S0
+        SxP, SyP = BPx - x * SP, BPy - y * SP
+        det = S0 * (Sxx * Syy - Sxy * Sxy) - Sx * (Sx * Syy - Sxy * Sy) + Sy * (Sx * Sxy - Sxx * Sy)
+        num = SP * (Sxx * Syy - Sxy * Sxy) - Sx * (SxP * Syy - Sxy * SyP) + Sy * (SxP * Sxy - Sxx * SyP)
+        scale = S0 * (Sxx + Syy) ** 2 + 1e-12
+        well = (S0 >= 3) & (det > 1e-6 * scale)
+        plane = np.where(well, num / np.where(well, det, 1.0), mean)
+        out[win] = np.where(v > 0, plane, Phi)
+    return out
+
+
+def _kernel():
+    """The numba plane filter (:mod:`unwrap.learned._plane_kernel`), or None without numba."""
+    try:
+        from ._plane_kernel import plane_filter_kernel
+    except ImportError:
+        return None
+    return plane_filter_kernel
+
+
+def coarse_phase(method: str, phi_l: np.ndarray, phi_h: np.ndarray, f_l: float, f_h: float, width=None):
+    """(absolute coarse phase (H, W) float64, coarse frequency, usable): MF the unit phase, MW / NT
+    the beat of the pair (absolute only when ``f_h - f_l <= 1``, else ``usable`` is False), cut
+    at 2 pi as :func:`unwrap.learned.smoothing.smoothed_prior` cuts it."""
+    from ..temporal import edge_fraction
+
+    is_mf = method == "mf"
+    beat = f_h - f_l
+    usable = is_mf or beat <= 1.0 + 1e-9
+    f_c = min(f_l if is_mf else beat, 1.0)
+    cut = min(-math.pi * (1.0 - f_c), -2 * math.pi * f_c * edge_fraction(width))
+    coarse = phi_l if is_mf else wrap(phi_h - phi_l)
+    return np.remainder(coarse - cut, 2 * math.pi) + cut, f_c, usable
+
+
+def smoothed_priors(method: str, phi_l, phi_h, f_l: float, f_h: float, valid, windows=SMOOTH_WINDOWS,
+                    fit: str = "plane", width=None):
+    """({window: prior (H, W) float64 with the coarse phase plane-filtered}, usable): the high
+    frequency's prior from the filtered coarse phase (every window from one product stack)."""
+    phi_l, phi_h = np.asarray(phi_l, np.float64), np.asarray(phi_h, np.float64)
+    Phi, f_c, usable = coarse_phase(method, phi_l, phi_h, float(f_l), float(f_h), width)
+    filt = plane_filter(Phi, valid, windows, fit)
+    return {w: (float(f_h) / f_c * Ps - phi_h) / (2 * math.pi) for w, Ps in filt.items()}, usable
+
+
+def make_inputs(kind: str, method: str, prior, phase_low, phase_high, modulation_low, modulation_high,
+                order_traditional, valid, frequencies) -> tuple[np.ndarray, np.ndarray]:
+    """(x (1, C, H, W) float32, ok (H, W) bool): the network input of one frame.
+
+    ARGUMENTS as the torch batch of :func:`unwrap.learned.infer.unwrap_learned`: prior, wrapped phases
+    (rad) and modulations (fraction of full scale) (H, W), NaN allowed where not valid;
+    order_traditional (H, W) int; valid (H, W) bool; frequencies (low, high).
+    ``ok``: ``valid`` and every input finite."""
+    valid = np.asarray(valid, dtype=bool)
+
+    def f32(a):
+        return np.where(valid, np.nan_to_num(np.asarray(a, dtype=np.float64)), 0.0).astype(_F32)
+
+    pr, pl, ph, ml, mh = (f32(a) for a in (prior, phase_low, phase_high, modulation_low, modulation_high))
+    ok = valid & np.isfinite(pr) & np.isfinite(pl) & np.isfinite(ph) & np.isfinite(ml) & np.isfinite(mh)
+    zero = _F32(0.0)
+    v = ok.astype(_F32)
+    clean = lambda a: np.where(ok, a, zero)  # noqa: E731
+    phi_h = clean(ph)
+    m_lo = np.clip(clean(ml) * _F32(MODULATION_GAIN), zero, _F32(2.0))
+    m_hi = np.clip(clean(mh) * _F32(MODULATION_GAIN), zero, _F32(2.0))
+    sin_h, cos_h = np.sin(phi_h) * v, np.cos(phi_h) * v
+    if kind == "physics":
+        p = clean(pr)
+        r = p - _round_order32(p)
+        trad = np.asarray(order_traditional).astype(_F32)
+        f_l, f_h = (float(f) for f in frequencies)
+        pl64 = np.where(ok, pl, zero).astype(np.float64)
+        ph64 = np.where(ok, ph, zero).astype(np.float64)
+        priors, usable = smoothed_priors(method, pl64, ph64, f_l, f_h, ok)
+        r_s, d = [], []
+        for w in SMOOTH_WINDOWS:
+            ps = (priors[w] if usable else p.astype(np.float64)).astype(_F32)
+            ps = np.where(ok, ps, zero)
+            rs = _round_order32(ps)
+            r_s.append(_F32(2.0) * (ps - rs))
+            d.append(np.where(ok & usable, np.clip((rs - trad) / _F32(2.0), _F32(-1.0), _F32(1.0)), zero))
+        chans = [_F32(2.0) * r, *r_s, *d, sin_h, cos_h, phi_h / _F32(math.pi), m_lo, m_hi, v]
+    elif kind == "prior_free":
+        phi_l = clean(pl)
+        onehot = [v * _F32(METHOD_INDEX[method] == i) for i in range(3)]
+        chans = [np.sin(phi_l) * v, np.cos(phi_l) * v, phi_l / _F32(math.pi), sin_h, cos_h,
+                 phi_h / _F32(math.pi), m_lo, m_hi, v, *onehot]
+    else:
+        raise ValueError(f"model kind {kind!r}: expected one of {KINDS}")
+    return np.stack(chans)[None].astype(_F32, copy=False), ok
+
+
+def decode(logits: np.ndarray, order_traditional, ok, f_high: float, kind: str, max_correction: int = 2):
+    """Logits (1, K, H, W) -> (order int64 (H, W), -1 where not ``ok``; confidence float32 (H, W)).
+
+    physics: the most probable correction added to the traditional order, clipped to
+    [0, round(f_high)]; prior_free: the most probable order class. Confidence: its softmax
+    probability (float32, 0 where not ok)."""
+    z = np.asarray(logits[0], dtype=_F32)
+    e = np.exp(z - z.max(axis=0, keepdims=True))
+    p = e / e.sum(axis=0, keepdims=True)
+    cls = p.argmax(axis=0)
+    conf = np.take_along_axis(p, cls[None], axis=0)[0]
+    kmax = int(math.floor(float(f_high) + 0.5))
+    trad = np.asarray(order_traditional, dtype=np.int64)
+    order = trad + cls - max_correction if kind == "physics" else cls.astype(np.int64)
+    order = np.minimum(np.maximum(order, 0), kmax)
+    return np.where(ok, order, -1).astype(np.int64), np.where(ok, conf, _F32(0.0)).astype(_F32)

@@ -1,0 +1,188 @@
+"""Run a trained model on one frame's inputs: torch (a ``.pt`` checkpoint) or onnxruntime (an
+``.onnx`` file written by :func:`export_onnx`, ``calib export-model``), loaded once per process.
+
+A predictor maps the network input (1, C, H, W) float32 (:func:`unwrap.learned.fast_features.make_inputs`)
+to logits (1, K, H, W) and carries what the checks need: ``arch`` (kind, max_correction, ...) and
+``meta`` (the trained frequency pairs). :func:`load_predictor` caches it by path, size and
+modification time, so orientations and captures of one process share one loaded model.
+
+- torch: the network in eval mode under ``torch.inference_mode`` (no autograd), CUDA when asked.
+- onnxruntime: ``CUDAExecutionProvider`` first where the installed onnxruntime offers it, else
+  ``CPUExecutionProvider``. Importing this module, loading an ``.onnx`` model and running it
+  import neither torch nor anything that does (``calib unwrap --model model.onnx`` runs without
+  torch; tested in a subprocess).
+
+The ONNX file holds the graph with dynamic height and width (any frame size) and, in its
+metadata, ``sltwin_format`` (= :data:`ONNX_FORMAT`), ``sltwin_arch`` and ``sltwin_meta`` (JSON:
+the checkpoint's ``arch`` and ``meta``).
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from .errors import CheckpointError, ModelError
+
+ONNX_FORMAT = "sltwin-unwrap-model-onnx-1"
+_SHIPPED = Path(__file__).resolve().parent / "data" / "shipped" / "model.pt"
+_CACHE: dict = {}
+
+
+def shipped_model_path() -> Path:
+    """The checkpoint that ships with sltwin (trained on the twin; see docs/learned.md)."""
+    if not _SHIPPED.is_file():
+        raise ModelError(f"the shipped model is missing ({_SHIPPED}); reinstall sltwin or pass a checkpoint path")
+    return _SHIPPED
+
+
+def model_path(model) -> Path:
+    """The file of ``model``: "learned" / "default" / None (the shipped checkpoint) or a path."""
+    return shipped_model_path() if model in (None, "learned", "default") else Path(model)
+
+
+def is_onnx(model) -> bool:
+    return isinstance(model, (str, os.PathLike)) and str(model).lower().endswith(".onnx")
+
+
+class TorchPredictor:
+    """A torch network (eval mode) and its checkpoint dict; ``logits(x)`` under inference mode.
+
+    ``channels_last``: run the convolutions in channels-last memory format (measured by
+    bench.deploy_speed; off by default: on this CPU build it does not pay for a 0.46 M-parameter
+    U-Net whose first layers have few channels)."""
+
+    backend = "torch"
+
+    def __init__(self, net, ck: dict, channels_last: bool = False):
+        import torch
+
+        self.net, self.ck = net, ck
+        self.arch, self.meta = ck["arch"], ck["meta"]
+        self.device = next(net.parameters()).device
+        self.channels_last = channels_last
+        if channels_last:
+            self.net = net.to(memory_format=torch.channels_last)
+
+    def logits(self, x):
+        import torch
+
+        with torch.inference_mode():
+            t = torch.from_numpy(x).to(self.device)
+            if self.channels_last:
+                t = t.contiguous(memory_format=torch.channels_last)
+            return self.net(t).float().cpu().numpy()
+
+
+class OnnxPredictor:
+    """An onnxruntime session of an exported model; ``logits(x)``."""
+
+    backend = "onnxruntime"
+
+    def __init__(self, path, providers=None):
+        import onnxruntime as ort
+
+        path = Path(path)
+        if not path.is_file():
+            raise CheckpointError(f"model not found: {path}")
+        avail = ort.get_available_providers()
+        if providers is None:
+            providers = [p for p in ("CUDAExecutionProvider", "CPUExecutionProvider") if p in avail]
+        opts = ort.SessionOptions()
+        opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        opts.enable_cpu_mem_arena = False     # activations freed after each frame: the peak stays one forward's
+        try:
+            self.session = ort.InferenceSession(str(path), sess_options=opts, providers=providers)
+        except Exception as exc:      # onnxruntime's own error types (InvalidProtobuf, Fail, ...)
+            raise CheckpointError(f"{path}: not a readable ONNX model ({type(exc).__name__}: "
+                                  f"{str(exc)[:200]})") from None
+        props = self.session.get_modelmeta().custom_metadata_map
+        if props.get("sltwin_format") != ONNX_FORMAT:
+            raise CheckpointError(f"{path}: not an sltwin unwrapping model (ONNX metadata sltwin_format "
+                                  f"{props.get('sltwin_format')!r}, expected {ONNX_FORMAT!r}); write one with "
+                                  "calib export-model")
+        self.arch, self.meta = json.loads(props["sltwin_arch"]), json.loads(props["sltwin_meta"])
+        self.providers = self.session.get_providers()
+        self.input_name = self.session.get_inputs()[0].name
+        self.multiple = 2 ** (int(self.arch["depth"]) + 1)
+
+    def logits(self, x):
+        """The graph takes sizes that are multiples of 2**(depth+1): zeros are padded at the bottom
+        and right and the output cropped back, as :class:`~unwrap.learned.network.FringeUNet` does."""
+        import numpy as np
+
+        H, W = x.shape[-2:]
+        ph, pw = (-H) % self.multiple, (-W) % self.multiple
+        if ph or pw:
+            x = np.pad(x, ((0, 0), (0, 0), (0, ph), (0, pw)))
+        return self.session.run(None, {self.input_name: np.ascontiguousarray(x)})[0][..., :H, :W]
+
+
+def load_predictor(model="learned", device: str = "cpu"):
+    """A predictor for ``model``: "learned" (the shipped checkpoint), a ``.pt`` / ``.onnx`` path, a
+    ``(net, checkpoint)`` pair, or a predictor (returned as is). Files are loaded once per process
+    (cached by path, size and modification time)."""
+    if hasattr(model, "logits") and hasattr(model, "arch"):
+        return model
+    if isinstance(model, tuple):
+        return TorchPredictor(*model)
+    path = model_path(model)
+    try:
+        st = path.stat()
+        key = (str(path.resolve()), st.st_size, st.st_mtime_ns, device)
+    except OSError:
+        key = None
+    if key is not None and key in _CACHE:
+        return _CACHE[key]
+    if is_onnx(path):
+        pred = OnnxPredictor(path)
+    else:
+        from .checkpoint import load_model
+
+        pred = TorchPredictor(*load_model(path, device))
+    if key is not None:
+        _CACHE[key] = pred
+    return pred
+
+
+def export_onnx(model, out, *, opset: int = 18) -> Path:
+    """Write ``model`` (a checkpoint path, "learned", or a (net, checkpoint) pair) as ONNX with
+    dynamic height and width and the checkpoint's arch / meta in its metadata; atomically
+    (temporary file, fsync, rename). Returns the path."""
+    import tempfile
+
+    import onnx
+    import torch
+
+    from .checkpoint import load_model
+
+    net, ck = model if isinstance(model, tuple) else load_model(model_path(model), "cpu")
+    net = net.cpu().eval()
+    C, m = int(ck["arch"]["in_channels"]), 2 ** (int(ck["arch"]["depth"]) + 1)
+    x = torch.zeros(1, C, 6 * m, 8 * m)
+    # sizes are multiples of m (the predictor pads, as the network itself would): no padding branch
+    h, w = m * torch.export.Dim("height_blocks", max=8192 // m), m * torch.export.Dim("width_blocks", max=8192 // m)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with torch.inference_mode(False), torch.no_grad():
+        prog = torch.onnx.export(net, (x,), dynamo=True, opset_version=opset, input_names=["x"],
+                                 output_names=["logits"], dynamic_shapes={"x": {2: h, 3: w}}, verbose=False)
+    proto = prog.model_proto
+    for k, v in (("sltwin_format", ONNX_FORMAT), ("sltwin_arch", json.dumps(ck["arch"])),
+                 ("sltwin_meta", json.dumps(ck["meta"], default=str))):
+        entry = proto.metadata_props.add()
+        entry.key, entry.value = k, v
+    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(proto.SerializeToString())
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.chmod(tmp, 0o644)
+        onnx.checker.check_model(tmp)
+        os.replace(tmp, out)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return out
