@@ -36,7 +36,7 @@ import numpy as np
 
 from unwrap.capture import load_capture, read_stack
 from unwrap.dataset_schema import (FLAG_LOW_MODULATION, FLAG_OUT_OF_RANGE, FLAG_SATURATED, MASK_LIT, MASK_SURFACE,
-                                   SCHEMA, SCHEMA_VERSION, encode_modulation, encode_phase)
+                                   SCHEMA, SCHEMA_VERSION, decode_phase, encode_modulation, encode_phase)
 from unwrap.phase_shift import wrapped_phase
 
 from .dataset_export import code_version
@@ -164,7 +164,8 @@ def _capture_sample(folder, preset, reference, cloud, system, orientations=None,
                 if kind == "ladder" and j != len(sets) - 1:
                     continue   # only the top frequency: a reference at 4 of 1/4/16 would be circular
                 ok = ref_ok & np.isfinite(phases[j]) & valid
-                x = (ref_per_period * s.frequency - np.nan_to_num(phases[j])) / TWO_PI
+                # relative to the phase as stored (int16; +pi is stored as -pi), which the reader decodes
+                x = (ref_per_period * s.frequency - decode_phase(encode_phase(phases[j]))) / TWO_PI
                 k = np.rint(x)
                 margin = np.abs(x - k)
                 keep = ok & (margin < 0.25) & (k >= 0) & (k <= math.floor(s.frequency + 0.5))
