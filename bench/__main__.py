@@ -9,8 +9,8 @@ from __future__ import annotations
 import sys
 import time
 
-from . import (ba_scale, calib_accuracy, calib_captures, detect_accuracy, export_speed, learned_speed,
-               outlier_rule, synth_speed, unwrap_speed)
+from . import (ba_scale, calib_accuracy, calib_captures, detect_accuracy, export_speed, finetune_real,
+               learned_speed, outlier_rule, synth_speed, unwrap_speed)
 
 #: (name, main(argv) of the benchmark, arguments of its quick mode)
 BENCHMARKS = [
@@ -23,6 +23,7 @@ BENCHMARKS = [
     ("outlier_rule", outlier_rule.main, ["--quick"]),
     ("export_speed", export_speed.main, ["--quick"]),
     ("learned_speed", learned_speed.main, ["--quick"]),
+    ("finetune_real", finetune_real.main, ["--quick"]),
 ]
 
 

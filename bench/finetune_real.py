@@ -2,14 +2,16 @@
 on a held-out one, beside the traditional decode and the shipped model (docs/learned.md,
 "Adapting to your scanner").
 
-Run: ``python -m bench.finetune_real [--steps N] [--work DIR] [--only pyramid|skull]``
+Run: ``python -m bench.finetune_real [--steps N] [--work DIR] [--only pyramid|skull]`` (``--quick``:
+20 steps, the first case only: checks that it runs, numbers not for quoting)
 
 Cases (each: fine-tune on the TRAIN file(s), score MF (1, 16) on the TEST file; the test file is
 the run's validation set, scored once at the last step, so nothing is selected on it):
 
 - pyramid (../shared/data/thomriiii-pyramid-mf-1-4-16, MF 1/4/16, 8 steps, noisy): each
   orientation is a capture (different fringes, same scene and camera pixels); reference = the
-  1 -> 4 -> 16 ladder (``--reference ladder``), labelled pair 1 -> 16. v -> h and h -> v.
+  1 -> 4 -> 16 ladder (``--reference ladder``), labelled pair 1 -> 16. v -> h and h -> v, and
+  the top half of v -> h (half the data).
 - skull (../shared/data/slstudio-ps2x3-calib, MF 1/16, 3 steps): one capture only, so its two
   disjoint halves (``--region top`` / ``bottom``; the skull fills the right half of the frame, so
   left / right would leave one half almost empty; the other half is unlit in each file);
@@ -68,6 +70,9 @@ def export_files(work: Path, only=None) -> dict:
             out = work / f"pyramid_{o}.h5"
             s = export_capture(cap, out, reference="ladder", orientations=[o])
             files[f"pyramid {o}"] = (out, s["captures"][0]["orientations"][o])
+        out = work / "pyramid_v_top.h5"     # half a capture: how much data the adaptation needs
+        s = export_capture(cap, out, reference="ladder", orientations=["v"], region="top")
+        files["pyramid v top half"] = (out, s["captures"][0]["orientations"]["v"])
     if SKULL.exists() and only in (None, "skull"):
         for half in ("top", "bottom"):
             out = work / f"skull_{half}.h5"
@@ -104,7 +109,10 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=300, help="fine-tuning steps per case (default 300)")
     ap.add_argument("--work", help="folder for the exports and runs (default: a temporary one)")
     ap.add_argument("--only", choices=("pyramid", "skull"))
+    ap.add_argument("--quick", action="store_true", help="20 steps, first case only")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.steps = 20
     from unwrap.learned.infer import shipped_model_path
 
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="finetune_real_"))
@@ -116,8 +124,10 @@ def main(argv=None) -> int:
     for name, (_, stats) in files.items():
         print(f"{name}: reference {json.dumps(stats)}")
     cases = [(a, b) for a, b in (("pyramid v", "pyramid h"), ("pyramid h", "pyramid v"),
+                                 ("pyramid v top half", "pyramid h"),
                                  ("skull top", "skull bottom"), ("skull bottom", "skull top"))
              if a in files and b in files]
+    cases = cases[:1] if args.quick else cases
     rows = []
     for train_name, test_name in cases:
         run = work / f"run_{train_name.replace(' ', '_')}"
