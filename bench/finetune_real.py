@@ -139,8 +139,9 @@ def main(argv=None) -> int:
     print("\n| fine-tuned on | held-out test | pixels | traditional | shipped | fine-tuned | steps | CPU s |")
     print("|---|---|---:|---:|---:|---:|---:|---:|")
     for a, b, r, m in rows:
-        print(f"| {a} | {b} | {r['Traditional'][1]:,} | {100 * r['Traditional'][0]:.2f} % | "
-              f"{100 * r['shipped'][0]:.2f} % | {100 * r['fine-tuned'][0]:.2f} % | {m['step']} | {m['cpu_s_total']:.0f} |")
+        cells = " | ".join(f"{100 * r[k][0]:.3f} % ({round(r[k][0] * r[k][1]):,})"
+                           for k in ("Traditional", "shipped", "fine-tuned"))
+        print(f"| {a} | {b} | {r['Traditional'][1]:,} | {cells} | {m['step']} | {m['cpu_s_total']:.0f} |")
     print(f"\n(exports and runs in {work})")
     return 0
 
