@@ -124,7 +124,8 @@ def _capture_sample(folder, preset, reference, cloud, system, orientations=None,
     if orientations is not None:
         missing = [o for o in orientations if o not in cap.orientations]
         if missing:
-            raise ExportError(f"{folder}: orientation(s) {missing} asked for, the capture has {sorted(cap.orientations)}")
+            raise ExportError(f"{folder}: orientation(s) {missing} asked for, the capture has "
+                              f"{sorted(cap.orientations)}")
     for o, oc in sorted(cap.orientations.items()):
         if orientations is not None and o not in orientations:
             continue
@@ -237,7 +238,7 @@ def export_capture(folder, out, *, preset=None, reference: str = "auto", referen
              "min_modulation": 0.02, "system": "", "config": json.dumps({"capture": str(folder), "reference": reference,
                                                                         "reference_cloud": str(reference_cloud),
                                                                         "orientations": orientations, "region": region,
-                                                                        **({"ladder": ladder_opts} if reference == "ladder" else {})}),
+                                                                        "ladder": ladder_opts if reference == "ladder" else None}),
              "seed": 0, "code_version": code_version(), "codec": codec, "samples_total": len(folders),
              "shard": [0, 1], "units": "px, rad"}
     attrs["fingerprint"] = fingerprint_of(attrs["config"], [str(f) for f in folders])

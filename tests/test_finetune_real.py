@@ -108,7 +108,8 @@ def test_by_capture_split_never_mixes_captures(tmp_path):
         _export(tmp_path / f"cap{i}", files[-1])
     base = ["data.methods=[\"mf\"]", "data.mf_frequencies=[1.0, 16.0]", "data.orientations=[\"v\", \"h\"]",
             "data.crop=[32, 32]"]
-    cfg = resolve_config(None, base + [f"data.train={json.dumps(files[:2])}", f"data.val_files={json.dumps(files[2:])}"])
+    cfg = resolve_config(None, base + [f"data.train={json.dumps(files[:2])}",
+                                       f"data.val_files={json.dumps(files[2:])}"])
     train, val, info = build_datasets(cfg)
     tr = {str(p) for d in train.datasets for p in d.ds.paths}
     va = {str(p) for d in val.datasets for p in d.ds.paths}
