@@ -11,7 +11,16 @@ twin export), and a *reference order* per frequency where the capture has one:
   of frequency f is ``round((Phi_ref f / f_top - phi_f) / 2 pi)``;
 - ``cloud``: an independent point cloud of the same view (e.g. SLStudio's skull scanned with Gray
   code) projected into the projector with the capture's calibration: ``Phi_ref = 2 pi f u_p / W``;
+- ``ladder``: a redundant MF ladder of the capture itself (three or more frequencies, e.g. 1 / 4 /
+  16): the top frequency's order decoded step by step, kept where every frequency's modulation is
+  high enough and every ladder step is decided with margin (unwrap.ladder_reference); only the top
+  frequency carries it (the labelled pair is unit -> top), the others are -1;
 - ``none``: no reference (``order_true`` is -1 everywhere, ``has_reference`` False).
+
+``orientations`` keeps only some orientations (one file per orientation: each is a capture of
+its own for a by-capture split); ``region`` ("left", "right", "top", "bottom") keeps one half of
+the image: the other half is marked unlit with no reference, so two files of the two halves share
+no pixel (a single capture split for fine-tuning and a held-out test).
 
 A reference is kept at a pixel only where it is unambiguous: ``|Phi_ref - phi - 2 pi k| < pi/2``
 (a quarter period of margin); the summary reports that margin's distribution and how often the
@@ -27,7 +36,7 @@ import numpy as np
 
 from unwrap.capture import check_distinct_frames, load_capture, read_stack
 from unwrap.dataset_schema import (FLAG_LOW_MODULATION, FLAG_OUT_OF_RANGE, FLAG_SATURATED, MASK_LIT, MASK_SURFACE,
-                                   SCHEMA, SCHEMA_VERSION, encode_modulation, encode_phase)
+                                   SCHEMA, SCHEMA_VERSION, decode_phase, encode_modulation, encode_phase)
 from unwrap.phase_shift import wrapped_phase
 
 from .dataset_export import code_version
@@ -84,11 +93,42 @@ def _cloud_reference(system, cloud_xyz, oc, shape):
     return TWO_PI * c / oc.width, good & np.isfinite(c)
 
 
-def _capture_sample(folder, preset, reference, cloud, system):
+REGIONS = ("all", "left", "right", "top", "bottom")
+
+
+def region_mask(shape, region: str) -> np.ndarray:
+    """(H, W) bool: the pixels of ``region`` (one of :data:`REGIONS`; halves split at W // 2, H // 2)."""
+    H, W = shape
+    m = np.zeros((H, W), bool)
+    sl = {"all": np.s_[:, :], "left": np.s_[:, : W // 2], "right": np.s_[:, W // 2:],
+          "top": np.s_[: H // 2, :], "bottom": np.s_[H // 2:, :]}[region]
+    m[sl] = True
+    return m
+
+
+def _ladder_ref(oc, sets, phases, mods, valid, ladder_opts):
+    from unwrap.errors import UnwrapError
+    from unwrap.ladder_reference import ladder_reference
+
+    try:
+        r = ladder_reference(phases, [s.frequency for s in sets], mods, width=oc.width, valid=valid, **ladder_opts)
+    except UnwrapError as exc:
+        raise ExportError(f"orientation {oc.orientation}: {exc}") from None
+    return r.per_period, r.trusted, r.excluded
+
+
+def _capture_sample(folder, preset, reference, cloud, system, orientations=None, region="all", ladder_opts=None):
     cap = load_capture(folder, preset)
-    out, info = {}, {"folder": str(folder), "preset": cap.preset, "orientations": {}}
+    out, info = {}, {"folder": str(folder), "preset": cap.preset, "orientations": {}, "region": region}
     shape = None
+    if orientations is not None:
+        missing = [o for o in orientations if o not in cap.orientations]
+        if missing:
+            raise ExportError(f"{folder}: orientation(s) {missing} asked for, the capture has "
+                              f"{sorted(cap.orientations)}")
     for o, oc in sorted(cap.orientations.items()):
+        if orientations is not None and o not in orientations:
+            continue
         sets = sorted(oc.sets, key=lambda s: s.frequency)
         if not sets:
             raise ExportError(f"{folder}: orientation {o} holds Gray code only (no phase-shift frames): there is "
@@ -104,8 +144,8 @@ def _capture_sample(folder, preset, reference, cloud, system):
             flags.append((w.low_modulation * FLAG_LOW_MODULATION | w.saturated * FLAG_SATURATED
                           | w.out_of_range * FLAG_OUT_OF_RANGE).astype(np.uint8))
         shape = phases[0].shape
-        valid = np.all([np.isfinite(p) for p in phases], axis=0)
-        ref_per_period, ref_ok = None, None
+        valid = np.all([np.isfinite(p) for p in phases], axis=0) & region_mask(shape, region)
+        ref_per_period, ref_ok, excluded = None, None, None
         kind = reference
         if kind == "auto":
             kind = "gray" if oc.gray is not None else ("cloud" if cloud is not None else "none")
@@ -117,12 +157,17 @@ def _capture_sample(folder, preset, reference, cloud, system):
             if cloud is None or system is None:
                 raise ExportError("reference 'cloud' needs reference_cloud and reference_system")
             ref_per_period, ref_ok = _cloud_reference(system, cloud, oc, shape)
+        elif kind == "ladder":
+            ref_per_period, ref_ok, excluded = _ladder_ref(oc, sets, phases, mods, valid, ladder_opts or {})
         refs = np.full((len(sets),) + shape, -1, np.int16)
         stats = {"reference": kind}
         if ref_per_period is not None:
             for j, s in enumerate(sets):
-                ok = ref_ok & np.isfinite(phases[j])
-                x = (ref_per_period * s.frequency - np.nan_to_num(phases[j])) / TWO_PI
+                if kind == "ladder" and j != len(sets) - 1:
+                    continue   # only the top frequency: a reference at 4 of 1/4/16 would be circular
+                ok = ref_ok & np.isfinite(phases[j]) & valid
+                # relative to the phase as stored (int16; +pi is stored as -pi), which the reader decodes
+                x = (ref_per_period * s.frequency - decode_phase(encode_phase(phases[j]))) / TWO_PI
                 k = np.rint(x)
                 margin = np.abs(x - k)
                 keep = ok & (margin < 0.25) & (k >= 0) & (k <= math.floor(s.frequency + 0.5))
@@ -132,6 +177,8 @@ def _capture_sample(folder, preset, reference, cloud, system):
                     "margin_median_periods": float(np.median(margin[ok])) if ok.any() else None,
                     "margin_p99_periods": float(np.percentile(margin[ok], 99)) if ok.any() else None,
                     "dropped_ambiguous": int((ok & (margin >= 0.25)).sum())}
+        if excluded is not None:
+            stats["ladder_excluded"] = excluded
         out[o] = {"freqs": [s.frequency for s in sets], "steps": [len(s.files) for s in sets], "width": oc.width,
                   "phase": np.stack([encode_phase(p) for p in phases]),
                   "modulation": np.stack([encode_modulation(m) for m in mods]), "flags": np.stack(flags),
@@ -141,15 +188,26 @@ def _capture_sample(folder, preset, reference, cloud, system):
 
 
 def export_capture(folder, out, *, preset=None, reference: str = "auto", reference_cloud=None,
-                   reference_system=None, codec: str = "gzip-1") -> dict:
+                   reference_system=None, codec: str = "gzip-1", orientations=None, region: str = "all",
+                   ladder_min_modulation: float = 0.02, ladder_max_step_residual: float = 0.2) -> dict:
     """Export the capture(s) in ``folder`` to ``out`` (see the module docstring).
 
     ``reference``: "auto" (Gray code when the capture has it, else the cloud when given, else
-    none), "gray", "cloud" or "none"; ``reference_cloud``: a .mat ('xyz', H x W x 3 mm) or .npy
+    none), "gray", "cloud", "ladder" or "none"; ``orientations``: None (all) or a list;
+    ``region``: one of :data:`REGIONS`; ``ladder_*``: the trust thresholds of the ladder reference
+    (unwrap.ladder_reference.ladder_reference); ``reference_cloud``: a .mat ('xyz', H x W x 3 mm) or .npy
     point cloud in the world frame of ``reference_system`` (anything calib.load_system reads).
     Returns a summary dict with the reference statistics per sample."""
-    if reference not in ("auto", "gray", "cloud", "none"):
-        raise ExportError(f"reference {reference!r}: expected auto, gray, cloud or none")
+    if reference not in ("auto", "gray", "cloud", "ladder", "none"):
+        raise ExportError(f"reference {reference!r}: expected auto, gray, cloud, ladder or none")
+    if region not in REGIONS:
+        raise ExportError(f"region {region!r}: expected one of {REGIONS}")
+    if orientations is not None:
+        orientations = list(orientations)
+        bad = [o for o in orientations if o not in ("v", "h")]
+        if bad or not orientations:
+            raise ExportError(f"orientations {orientations}: expected a non-empty list of 'v', 'h'")
+    ladder_opts = {"min_modulation": ladder_min_modulation, "max_step_residual": ladder_max_step_residual}
     cloud = system = None
     if reference_cloud is not None:
         p = Path(reference_cloud)
@@ -165,7 +223,7 @@ def export_capture(folder, out, *, preset=None, reference: str = "auto", referen
     folders = capture_folders(folder)
     samples, infos = [], []
     for f in folders:
-        arrays, info, shape = _capture_sample(f, preset, reference, cloud, system)
+        arrays, info, shape = _capture_sample(f, preset, reference, cloud, system, orientations, region, ladder_opts)
         samples.append((arrays, shape))
         infos.append(info)
     first, shape = samples[0]
@@ -179,7 +237,9 @@ def export_capture(folder, out, *, preset=None, reference: str = "auto", referen
              "frequencies": [float(x) for x in freqs], "steps": first[orients[0]]["steps"],
              "widths": json.dumps({o: first[o]["width"] for o in orients}), "camera_size": [W, H], "bits": 8,
              "min_modulation": 0.02, "system": "", "config": json.dumps({"capture": str(folder), "reference": reference,
-                                                                        "reference_cloud": str(reference_cloud)}),
+                                                                        "reference_cloud": str(reference_cloud),
+                                                                        "orientations": orientations, "region": region,
+                                                                        "ladder": ladder_opts if reference == "ladder" else None}),
              "seed": 0, "code_version": code_version(), "codec": codec, "samples_total": len(folders),
              "shard": [0, 1], "units": "px, rad"}
     attrs["fingerprint"] = fingerprint_of(attrs["config"], [str(f) for f in folders])

@@ -2,7 +2,8 @@
 
     calib export CONFIG.toml -o data/train.h5 [--shard i/n]      # render; resumes when rerun
     calib export --combine data/train-*-of-*.h5 -o data/train.h5 # join shards (virtual datasets)
-    calib export --capture DIR -o real.h5 [--reference auto|gray|cloud|none]
+    calib export --capture DIR -o real.h5 [--reference auto|gray|cloud|ladder|none]
+    calib export --capture DIR --reference ladder --orientation v [--region left] -o cap_v.h5
 """
 from __future__ import annotations
 
@@ -18,8 +19,18 @@ def add_arguments(parser):
     parser.add_argument("--capture", metavar="DIR", help="export a real capture folder (or a folder of them)")
     parser.add_argument("--preset", help="capture layout (design, slstudio, slmaster, kamino-phaseshift, "
                                          "procam-graycode; default: detected)")
-    parser.add_argument("--reference", default="auto", choices=("auto", "gray", "cloud", "none"),
-                        help="reference order of a capture (default: Gray code if any, else --reference-cloud)")
+    parser.add_argument("--reference", default="auto", choices=("auto", "gray", "cloud", "ladder", "none"),
+                        help="reference order of a capture (default: Gray code if any, else --reference-cloud; "
+                             "ladder: the capture's own redundant MF ladder, e.g. 1/4/16 labels 1 -> 16)")
+    parser.add_argument("--orientation", action="append", choices=("v", "h"),
+                        help="export only this orientation (repeatable; default all): one capture per file")
+    parser.add_argument("--region", default="all", choices=("all", "left", "right", "top", "bottom"),
+                        help="keep one half of the image (the other unlit, no reference): disjoint halves of one "
+                             "capture for fine-tuning and a held-out test")
+    parser.add_argument("--ladder-min-modulation", type=float, default=0.02,
+                        help="ladder reference: least modulation of every frequency (fraction of full scale)")
+    parser.add_argument("--ladder-max-residual", type=float, default=0.2,
+                        help="ladder reference: largest distance of every step's prior from an integer (periods)")
     parser.add_argument("--reference-cloud", help="point cloud (.mat 'xyz' or .npy, H x W x 3 mm) of the same view")
     parser.add_argument("--reference-system", help="calibration of the capture (for --reference-cloud)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
@@ -46,7 +57,10 @@ def run(args) -> int:
         claim(args.output, "file", inputs=[args.capture, args.reference_cloud, args.reference_system])
 
         s = export_capture(args.capture, args.output, preset=args.preset, reference=args.reference,
-                           reference_cloud=args.reference_cloud, reference_system=args.reference_system)
+                           reference_cloud=args.reference_cloud, reference_system=args.reference_system,
+                           orientations=args.orientation, region=args.region,
+                           ladder_min_modulation=args.ladder_min_modulation,
+                           ladder_max_step_residual=args.ladder_max_residual)
         print(f"{s['file']}: {s['samples']} capture sample(s)")
         for c in s["captures"]:
             print(f"  {c['folder']} [{c['preset']}]: " + json.dumps(c["orientations"]))

@@ -20,6 +20,9 @@ def add_arguments(parser):
                         help="a TOML config (optional) followed by section.key=value overrides, "
                              "e.g. optim.steps=2000 data.train='[\"train.h5\"]'")
     parser.add_argument("-o", "--output", default=None, help="run folder (default runs/<date-time>)")
+    parser.add_argument("--init", default=None, metavar="MODEL",
+                        help="fine-tune: start from this checkpoint's weights ('learned': the shipped model; "
+                             "fresh optimiser, optim.lr 2e-4 unless set); same as model.init=MODEL")
     parser.add_argument("--resume", default=None, metavar="RUN", help="continue the run in this folder")
     parser.add_argument("--deterministic", action="store_true", help="deterministic kernels (slower)")
     parser.add_argument("-q", "--quiet", action="store_true",
@@ -40,16 +43,22 @@ def split_items(items):
 
 
 def run(args) -> int:
+    import json
+
     from unwrap.learned.train import train
 
     config, overrides = split_items(args.items)
     if args.resume and args.output:
         raise CommandError("--resume RUN continues in RUN; do not give -o as well")
+    if args.init:
+        if args.resume:
+            raise CommandError("--init starts a new run from a model's weights; --resume continues a run: not both")
+        overrides = overrides + [f"model.init={json.dumps(str(args.init))}"]
     if os.environ.get("RANK", "0") == "0":     # only rank 0 writes (torchrun): it alone holds the run folder
         if args.resume:
             claim(args.resume, "dir", option="--resume")
         elif args.output:
-            claim(args.output, "dir", inputs=[config])
+            claim(args.output, "dir", inputs=[config, args.init if args.init not in (None, "learned") else None])
     r = train(config, overrides, args.output, resume=args.resume,
               deterministic=True if args.deterministic else None, progress=not args.quiet)
     if r.run_dir is not None:

@@ -39,10 +39,12 @@ DEFAULTS: dict = {
         "crop": [128, 128],           # training window (H, W); [] for full frames
         "flip": True,                 # random flips (augmentation)
         "val_fraction": 0.1,          # scenes held out for validation
+        "val_files": [],              # whole files (captures) held out for validation instead (fine-tuning)
         "val_samples": 8,             # at most this many validation scenes per (method, orientation)
         "workers": 0,                 # DataLoader worker processes
     },
-    "model": {"kind": "physics", "width": 16, "depth": 3, "max_width": 64, "max_correction": 2},
+    "model": {"kind": "physics", "width": 16, "depth": 3, "max_width": 64, "max_correction": 2,
+              "init": ""},            # fine-tune: start from this checkpoint's weights ("learned": shipped)
     "loss": {"mse": 1.0, "fourier": 0.1, "fourier_weighting": "focal", "fourier_alpha": 1.0, "ce": 0.0},
     "optim": {"name": "adamw", "lr": 2e-3, "weight_decay": 1e-4, "batch_size": 8, "steps": 2000, "warmup_steps": 50,
               "schedule": "cosine", "grad_clip": 1.0},
@@ -70,7 +72,13 @@ def _type_ok(value, default) -> bool:
     return isinstance(value, type(default))
 
 
-def _merge(cfg: dict, tree: dict, where: str):
+#: Learning rate of a fine-tuning run (``model.init`` set) when neither the file nor an override
+#: sets ``optim.lr``: a tenth of the default, so that a few hundred steps on a few real captures
+#: adjust the shipped weights instead of overwriting what they learned from the twin.
+FINETUNE_LR = 2e-4
+
+
+def _merge(cfg: dict, tree: dict, where: str, given: set | None = None):
     for section, body in tree.items():
         if section not in DEFAULTS:
             raise ConfigError(f"unknown section [{section}] ({where}); sections: {', '.join(DEFAULTS)}")
@@ -85,6 +93,8 @@ def _merge(cfg: dict, tree: dict, where: str):
                 raise ConfigError(f"{section}.{key} = {value!r} ({where}): expected a "
                                   f"{type(default).__name__} like the default {default!r}")
             cfg[section][key] = float(value) if isinstance(default, float) else value
+            if given is not None:
+                given.add(f"{section}.{key}")
 
 
 def _parse_override(text: str) -> dict:
@@ -125,6 +135,11 @@ def _check(cfg: dict):
         raise ConfigError(f"data.crop = {d['crop']}: expected [] or [h, w] with h, w >= 16")
     if len(d["synthetic_size"]) != 2 or min(d["synthetic_size"]) < 16:
         raise ConfigError(f"data.synthetic_size = {d['synthetic_size']}: expected [h, w] >= 16")
+    if d["val_files"] and not d["train"]:
+        raise ConfigError("data.val_files holds captures out for validation: give data.train (HDF5 files) as well")
+    both = sorted(set(map(str, d["val_files"])) & set(map(str, d["train"])))
+    if both:
+        raise ConfigError(f"data.val_files and data.train share {both}: a capture is either trained on or held out")
     if not d["train"] and d["synthetic_samples"] == 0:
         raise ConfigError("no training data: set data.train (HDF5 files) or data.synthetic_samples > 0")
     o = cfg["optim"]
@@ -140,6 +155,7 @@ def resolve_config(path=None, overrides=()) -> dict:
     Raises :class:`ConfigError` naming an unknown key, a wrong type or an out-of-range value.
     """
     cfg = copy.deepcopy(DEFAULTS)
+    given: set = set()
     if path is not None:
         p = Path(path)
         try:
@@ -148,9 +164,11 @@ def resolve_config(path=None, overrides=()) -> dict:
             raise ConfigError(f"config file not found: {p}") from None
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"{p}: not valid TOML ({exc})") from None
-        _merge(cfg, tree, str(p))
+        _merge(cfg, tree, str(p), given)
     for text in overrides or ():
-        _merge(cfg, _parse_override(text), "overrides")
+        _merge(cfg, _parse_override(text), "overrides", given)
+    if cfg["model"]["init"] and "optim.lr" not in given:
+        cfg["optim"]["lr"] = FINETUNE_LR
     _check(cfg)
     return cfg
 

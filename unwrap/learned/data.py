@@ -85,13 +85,57 @@ def _one(cfg: dict, method: str, orientation: str, samples, train: bool):
     return MethodTagged(ds, method)
 
 
+def _file_orientations(path, wanted) -> list:
+    """The orientations of ``wanted`` that the dataset file ``path`` holds."""
+    import h5py
+
+    from ..dataset_schema import read_attrs
+    with h5py.File(path, "r") as h5:
+        have = read_attrs(h5)["orientations"]
+    return [o for o in wanted if o in have]
+
+
+def _by_file(cfg: dict, files, train: bool):
+    """One dataset per (file, method, orientation the file holds): whole files, no sample split."""
+    from ..dataset import FringeOrderDataset
+    d, seed = cfg["data"], int(cfg["run"]["seed"])
+    parts = []
+    for p in files:
+        orients = _file_orientations(p, d["orientations"])
+        if not orients:
+            raise DatasetTooSmallError(f"{p}: holds none of the orientations {d['orientations']} (data.orientations)")
+        for m in d["methods"]:
+            for o in orients:
+                crop = tuple(d["crop"]) if (train and d["crop"]) else None
+                ds = FringeOrderDataset(p, method=m, frequencies=tuple(d[f"{m}_frequencies"]), orientation=o,
+                                        crop=crop, flip=bool(d["flip"]) and train, seed=seed)
+                parts.append(MethodTagged(ds, m))
+    return parts
+
+
+def build_by_capture(cfg: dict):
+    """Fine-tuning split (``data.val_files`` given): every file of ``data.train`` trains, every file
+    of ``data.val_files`` validates; a file is one capture (or a disjoint half of one), so no pixel
+    of a validation capture is ever trained on. Each file serves the orientations it holds."""
+    d = cfg["data"]
+    train = EpochDataset(_by_file(cfg, d["train"], True))
+    val = EpochDataset(_by_file(cfg, d["val_files"], False))
+    info = {"scenes": len(d["train"]) + len(d["val_files"]), "train_scenes": [str(p) for p in d["train"]],
+            "val_scenes": [str(p) for p in d["val_files"]], "train_items": len(train), "val_items": len(val),
+            "split": "by file (capture)"}
+    return train, val, info
+
+
 def build_datasets(cfg: dict):
-    """(train dataset, val dataset or None, info dict) of a resolved config.
+    """(train dataset, val dataset or None, info dict) of a resolved config (:func:`build_by_capture`
+    when ``data.val_files`` is given).
 
     Raises :class:`DatasetTooSmallError` when fewer than :data:`MIN_TRAIN_SCENES` training scenes
     remain after the split.
     """
     d = cfg["data"]
+    if d["val_files"]:
+        return build_by_capture(cfg)
     n = _scene_count(cfg)
     tr, va = split_scenes(n, d["val_fraction"], d["val_samples"], cfg["run"]["seed"])
     if tr.size < MIN_TRAIN_SCENES:

@@ -290,6 +290,30 @@ def _make_optimiser(model, cfg: dict, device):
     return opt, sched, amp_dtype, scaler
 
 
+def init_weights(model: str, arch: dict) -> dict:
+    """The weights of checkpoint ``model`` ("learned": the shipped one; a model.pt / best.pt /
+    last.pt path) for a fine-tuning run of architecture ``arch``: weights only (the optimiser,
+    scheduler and step start fresh). Refuses (CheckpointError) a checkpoint of another kind or
+    architecture, naming the fields that differ."""
+    from .checkpoint import load_model
+    from .errors import CheckpointError
+    from .infer import shipped_model_path
+
+    path = shipped_model_path() if model in ("learned", "default") else Path(model)
+    ck = read_checkpoint(path)
+    theirs = ck["arch"]
+    if theirs.get("kind") != arch["kind"]:
+        raise CheckpointError(f"model.init {path}: a {theirs.get('kind')!r} model, this run trains a "
+                              f"{arch['kind']!r} model (model.kind): fine-tuning keeps the kind")
+    diff = {k: (theirs.get(k), arch[k]) for k in arch if theirs.get(k) != arch[k]}
+    if diff:
+        raise CheckpointError(f"model.init {path}: another architecture than this run's [model] ("
+                              + ", ".join(f"{k}: checkpoint {a}, run {b}" for k, (a, b) in diff.items())
+                              + "); set the [model] keys to the checkpoint's")
+    net, _ = load_model(ck)
+    return net.state_dict()
+
+
 # ---------------------------------------------------------------- the loop
 class _Session:
     """One training session (new or resumed): model, optimiser, counters, timing and, on rank 0,
@@ -304,6 +328,8 @@ class _Session:
         self.step, self.epoch, self.batch_in_epoch, self.best, self.cpu_before = 0, 0, 0, float("inf"), 0.0
         if resume is not None:
             self._restore(read_checkpoint(run_dir / "last.pt"))
+        elif cfg["model"]["init"]:
+            self.model.load_state_dict(init_weights(cfg["model"]["init"], self.arch))
         self.net = torch.nn.parallel.DistributedDataParallel(
             self.model, device_ids=[local_rank] if device.type == "cuda" else None) if world > 1 else self.model
         self.weights = LossWeights(**cfg["loss"])
