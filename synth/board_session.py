@@ -21,6 +21,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import tomli_w
 
 from .boards import BoardTexture
 from .effects import Effects, Noise
@@ -49,16 +50,6 @@ def session_tilts(n_poses: int, seed: int = 0) -> list:
     return tilts
 
 
-def _toml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    return repr(v)
-
-
 def capture_toml(board, steps, frequencies, camera_size, projector_size, extra=None, pattern=None,
                  source: str = "calib render-board") -> str:
     """The text of capture.toml (DESIGN.md) for ``board`` (``calib.board.Board``, or None for a
@@ -69,12 +60,7 @@ def capture_toml(board, steps, frequencies, camera_size, projector_size, extra=N
                    "camera": {"size": list(camera_size)}, "projector": {"size": list(projector_size)}})
     if extra:
         tables["render"] = extra
-    lines = [f"# Rendered by sltwin synth ({source}); layout of DESIGN.md", ""]
-    for name, t in tables.items():
-        lines.append(f"[{name}]")
-        lines += [f"{k} = {_toml_value(v)}" for k, v in t.items()]
-        lines.append("")
-    return "\n".join(lines)
+    return f"# Rendered by sltwin synth ({source}); layout of DESIGN.md\n\n" + tomli_w.dumps(tables)
 
 
 def _gray_pattern_table(scene) -> dict | None:

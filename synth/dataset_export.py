@@ -17,10 +17,12 @@ from __future__ import annotations
 import json
 import logging
 import subprocess
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from unwrap.dataset_schema import SCHEMA, SCHEMA_VERSION
 
@@ -28,7 +30,6 @@ from .dataset_config import ExportConfig, load_config
 from .dataset_sample import make_sample, params_json
 from .dataset_scenes import check_meshes
 from .dataset_writer import ShardWriter, fingerprint_of, shard_from_environment, shard_path, shard_range
-from .progress import Progress
 
 LOG = logging.getLogger("synth")
 
@@ -93,7 +94,8 @@ def export_dataset(config, out, *, shard=None, progress: bool = True) -> dict:
         return summarize(path, stages, 0, time.perf_counter() - t0)
     todo = writer.prepare()
     label = f"export {path.name}" + (f" (shard {i}/{n})" if n > 1 else "")
-    with Progress(len(indices), label, done=len(indices) - len(todo), enabled=progress) as bar:
+    with tqdm(total=len(indices), initial=len(indices) - len(todo), desc=label, unit="sample",
+              file=sys.stderr, disable=not progress, dynamic_ncols=True) as bar:
         for index in todo:
             sample = make_sample(cfg, system, index, sampler)
             for k, v in sample.timings.items():

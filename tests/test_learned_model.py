@@ -170,3 +170,11 @@ def test_resolved_config_round_trips_through_its_toml(tmp_path):
     (tmp_path / "r.toml").write_text(to_toml(cfg))
     assert resolve_config(tmp_path / "r.toml") == cfg
     assert set(cfg) == set(DEFAULTS)
+
+
+def test_an_infinite_grad_clip_round_trips_so_the_run_can_resume(tmp_path):
+    """optim.grad_clip=inf (no clipping) was written as JSON's ``Infinity``, which TOML rejects."""
+    cfg = resolve_config(None, ["data.synthetic_samples=6", "optim.grad_clip=inf"])
+    (tmp_path / "r.toml").write_text(to_toml(cfg))
+    back = resolve_config(tmp_path / "r.toml")
+    assert back == cfg and back["optim"]["grad_clip"] == float("inf")

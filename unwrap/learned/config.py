@@ -18,9 +18,10 @@ SYNOPSIS
 from __future__ import annotations
 
 import copy
-import json
 import tomllib
 from pathlib import Path
+
+import tomli_w
 
 from .errors import ConfigError
 from .features import KINDS
@@ -157,10 +158,4 @@ def resolve_config(path=None, overrides=()) -> dict:
 
 def to_toml(cfg: dict) -> str:
     """The resolved config as TOML text (what a run folder keeps as ``config.toml``)."""
-    lines = []
-    for section, body in cfg.items():
-        lines.append(f"[{section}]")
-        for key, value in body.items():
-            lines.append(f"{key} = {json.dumps(value)}")
-        lines.append("")
-    return "\n".join(lines)
+    return tomli_w.dumps(cfg)

@@ -29,12 +29,14 @@ import logging
 import math
 import os
 import random
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from . import features as Fe
 from .checkpoint import FORMAT, FORMAT_VERSION, arch_from_config, build_model, export_model, read_checkpoint, save_atomic
@@ -43,7 +45,6 @@ from .data import ResumableSampler, build_datasets
 from .errors import ConfigError, DatasetTooSmallError
 from .losses import LossWeights, composite_loss
 from .metrics import ErrorCount
-from .progress import StepBar
 
 log = logging.getLogger("unwrap.learned")
 
@@ -385,7 +386,8 @@ class _Session:
                 **{k: f"{v:.6g}" for k, v in parts.items()}, "lr": f"{self.sched.get_last_lr()[0]:.6g}",
                 "samples_per_s": f"{self.samples_per_s():.4g}", "time_s": f"{time.perf_counter() - self.t_start:.1f}",
                 "cpu_s": f"{self.cpu_s():.1f}"})
-        bar.update(step, loss=self.last_loss, samples_per_s=self.samples_per_s())
+        bar.update(step - bar.n)
+        bar.set_postfix(loss=f"{self.last_loss:.4g}", samples_per_s=f"{self.samples_per_s():.4g}", refresh=False)
         if val_ds is not None and (step % run["val_every"] == 0 or last):
             self.val_row = validate(self.model, val_ds, self.cfg, self.weights, self.device)
             self.files.append("val.csv", VAL_FIELDS, {"step": step, **self.val_row})
@@ -402,7 +404,8 @@ class _Session:
         """Rank 0 at the end: last.pt, model.pt (when complete), metrics.json, metrics.png."""
         run_dir = self.run_dir
         save_atomic(self.state(), run_dir / "last.pt")
-        bar.update(self.step, force=True, loss=self.last_loss)
+        bar.update(self.step - bar.n)
+        bar.set_postfix(loss=f"{self.last_loss:.4g}")
         bar.close()
         if self.step >= self.total:
             src = run_dir / "best.pt" if (run_dir / "best.pt").exists() else run_dir / "last.pt"
@@ -455,7 +458,8 @@ def train(config=None, overrides=(), out_dir=None, *, resume=None, deterministic
     steps_per_epoch = sampler.per_rank() // bs
     s = _Session(cfg, run_dir, resume, rank, world, local_rank, device, info)
     s.open_files(resume is not None, steps_per_epoch)
-    bar = StepBar(s.total, start=s.step, enabled=progress and s.writer)
+    bar = tqdm(total=s.total, initial=s.step, desc="train", unit="step", file=sys.stderr,
+               disable=not (progress and s.writer), dynamic_ncols=True)
     s.model.train()
     stop = s.total if stop_after is None else min(s.total, stop_after)
     while s.step < stop:
