@@ -35,7 +35,6 @@ from __future__ import annotations
 import logging
 import re
 import time
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -97,10 +96,13 @@ def read_session(folder, capture_toml=None) -> CaptureSession:
     if not toml.exists():
         raise CaptureError(f"{toml}: no capture description (capture.toml, DESIGN.md); "
                            "give one with --capture-toml for a real scanner's folder")
+    from unwrap.capture import read_toml
+    from unwrap.errors import UnwrapError
+
     try:
-        meta = tomllib.loads(toml.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise CaptureError(f"{toml}: not valid TOML ({exc})") from None
+        meta = read_toml(toml)
+    except UnwrapError as exc:
+        raise CaptureError(str(exc)) from None
     if "board" not in meta:
         raise CaptureError(f"{toml}: missing [board] table (kind, rows, cols, spacing_mm, ...)")
     board = Board.from_dict(meta["board"], source=f"{toml} [board]")
@@ -111,7 +113,6 @@ def read_session(folder, capture_toml=None) -> CaptureSession:
             raise CaptureError(f"{folder}: the DESIGN.md layout keeps its capture.toml in the capture folder")
     if preset == "design":
         from unwrap.capture import check_design_description
-        from unwrap.errors import UnwrapError
 
         if capture_toml and Path(capture_toml).resolve() != (folder / "capture.toml").resolve():
             raise CaptureError(f"{capture_toml}: the DESIGN.md layout reads its frames' description from "

@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from calib.board import PAPER_LARGE_MARKERS, Board, paper_board
+from unwrap.strict import check_keys
 from calib.errors import BoardError
 
 from .errors import SynthError
@@ -130,9 +131,7 @@ BOARD_TABLE_KEYS = ("kind", "rows", "cols", "spacing_mm", "large_diameter_mm", "
 
 def board_from_table(d: dict, key: str = "board") -> BoardTexture:
     """A ``[board]`` TOML table (capture.toml keys plus margin_mm, albedo_light, albedo_dark)."""
-    unknown = set(d) - set(BOARD_TABLE_KEYS)
-    if unknown:
-        raise SynthError(f"{key}: unknown key(s) {sorted(unknown)}; allowed {sorted(BOARD_TABLE_KEYS)}")
+    check_keys(d, BOARD_TABLE_KEYS, "description", SynthError, prefix=f"{key}.")
     kw = dict(d)
     if "large_markers" in kw:
         try:

@@ -62,6 +62,8 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from unwrap.strict import apply_overrides, check_table
+
 from .errors import ExportConfigError, SynthError  # noqa: F401  (ExportConfigError re-exported)
 
 
@@ -90,14 +92,16 @@ class Range:
 ZERO = Range(0.0, 0.0)
 
 
-@dataclass
+@dataclass(frozen=True)
 class ExportConfig:
+    """The resolved export config (frozen; built by :func:`config_from_dict` from the TOML)."""
+
     samples: int
     seed: int = 0
     min_object_fraction: float = 0.05
     max_redraws: int = 20
     min_modulation: float = 0.02
-    system_file: list = field(default_factory=list)
+    system_file: tuple = ()
     ideal: bool = False
     perturb: str = "none"
     orientations: tuple = ("v", "h")
@@ -170,15 +174,6 @@ def _prob(v, key):
     return _num(v, key, 0.0, 1.0)
 
 
-def _table(d, key, allowed):
-    if not isinstance(d, dict):
-        _fail(key, f"expected a table, got {d!r}")
-    unknown = sorted(set(d) - set(allowed))
-    if unknown:
-        raise ExportConfigError(f"{key}: unknown key(s) {unknown}; allowed {sorted(allowed)}")
-    return d
-
-
 #: effect name -> (sub-keys or None, bounds (lo, hi)) of its ranges
 _EFFECT_RANGES = {
     "exposure": (None, (0.0, 10.0)),
@@ -196,9 +191,24 @@ _EFFECT_DEFAULTS = {"exposure": Range(0.8, 0.8)}
 _SUB_REQUIRED = {"noise": "full_well_e", "projector_defocus": "aperture_mm", "camera_defocus": "aperture_mm",
                  "global_illumination": None}
 
+_RANGE = float | tuple[float, ...]
+#: The TOML's layout (section -> key -> type) that the strict reader (unwrap.strict) checks first.
+SCHEMA = {
+    "export": {"samples": int, "seed": int, "min_object_fraction": float, "max_redraws": int, "min_modulation": float},
+    "system": {"file": str | tuple[str, ...], "ideal": bool, "perturb": str},
+    "patterns": {"orientations": tuple[str, ...], "frequencies": tuple[float, ...], "steps": int | tuple[int, ...],
+                 "A": float, "B": float},
+    "scene": {"objects": int | tuple[int, ...], "mesh_dir": str, "meshes": tuple[str, ...], "mesh_fraction": float,
+              "procedural": tuple[str, ...], "size_mm": _RANGE, "depth_mm": _RANGE, "background": float,
+              "background_gap_mm": _RANGE, "background_tilt_deg": _RANGE, "albedo": _RANGE, "texture": float,
+              "texture_contrast": _RANGE},
+    "effects": {**{name: _RANGE if subs is None else dict.fromkeys(subs, _RANGE)
+                   for name, (subs, _) in _EFFECT_RANGES.items()}, "bits": int, "shadows": str},
+    "output": {"codec": str},
+}
+
 
 def _effects(d: dict) -> dict:
-    _table(d, "effects", set(_EFFECT_RANGES) | {"bits", "shadows"})
     out = dict(_EFFECT_DEFAULTS)
     for name, value in d.items():
         key = f"effects.{name}"
@@ -216,7 +226,6 @@ def _effects(d: dict) -> dict:
         if subs is None:
             out[name] = _range(value, key, *bounds)
             continue
-        _table(value, key, subs)
         need = _SUB_REQUIRED[name]
         if need and need not in value:
             _fail(f"{key}.{need}", "missing")
@@ -224,102 +233,96 @@ def _effects(d: dict) -> dict:
     return out
 
 
-def config_from_dict(d: dict, base_dir=Path("."), text: str = "") -> ExportConfig:
-    """A parsed export TOML -> ExportConfig (ExportConfigError naming any bad key)."""
-    _table(d, "config", {"export", "system", "patterns", "scene", "effects", "output"})
-    ex = _table(d.get("export", {}), "export", {"samples", "seed", "min_object_fraction", "max_redraws",
-                                                 "min_modulation"})
+def config_from_dict(d: dict, base_dir=Path("."), text: str = "", where: str = "export config") -> ExportConfig:
+    """A parsed export TOML -> ExportConfig (ExportConfigError naming any bad key: an unknown one
+    with the closest known key, a wrong type with the expected one, a value out of range)."""
+    check_table(d, SCHEMA, where, ExportConfigError)
+    ex = d.get("export", {})
     if "samples" not in ex:
         _fail("export.samples", "missing (how many samples to export)")
-    cfg = ExportConfig(samples=_num(ex["samples"], "export.samples", 1, 1e9, integer=True), text=text,
-                       base_dir=Path(base_dir))
-    cfg.seed = _num(ex.get("seed", 0), "export.seed", 0, 2 ** 63 - 1, integer=True)
-    cfg.min_object_fraction = _num(ex.get("min_object_fraction", 0.05), "export.min_object_fraction", 0.0, 1.0)
-    cfg.max_redraws = _num(ex.get("max_redraws", 20), "export.max_redraws", 1, 10000, integer=True)
-    cfg.min_modulation = _num(ex.get("min_modulation", 0.02), "export.min_modulation", 0.0, 0.5)
-
-    _system_section(cfg, d.get("system", {}))
-    _patterns_section(cfg, d.get("patterns", {}))
-    _scene_section(cfg, d.get("scene", {}), base_dir)
-    cfg.effects = _effects(d.get("effects", {}))
-    out = _table(d.get("output", {}), "output", {"codec"})
-    cfg.codec = out.get("codec", "gzip-1")
-    if cfg.codec not in CODECS:
-        _fail("output.codec", f"expected one of lzf, gzip, gzip-1..9, none; got {cfg.codec!r}")
-    return cfg
+    fields = {"samples": _num(ex["samples"], "export.samples", 1, 1e9, integer=True), "text": text,
+              "base_dir": Path(base_dir),
+              "seed": _num(ex.get("seed", 0), "export.seed", 0, 2 ** 63 - 1, integer=True),
+              "min_object_fraction": _num(ex.get("min_object_fraction", 0.05), "export.min_object_fraction", 0.0, 1.0),
+              "max_redraws": _num(ex.get("max_redraws", 20), "export.max_redraws", 1, 10000, integer=True),
+              "min_modulation": _num(ex.get("min_modulation", 0.02), "export.min_modulation", 0.0, 0.5)}
+    fields.update(_system_section(d.get("system", {})))
+    fields.update(_patterns_section(d.get("patterns", {})))
+    fields.update(_scene_section(d.get("scene", {}), base_dir))
+    fields["effects"] = _effects(d.get("effects", {}))
+    fields["codec"] = d.get("output", {}).get("codec", "gzip-1")
+    if fields["codec"] not in CODECS:
+        _fail("output.codec", f"expected one of lzf, gzip, gzip-1..9, none; got {fields['codec']!r}")
+    return ExportConfig(**fields)
 
 
-def _system_section(cfg: ExportConfig, sy: dict):
-    sy = _table(sy, "system", {"file", "ideal", "perturb"})
+def _system_section(sy: dict) -> dict:
+    out = {}
     if "file" in sy:
         files = sy["file"] if isinstance(sy["file"], list) else [sy["file"]]
-        cfg.system_file = [str(f) for f in files]
-    cfg.ideal = bool(sy.get("ideal", False))
-    cfg.perturb = sy.get("perturb", "none")
-    if cfg.perturb not in ("none", "posterior"):
-        _fail("system.perturb", f"expected 'none' or 'posterior', got {cfg.perturb!r}")
-    if cfg.perturb == "posterior" and not cfg.system_file:
+        out["system_file"] = tuple(str(f) for f in files)
+    out["ideal"] = bool(sy.get("ideal", False))
+    out["perturb"] = sy.get("perturb", "none")
+    if out["perturb"] not in ("none", "posterior"):
+        _fail("system.perturb", f"expected 'none' or 'posterior', got {out['perturb']!r}")
+    if out["perturb"] == "posterior" and not out.get("system_file"):
         _fail("system.perturb", "'posterior' needs system.file (a calibration.json written by calib run)")
+    return out
 
 
-def _patterns_section(cfg: ExportConfig, pa: dict):
-    pa = _table(pa, "patterns", {"orientations", "frequencies", "steps", "A", "B"})
+def _patterns_section(pa: dict) -> dict:
     o = pa.get("orientations", ["v", "h"])
-    if not isinstance(o, list) or not o or any(x not in ("v", "h") for x in o) or len(set(o)) != len(o):
+    if not o or any(x not in ("v", "h") for x in o) or len(set(o)) != len(o):
         _fail("patterns.orientations", f"expected a list of distinct 'v' / 'h', got {o!r}")
-    cfg.orientations = tuple(o)
     fr = pa.get("frequencies", [1, 47, 48])
-    if not isinstance(fr, list) or not fr:
+    if not fr:
         _fail("patterns.frequencies", f"expected a non-empty list, got {fr!r}")
     fr = [_num(f, "patterns.frequencies", 1e-6, 127.0) for f in fr]
     if sorted(set(fr)) != fr:
         _fail("patterns.frequencies", f"expected strictly increasing frequencies, got {fr}")
-    cfg.frequencies = tuple(fr)
     st = pa.get("steps", 12)
     st = [st] * len(fr) if not isinstance(st, list) else st
     if len(st) != len(fr):
         _fail("patterns.steps", f"{len(st)} step counts for {len(fr)} frequencies")
-    cfg.steps = tuple(_num(n, "patterns.steps", 3, 1000, integer=True) for n in st)
-    cfg.A = _num(pa.get("A", 0.5), "patterns.A", 0.0, 1.0)
-    cfg.B = _num(pa.get("B", 0.5), "patterns.B", 0.0, 1.0)
-    if cfg.A - cfg.B < -1e-12 or cfg.A + cfg.B > 1 + 1e-12:
-        _fail("patterns.A/B", f"A +- B = [{cfg.A - cfg.B}, {cfg.A + cfg.B}] must lie in [0, 1]")
+    out = {"orientations": tuple(o), "frequencies": tuple(fr),
+           "steps": tuple(_num(n, "patterns.steps", 3, 1000, integer=True) for n in st),
+           "A": _num(pa.get("A", 0.5), "patterns.A", 0.0, 1.0), "B": _num(pa.get("B", 0.5), "patterns.B", 0.0, 1.0)}
+    if out["A"] - out["B"] < -1e-12 or out["A"] + out["B"] > 1 + 1e-12:
+        _fail("patterns.A/B", f"A +- B = [{out['A'] - out['B']}, {out['A'] + out['B']}] must lie in [0, 1]")
+    return out
 
 
-def _scene_section(cfg: ExportConfig, sc: dict, base_dir):
-    sc = _table(sc, "scene", {"objects", "mesh_dir", "meshes", "mesh_fraction", "procedural",
-                                               "size_mm", "depth_mm", "background", "background_gap_mm",
-                                               "background_tilt_deg", "albedo", "texture", "texture_contrast"})
+def _scene_section(sc: dict, base_dir) -> dict:
     n = _range(sc.get("objects", [1, 4]), "scene.objects", 1, 32)
     if n.lo != int(n.lo) or n.hi != int(n.hi):
         _fail("scene.objects", f"expected whole numbers, got {n.to_list()}")
-    cfg.objects = (int(n.lo), int(n.hi))
     mesh_dir = Path(base_dir) / sc.get("mesh_dir", ".")
     meshes = sc.get("meshes", [])
-    if not isinstance(meshes, list):
-        _fail("scene.meshes", f"expected a list of mesh files, got {meshes!r}")
-    cfg.meshes = tuple(str(mesh_dir / m) for m in meshes)
-    cfg.mesh_fraction = _prob(sc.get("mesh_fraction", 0.6 if meshes else 0.0), "scene.mesh_fraction")
-    if cfg.mesh_fraction > 0 and not meshes:
-        _fail("scene.mesh_fraction", f"{cfg.mesh_fraction} but scene.meshes is empty")
+    out = {"objects": (int(n.lo), int(n.hi)), "meshes": tuple(str(mesh_dir / m) for m in meshes),
+           "mesh_fraction": _prob(sc.get("mesh_fraction", 0.6 if meshes else 0.0), "scene.mesh_fraction")}
+    if out["mesh_fraction"] > 0 and not meshes:
+        _fail("scene.mesh_fraction", f"{out['mesh_fraction']} but scene.meshes is empty")
     proc = sc.get("procedural", list(PROCEDURAL))
-    if not isinstance(proc, list) or any(p not in PROCEDURAL for p in proc):
+    if any(p not in PROCEDURAL for p in proc):
         _fail("scene.procedural", f"expected a list of {list(PROCEDURAL)}, got {proc!r}")
-    if not proc and cfg.mesh_fraction < 1:
+    if not proc and out["mesh_fraction"] < 1:
         _fail("scene.procedural", "empty, but scene.mesh_fraction < 1 asks for procedural objects")
-    cfg.procedural = tuple(proc)
-    cfg.size_mm = _range(sc.get("size_mm", [50, 130]), "scene.size_mm", 1.0, 5000.0)
-    cfg.depth_mm = _range(sc.get("depth_mm", [-80, 80]), "scene.depth_mm", -5000.0, 5000.0)
-    cfg.background = _prob(sc.get("background", 0.7), "scene.background")
-    cfg.background_gap_mm = _range(sc.get("background_gap_mm", [20, 120]), "scene.background_gap_mm", 0.0, 5000.0)
-    cfg.background_tilt_deg = _range(sc.get("background_tilt_deg", [0, 25]), "scene.background_tilt_deg", 0.0, 80.0)
-    cfg.albedo = _range(sc.get("albedo", [0.3, 0.95]), "scene.albedo", 0.0, 1.0)
-    cfg.texture = _prob(sc.get("texture", 0.5), "scene.texture")
-    cfg.texture_contrast = _range(sc.get("texture_contrast", [0.1, 0.6]), "scene.texture_contrast", 0.0, 1.0)
+    out.update({
+        "procedural": tuple(proc),
+        "size_mm": _range(sc.get("size_mm", [50, 130]), "scene.size_mm", 1.0, 5000.0),
+        "depth_mm": _range(sc.get("depth_mm", [-80, 80]), "scene.depth_mm", -5000.0, 5000.0),
+        "background": _prob(sc.get("background", 0.7), "scene.background"),
+        "background_gap_mm": _range(sc.get("background_gap_mm", [20, 120]), "scene.background_gap_mm", 0.0, 5000.0),
+        "background_tilt_deg": _range(sc.get("background_tilt_deg", [0, 25]), "scene.background_tilt_deg", 0.0, 80.0),
+        "albedo": _range(sc.get("albedo", [0.3, 0.95]), "scene.albedo", 0.0, 1.0),
+        "texture": _prob(sc.get("texture", 0.5), "scene.texture"),
+        "texture_contrast": _range(sc.get("texture_contrast", [0.1, 0.6]), "scene.texture_contrast", 0.0, 1.0)})
+    return out
 
 
-def load_config(path) -> ExportConfig:
-    """Read an export TOML (ExportConfigError on any invalid key, naming it)."""
+def load_config(path, overrides=()) -> ExportConfig:
+    """Read an export TOML, then ``section.key=value`` ``overrides`` (ExportConfigError on any
+    invalid key, naming it)."""
     path = Path(path)
     try:
         text = path.read_text()
@@ -329,5 +332,10 @@ def load_config(path) -> ExportConfig:
         d = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ExportConfigError(f"export config {path}: invalid TOML ({exc})") from None
-    return config_from_dict(d, path.parent, text)
+    check_table(d, SCHEMA, f"export config {path}", ExportConfigError)
+    for item in overrides or ():
+        check_table(apply_overrides({}, [item], ExportConfigError), SCHEMA, "overrides", ExportConfigError)
+    if overrides:
+        text += "\n# overrides\n" + "".join(f"# {item}\n" for item in overrides)
+    return config_from_dict(apply_overrides(d, overrides, ExportConfigError), path.parent, text, f"export config {path}")
 

@@ -75,10 +75,11 @@ def dataset_attrs(cfg: ExportConfig, system) -> dict:
             "fingerprint": fingerprint_of(cfg_json, sys_json, SCHEMA_VERSION)}
 
 
-def export_dataset(config, out, *, shard=None, progress: bool = True) -> dict:
-    """Export one shard of ``config`` (path or ExportConfig) to ``out`` (see the module docstring).
-    Resumes an interrupted run. Returns the summary dict (:func:`format_summary`)."""
-    cfg = load_config(config) if not isinstance(config, ExportConfig) else config
+def export_dataset(config, out, *, shard=None, progress: bool = True, overrides=()) -> dict:
+    """Export one shard of ``config`` (path or ExportConfig; ``overrides``: ``section.key=value``
+    strings applied to a path's TOML) to ``out`` (see the module docstring). Resumes an
+    interrupted run. Returns the summary dict (:func:`format_summary`)."""
+    cfg = load_config(config, overrides) if not isinstance(config, ExportConfig) else config
     check_meshes(cfg)
     system, sampler = base_system(cfg)
     i, n = shard if shard is not None else (shard_from_environment() or (0, 1))

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, replace
 
+from unwrap.strict import check_keys
+
 from .errors import SynthError
 
 
@@ -110,10 +112,7 @@ def _sub(d, cls, key):
         return None
     if not isinstance(d, dict):
         raise SynthError(f"effects.{key}: expected a table, got {d!r}")
-    allowed = set(cls.__dataclass_fields__)
-    unknown = set(d) - allowed
-    if unknown:
-        raise SynthError(f"effects.{key}: unknown key(s) {sorted(unknown)}; allowed {sorted(allowed)}")
+    check_keys(d, cls.__dataclass_fields__, "scene", SynthError, prefix=f"effects.{key}.")
     kw = {}
     for k in d:
         if k in ("levels", "seed"):
@@ -155,10 +154,7 @@ def _global_illumination(d) -> GlobalIllumination | None:
 def effects_from_table(d: dict | None) -> Effects:
     """``[effects]`` table -> Effects; unknown keys and bad values raise SynthError naming them."""
     d = dict(d or {})
-    allowed = set(Effects.__dataclass_fields__)
-    unknown = set(d) - allowed
-    if unknown:
-        raise SynthError(f"effects: unknown key(s) {sorted(unknown)}; allowed {sorted(allowed)}")
+    check_keys(d, Effects.__dataclass_fields__, "scene", SynthError, prefix="effects.")
     kw = {}
     for k, v in d.items():
         if k in _CHOICES:

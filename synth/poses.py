@@ -19,6 +19,7 @@ import math
 import numpy as np
 
 from calib.rotation import validate_rotation
+from unwrap.strict import check_keys
 from twin_mapping.euler import matrix_from_euler_xyz
 
 from .errors import SynthError
@@ -46,9 +47,7 @@ def parse_pose(d, key: str) -> tuple[np.ndarray, np.ndarray]:
         return np.eye(3), np.zeros(3)
     if not isinstance(d, dict):
         raise SynthError(f"{key}: expected a table {{R = ..., t = ...}} or {{rotation_deg = ..., t = ...}}, got {d!r}")
-    unknown = set(d) - {"R", "t", "rotation_deg"}
-    if unknown:
-        raise SynthError(f"{key}: unknown key(s) {sorted(unknown)}; expected R or rotation_deg, and t")
+    check_keys(d, ("R", "t", "rotation_deg"), "scene", SynthError, prefix=f"{key}.")
     if "R" in d and "rotation_deg" in d:
         raise SynthError(f"{key}: give either R or rotation_deg, not both")
     t = _vector(d.get("t", [0, 0, 0]), 3, f"{key}.t")

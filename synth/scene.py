@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.system import SystemModel, default_system
+from unwrap.strict import check_keys, check_table
 
 from .boards import board_from_table
 from .effects import Effects, effects_from_table
@@ -42,6 +43,10 @@ from .meshes import blobs_heights, heightfield_mesh, load_mesh, steps_mesh
 from .objects import Board, Mesh, Plane, SceneObject, Sphere
 from .poses import parse_pose
 from .sequence import PatternSpec, sequence_from_tables
+
+#: The top level of a scene TOML (the strict reader, unwrap.strict, checks keys and types).
+SCHEMA = {"system": {"file": str | tuple[str, ...], "ideal": bool}, "objects": tuple[dict, ...],
+          "patterns": {"sequence": tuple[dict, ...], "A": float, "B": float}, "effects": dict, "name": str}
 
 #: Default ball radius (mm): a 50.8 mm (2 in) standard sphere. The supplementary does not state
 #: the size of the paper's ball; this is a common gauge-ball size, used unless a scene says.
@@ -97,9 +102,7 @@ def object_from_table(d: dict, index: int, base_dir: Path = Path(".")) -> SceneO
     if kind not in _OBJECT_KEYS:
         raise SynthError(f"{key}.kind: expected one of {sorted(_OBJECT_KEYS)}, got {kind!r}")
     allowed = _OBJECT_KEYS[kind] | {"kind", "name", "pose", "albedo"}
-    unknown = set(d) - allowed
-    if unknown:
-        raise SynthError(f"{key}: unknown key(s) {sorted(unknown)} for kind {kind!r}; allowed {sorted(allowed)}")
+    check_keys(d, allowed, f"scene (kind {kind!r})", SynthError, prefix=f"{key}.")
     name = str(d.get("name", f"{kind}{index}"))
     R, t = parse_pose(d.get("pose"), f"{key}.pose")
     albedo = d.get("albedo", 0.8)
@@ -171,13 +174,8 @@ def object_from_table(d: dict, index: int, base_dir: Path = Path(".")) -> SceneO
 
 def scene_from_dict(d: dict, base_dir: Path = Path("."), name: str = "scene", source_text: str = "") -> Scene:
     """A parsed scene TOML (dict) -> Scene."""
-    allowed = {"system", "objects", "patterns", "effects", "name"}
-    unknown = set(d) - allowed
-    if unknown:
-        raise SynthError(f"scene: unknown top-level key(s) {sorted(unknown)}; allowed {sorted(allowed)}")
+    check_table(d, SCHEMA, "scene", SynthError)
     sys_d = d.get("system", {})
-    if not isinstance(sys_d, dict) or set(sys_d) - {"file", "ideal"}:
-        raise SynthError(f"system: expected a table with 'file' and/or 'ideal', got {sys_d!r}")
     if "file" in sys_d:
         from calib.io import load_system
         files = sys_d["file"] if isinstance(sys_d["file"], list) else [sys_d["file"]]
@@ -187,15 +185,10 @@ def scene_from_dict(d: dict, base_dir: Path = Path("."), name: str = "scene", so
     if sys_d.get("ideal", False):
         system = ideal_system(system)
     objs = d.get("objects", [])
-    if not isinstance(objs, list):
-        raise SynthError("objects: expected an array of tables [[objects]]")
     objects = [object_from_table(o, i, base_dir) for i, o in enumerate(objs)]
     pat = d.get("patterns")
     if not isinstance(pat, dict) or "sequence" not in pat:
         raise SynthError("patterns.sequence: missing (e.g. [[patterns.sequence]] kind = \"phase\" ...)")
-    unknown = set(pat) - {"sequence", "A", "B"}
-    if unknown:
-        raise SynthError(f"patterns: unknown key(s) {sorted(unknown)}; allowed ['A', 'B', 'sequence']")
     patterns = sequence_from_tables(pat["sequence"], system.projector.size, base_dir)
     eff_d = dict(d.get("effects", {}))
     for k in ("A", "B"):

@@ -12,6 +12,8 @@ import numpy as np
 
 from unwrap.patterns import fringe_pattern
 
+from unwrap.strict import check_keys
+
 from .errors import SynthError
 
 KINDS = ("phase", "gray", "white", "black", "image")
@@ -121,9 +123,7 @@ def sequence_from_tables(entries, projector_size, base_dir: Path = Path(".")) ->
                    "image": {"kind", "file", "name"}}.get(kind)
         if allowed is None:
             raise SynthError(f"{key}.kind: expected one of {KINDS}, got {kind!r}")
-        unknown = set(e) - allowed
-        if unknown:
-            raise SynthError(f"{key}: unknown key(s) {sorted(unknown)} for kind {kind!r}; allowed {sorted(allowed)}")
+        check_keys(e, allowed, f"scene (kind {kind!r})", SynthError, prefix=f"{key}.")
         if kind == "phase":
             if "frequencies" not in e:
                 raise SynthError(f"{key}.frequencies: missing (e.g. [1, 8, 48])")

@@ -154,18 +154,20 @@ def test_shard_from_torchrun_and_slurm_environment():
 
 
 @pytest.mark.parametrize("doc, message", [
-    ({"export": {"samples": 3, "sed": 1}}, r"export: unknown key\(s\) \['sed'\]"),
+    ({"export": {"samples": 3, "sed": 1}}, r"unknown key 'export.sed' \(did you mean 'export.seed'\?\)"),
     ({"export": {"samples": 3}, "effects": {"noise": {"full_well_e": [9000, 100]}}},
      r"effects.noise.full_well_e: impossible range \[9000.0, 100.0\]"),
     ({"export": {"samples": 3}, "effects": {"camera_defocus": {"apperture_mm": 2}}},
-     r"effects.camera_defocus: unknown key\(s\) \['apperture_mm'\]"),
+     r"unknown key 'effects.camera_defocus.apperture_mm' \(did you mean 'effects.camera_defocus.aperture_mm'\?\)"),
     ({"export": {"samples": 3}, "effects": {"global_illumination": {"subsurface": [0, 1.5]}}},
      r"effects.global_illumination.subsurface: 1.5 outside \[0.0, 1.0\]"),
     ({"export": {"samples": 3}, "scene": {"size_mm": [0, 10]}}, r"scene.size_mm: 0 outside"),
     ({"export": {}}, "export.samples: missing"),
     ({"export": {"samples": 3}, "patterns": {"frequencies": [48, 1]}}, "patterns.frequencies: expected strictly"),
     ({"export": {"samples": 3}, "scene": {"mesh_fraction": 0.5}}, "scene.mesh_fraction: 0.5 but scene.meshes is empty"),
-    ({"export": {"samples": 3}, "bogus": {}}, r"config: unknown key\(s\) \['bogus'\]"),
+    ({"export": {"samples": 3}, "bogus": {}}, r"unknown section \[bogus\]"),
+    ({"export": {"samples": 3}, "patterns": {"steps": 4.0}}, "patterns.steps = 4.0: expected an integer"),
+    ({"export": {"samples": "3"}}, "export.samples = '3': expected an integer, got a string"),
 ])
 def test_config_with_unknown_key_or_impossible_range_is_refused_naming_the_key(doc, message):
     with pytest.raises(ExportConfigError, match=message):

@@ -21,7 +21,7 @@ META = {"frequencies": {"mf": [1.0, 48.0], "mw": [47.0, 48.0], "nt": [47.0, 48.0
 def constant_model(path, correction: int = 0, kind: str = "physics"):
     """A checkpoint whose network outputs one correction class everywhere (confidence ~1)."""
     cfg = resolve_config(None, ["data.synthetic_samples=4", "model.width=4", "model.depth=1", f"model.kind='{kind}'"])
-    arch = arch_from_config(cfg["model"])
+    arch = arch_from_config(cfg.model)
     net = build_model(arch)
     last = net.refine[-1]
     with torch.no_grad():

@@ -43,6 +43,7 @@ import numpy as np
 
 from .errors import UnwrapError
 from .graycode_capture import GRAY_KIND, design_gray_orientations, procam_orientations, read_gray_pattern
+from .strict import check_table
 
 PRESETS = ("design", "slstudio", "slmaster", "kamino-phaseshift", "procam-graycode")
 PRESET_ALIASES = {"kamino": "kamino-phaseshift"}
@@ -138,12 +139,29 @@ def read_stack(files) -> np.ndarray:
     return FrameReader().stack(files)
 
 
+#: The keys and types of a ``capture.toml`` (DESIGN.md); the strict reader (:mod:`unwrap.strict`)
+#: refuses any other key naming the closest known one. ``[board]`` is checked by
+#: ``calib.board.Board.from_dict``, ``[render]`` (what rendered the capture) is free.
+CAPTURE_SCHEMA = {
+    "board": dict,
+    "pattern": {"kind": str, "steps": int | tuple[int, ...], "frequencies": tuple[float, ...], "shift_sign": int,
+                "phase_offset": float, "shifts": tuple[float, ...] | tuple[tuple[float, ...], ...],
+                "block_px": int, "inverse": bool},
+    "camera": {"size": tuple[int, ...]},
+    "projector": {"size": tuple[int, ...]},
+    "capture": {"preset": str, "method": str, "poses": tuple[str, ...], "board_image": tuple[str, ...]},
+    "render": dict,
+}
+
+
 def read_toml(path) -> dict:
-    """A capture description as a dict; UnwrapError naming the file when it is not valid TOML."""
+    """A capture description as a dict; UnwrapError naming the file when it is not valid TOML, has
+    a key :data:`CAPTURE_SCHEMA` does not know (naming the closest) or a value of the wrong type."""
     try:
-        return tomllib.loads(Path(path).read_text())
+        meta = tomllib.loads(Path(path).read_text())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise UnwrapError(f"{path}: not valid TOML ({exc})") from None
+    return check_table(meta, CAPTURE_SCHEMA, str(path), UnwrapError)
 
 
 #: Lossless image formats a scanner's own layout may use (SLStudio and SLMaster write BMP).

@@ -1,6 +1,6 @@
 """``calib export``: the twin's training data (or a real capture) as sharded, resumable HDF5.
 
-    calib export CONFIG.toml -o data/train.h5 [--shard i/n]      # render; resumes when rerun
+    calib export CONFIG.toml -o data/train.h5 [--shard i/n] [--set section.key=value]  # resumes
     calib export --combine data/train-*-of-*.h5 -o data/train.h5 # join shards (virtual datasets)
     calib export --capture DIR -o real.h5 [--reference auto|gray|cloud|none]
 """
@@ -21,6 +21,8 @@ def add_arguments(parser):
                         help="reference order of a capture (default: Gray code if any, else --reference-cloud)")
     parser.add_argument("--reference-cloud", help="point cloud (.mat 'xyz' or .npy, H x W x 3 mm) of the same view")
     parser.add_argument("--reference-system", help="calibration of the capture (for --reference-cloud)")
+    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="override one key of CONFIG, e.g. --set export.samples=10 (repeatable)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
 
 
@@ -48,5 +50,6 @@ def run(args) -> int:
     from synth.dataset_export import export_dataset, format_summary
 
     shard = parse_shard(args.shard) if args.shard else None
-    print(format_summary(export_dataset(args.config, args.output, shard=shard, progress=not args.quiet)))
+    print(format_summary(export_dataset(args.config, args.output, shard=shard, progress=not args.quiet,
+                                        overrides=args.set)))
     return 0

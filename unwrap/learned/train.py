@@ -24,6 +24,7 @@ CUDA; each rank a disjoint share of every epoch; only rank 0 writes) and uses mi
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import logging
 import math
@@ -40,7 +41,7 @@ from tqdm import tqdm
 
 from . import features as Fe
 from .checkpoint import FORMAT, FORMAT_VERSION, arch_from_config, build_model, export_model, read_checkpoint, save_atomic
-from .config import resolve_config, to_toml
+from .config import TrainConfig, resolve_config, to_toml
 from .data import ResumableSampler, build_datasets
 from .errors import ConfigError, DatasetTooSmallError
 from .losses import LossWeights, composite_loss
@@ -116,7 +117,7 @@ def _dist_env():
 
 
 def _device(cfg, local_rank: int) -> torch.device:
-    want = cfg["run"]["device"]
+    want = cfg.run.device
     if want == "cuda" or (want == "auto" and torch.cuda.is_available()):
         if not torch.cuda.is_available():
             raise ConfigError("run.device = 'cuda' but CUDA is not available")
@@ -125,15 +126,15 @@ def _device(cfg, local_rank: int) -> torch.device:
     return torch.device("cpu")
 
 
-def lr_factor(step: int, cfg: dict) -> float:
+def lr_factor(step: int, cfg) -> float:
     """Learning-rate multiplier: linear warm-up, then cosine to 2 % (or constant)."""
-    o = cfg["optim"]
-    w = o["warmup_steps"]
+    o = cfg.optim
+    w = o.warmup_steps
     if step < w:
         return (step + 1) / w
-    if o["schedule"] == "constant":
+    if o.schedule == "constant":
         return 1.0
-    t = min((step - w) / max(o["steps"] - w, 1), 1.0)
+    t = min((step - w) / max(o.steps - w, 1), 1.0)
     return 0.02 + 0.98 * 0.5 * (1.0 + math.cos(math.pi * t))
 
 
@@ -143,7 +144,7 @@ def _to(batch: dict, device) -> dict:
 
 def training_step_loss(model, batch, cfg, weights: LossWeights, amp_dtype=None):
     """(loss, parts) of one batch: inputs -> network -> float32 composite loss."""
-    kind, K = cfg["model"]["kind"], cfg["model"]["max_correction"]
+    kind, K = cfg.model.kind, cfg.model.max_correction
     x, _ = Fe.make_inputs(batch, kind)
     target, mask = Fe.targets(batch, kind, K)
     if amp_dtype is not None:
@@ -160,7 +161,7 @@ def training_step_loss(model, batch, cfg, weights: LossWeights, amp_dtype=None):
 def validate(model, val, cfg, weights, device) -> dict:
     """Loss and error rates (traditional and model) over the validation scenes, full frames."""
     model.eval()
-    kind, K = cfg["model"]["kind"], cfg["model"]["max_correction"]
+    kind, K = cfg.model.kind, cfg.model.max_correction
     loader = torch.utils.data.DataLoader(val, batch_size=1, shuffle=False, num_workers=0)
     trad, net, losses = ErrorCount(), ErrorCount(), []
     for batch in loader:
@@ -230,7 +231,7 @@ def plot_metrics(run_dir: Path) -> Path | None:
     return path
 
 
-def _resume_config(run_dir: Path, overrides) -> dict:
+def _resume_config(run_dir: Path, overrides) -> TrainConfig:
     saved = resolve_config(run_dir / "config.toml")
     for text in overrides or ():
         name = text.split("=", 1)[0].strip()
@@ -255,7 +256,7 @@ def _cpu_seconds() -> float:
     return time.process_time() + t.children_user + t.children_system
 
 
-def _open_run(config, overrides, out_dir, resume) -> tuple[dict, Path]:
+def _open_run(config, overrides, out_dir, resume) -> tuple[TrainConfig, Path]:
     """(resolved config, run folder) of a new run or of the run ``resume`` continues."""
     if resume is not None:
         if config is not None:
@@ -271,14 +272,14 @@ def _open_run(config, overrides, out_dir, resume) -> tuple[dict, Path]:
     return cfg, run_dir
 
 
-def _make_optimiser(model, cfg: dict, device):
+def _make_optimiser(model, cfg: TrainConfig, device):
     """(optimiser, LR scheduler, autocast dtype or None, gradient scaler or None)."""
-    o = cfg["optim"]
-    opt = torch.optim.AdamW(model.parameters(), lr=o["lr"], weight_decay=o["weight_decay"]) if o["name"] == "adamw" \
-        else torch.optim.SGD(model.parameters(), lr=o["lr"], momentum=0.9, weight_decay=o["weight_decay"])
+    o = cfg.optim
+    opt = torch.optim.AdamW(model.parameters(), lr=o.lr, weight_decay=o.weight_decay) if o.name == "adamw" \
+        else torch.optim.SGD(model.parameters(), lr=o.lr, momentum=0.9, weight_decay=o.weight_decay)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: lr_factor(s, cfg))
     amp_dtype, scaler = None, None
-    if device.type == "cuda" and cfg["run"]["amp"]:
+    if device.type == "cuda" and cfg.run.amp:
         amp_dtype = torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16
         if amp_dtype == torch.float16:
             scaler = torch.amp.GradScaler("cuda")
@@ -290,10 +291,10 @@ class _Session:
     """One training session (new or resumed): model, optimiser, counters, timing and, on rank 0,
     the run folder's files. :func:`train` drives it batch by batch."""
 
-    def __init__(self, cfg: dict, run_dir: Path, resume, rank: int, world: int, local_rank: int, device, info: dict):
+    def __init__(self, cfg: TrainConfig, run_dir: Path, resume, rank: int, world: int, local_rank: int, device, info: dict):
         self.cfg, self.run_dir, self.world, self.device, self.info = cfg, run_dir, world, device, info
         self.writer = rank == 0
-        self.arch = arch_from_config(cfg["model"])
+        self.arch = arch_from_config(cfg.model)
         self.model = build_model(self.arch).to(device)
         self.opt, self.sched, self.amp_dtype, self.scaler = _make_optimiser(self.model, cfg, device)
         self.step, self.epoch, self.batch_in_epoch, self.best, self.cpu_before = 0, 0, 0, float("inf"), 0.0
@@ -301,14 +302,14 @@ class _Session:
             self._restore(read_checkpoint(run_dir / "last.pt"))
         self.net = torch.nn.parallel.DistributedDataParallel(
             self.model, device_ids=[local_rank] if device.type == "cuda" else None) if world > 1 else self.model
-        self.weights = LossWeights(**cfg["loss"])
-        d = cfg["data"]
-        self.meta = {"methods": d["methods"], "orientations": d["orientations"],
-                     "frequencies": {m: d[f"{m}_frequencies"] for m in d["methods"]},
-                     "data": d["train"] or f"synthetic:{d['synthetic_samples']}",
-                     "val_scenes": info["val_scenes"], "loss": cfg["loss"]}
+        self.weights = LossWeights(**dataclasses.asdict(cfg.loss))
+        d = cfg.data
+        self.meta = {"methods": list(d.methods), "orientations": list(d.orientations),
+                     "frequencies": {m: list(d.frequencies(m)) for m in d.methods},
+                     "data": list(d.train) or f"synthetic:{d.synthetic_samples}",
+                     "val_scenes": info["val_scenes"], "loss": dataclasses.asdict(cfg.loss)}
         self.files = self.handler = None
-        self.total = int(cfg["optim"]["steps"])
+        self.total = int(cfg.optim.steps)
         self.t_train, self.n_seen, self.last_loss, self.val_row = 0.0, 0, float("nan"), None
 
     def _restore(self, ck: dict):
@@ -359,8 +360,8 @@ class _Session:
             self.scaler.unscale_(self.opt)
         else:
             loss.backward()
-        if self.cfg["optim"]["grad_clip"] > 0:
-            torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg["optim"]["grad_clip"])
+        if self.cfg.optim.grad_clip > 0:
+            torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.optim.grad_clip)
         if self.scaler is not None:
             self.scaler.step(self.opt)
             self.scaler.update()
@@ -379,8 +380,8 @@ class _Session:
 
     def record(self, parts: dict, bar, val_ds):
         """Rank 0 after a step: CSV row, progress bar, validation + best.pt, last.pt."""
-        run, step, last = self.cfg["run"], self.step, self.step == self.total
-        if step % run["log_every"] == 0 or last:
+        run, step, last = self.cfg.run, self.step, self.step == self.total
+        if step % run.log_every == 0 or last:
             self.files.append("train.csv", TRAIN_FIELDS, {
                 "step": step, "epoch": self.epoch, "loss": f"{self.last_loss:.6g}",
                 **{k: f"{v:.6g}" for k, v in parts.items()}, "lr": f"{self.sched.get_last_lr()[0]:.6g}",
@@ -388,7 +389,7 @@ class _Session:
                 "cpu_s": f"{self.cpu_s():.1f}"})
         bar.update(step - bar.n)
         bar.set_postfix(loss=f"{self.last_loss:.4g}", samples_per_s=f"{self.samples_per_s():.4g}", refresh=False)
-        if val_ds is not None and (step % run["val_every"] == 0 or last):
+        if val_ds is not None and (step % run.val_every == 0 or last):
             self.val_row = validate(self.model, val_ds, self.cfg, self.weights, self.device)
             self.files.append("val.csv", VAL_FIELDS, {"step": step, **self.val_row})
             log.info("step %d: val loss %.4g, error traditional %.4f %%, model %.4f %%", step, self.val_row["loss"],
@@ -397,7 +398,7 @@ class _Session:
             if score == score and score < self.best:
                 self.best = score
                 save_atomic(self.state(), self.run_dir / "best.pt")
-        if step % run["checkpoint_every"] == 0 or last:
+        if step % run.checkpoint_every == 0 or last:
             save_atomic(self.state(), self.run_dir / "last.pt")
 
     def finish(self, bar):
@@ -439,18 +440,18 @@ def train(config=None, overrides=(), out_dir=None, *, resume=None, deterministic
     rank, world, local_rank = _dist_env()
     cfg, run_dir = _open_run(config, overrides, out_dir, resume)
     if deterministic is not None:
-        cfg["run"]["deterministic"] = bool(deterministic)
-    set_deterministic(cfg["run"]["deterministic"])
-    if cfg["run"]["threads"]:
-        torch.set_num_threads(int(cfg["run"]["threads"]))
+        cfg = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, deterministic=bool(deterministic)))
+    set_deterministic(cfg.run.deterministic)
+    if cfg.run.threads:
+        torch.set_num_threads(int(cfg.run.threads))
     device = _device(cfg, local_rank)
     if world > 1 and not torch.distributed.is_initialized():
         torch.distributed.init_process_group("nccl" if device.type == "cuda" else "gloo")
-    seed = int(cfg["run"]["seed"])
+    seed = int(cfg.run.seed)
     seed_everything(seed)
 
     train_ds, val_ds, info = build_datasets(cfg)
-    bs = int(cfg["optim"]["batch_size"])
+    bs = int(cfg.optim.batch_size)
     sampler = ResumableSampler(len(train_ds), seed=seed, rank=rank, world=world)
     if sampler.per_rank() < bs:
         raise DatasetTooSmallError(f"training set too small: {len(train_ds)} items for {world} process(es) x "
@@ -466,7 +467,7 @@ def train(config=None, overrides=(), out_dir=None, *, resume=None, deterministic
         sampler.set_epoch(s.epoch, s.batch_in_epoch * bs)
         train_ds.set_epoch(s.epoch)
         loader = torch.utils.data.DataLoader(train_ds, batch_size=bs, sampler=sampler, drop_last=True,
-                                             num_workers=int(cfg["data"]["workers"]), persistent_workers=False)
+                                             num_workers=int(cfg.data.workers), persistent_workers=False)
         for batch in loader:
             parts = s.optimise(batch, bs)
             if s.writer:
