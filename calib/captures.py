@@ -40,55 +40,19 @@ from pathlib import Path
 
 import numpy as np
 
+from unwrap.capture import BOARD_IMAGE_SOURCES, Capture
+
 from .board import Board
 from .errors import CaptureError
 from .marker_phase import fit_projector_points, window_radii
 from .observations import ObservationError, Observations, ViewObservations
 
-BOARD_IMAGE_SOURCES = ("white", "background", "modulation")
-
 log = logging.getLogger(__name__)
 
 
-@dataclass
-class CaptureSession:
-    """What a capture folder holds (no pixels read yet).
-
-    - folder: the capture folder; toml: path of its description.
-    - board: the printed board; preset, method: frame layout and unwrapping method.
-    - poses: [(name, folder)] one per board pose.
-    - camera_size, projector_size: (W, H) px or None where the description does not say.
-    - board_image: sources tried in order for the board detection.
-    - description: the capture.toml as a dict (layouts that need more than their frames say).
-    """
-
-    folder: Path
-    toml: Path
-    board: Board
-    preset: str
-    method: str | None
-    poses: list
-    camera_size: tuple | None
-    projector_size: tuple | None
-    board_image: tuple = BOARD_IMAGE_SOURCES
-    description: dict = field(default_factory=dict)
-
-
-def _size(meta, key, toml):
-    size = meta.get(key, {}).get("size")
-    if size is None:
-        return None
-    try:
-        w, h = (int(v) for v in size)
-    except (TypeError, ValueError):
-        raise CaptureError(f"{toml}: [{key}] size must be [width, height], got {size!r}") from None
-    if w <= 0 or h <= 0:
-        raise CaptureError(f"{toml}: [{key}] size must be positive, got {size!r}")
-    return (w, h)
-
-
-def read_session(folder, capture_toml=None) -> CaptureSession:
-    """Describe the capture in ``folder`` from its ``capture.toml`` (or ``capture_toml``)."""
+def read_session(folder, capture_toml=None) -> Capture:
+    """Describe the capture session in ``folder`` from its ``capture.toml`` (or ``capture_toml``),
+    read once: an ``unwrap.capture.Capture`` with its board, poses and sizes (no frames yet)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise CaptureError(f"capture folder not found: {folder}")
@@ -118,7 +82,7 @@ def read_session(folder, capture_toml=None) -> CaptureSession:
             raise CaptureError(f"{capture_toml}: the DESIGN.md layout reads its frames' description from "
                                f"{folder / 'capture.toml'}; --capture-toml is for other presets")
         try:
-            check_design_description(toml)      # refuse a bad [pattern] now, not once per pose
+            check_design_description(toml, meta)      # refuse a bad [pattern] now, not once per pose
         except UnwrapError as exc:
             raise CaptureError(str(exc)) from None
     if "poses" in cap:
@@ -138,8 +102,9 @@ def read_session(folder, capture_toml=None) -> CaptureSession:
     if bad or not sources:
         raise CaptureError(f"{toml}: [capture] board_image: unknown source(s) {bad}; "
                            f"expected a list from {BOARD_IMAGE_SOURCES}")
-    return CaptureSession(folder, toml, board, preset, cap.get("method"), [(n, folder / n) for n in names],
-                          _size(meta, "camera", toml), _size(meta, "projector", toml), sources, meta)
+    return Capture(folder, preset, camera_size=_size(meta, "camera", toml), projector_size=_size(meta, "projector", toml),
+                   toml=toml, description=meta, method=cap.get("method"), poses=[(n, folder / n) for n in names],
+                   board_image=sources, board=board)
 
 
 @dataclass
@@ -180,7 +145,7 @@ def _board_image(source, white_path, results):
     return np.asarray(results[o].background if source == "background" else results[o].modulation, np.float64)
 
 
-def observe_pose(session: CaptureSession, name: str, pose_dir: Path, *, method: str | None = None,
+def observe_pose(session: Capture, name: str, pose_dir: Path, *, method: str | None = None,
                  detector=None, degree: int = 2, keep_image: bool = False, progress=None) -> PoseObservation:
     """Unwrap, detect and fit one pose (see the module docstring). ``detector(image, board)``
     defaults to :func:`calib.detect.detect_board`. Raises CaptureError / UnwrapError /
@@ -195,7 +160,7 @@ def observe_pose(session: CaptureSession, name: str, pose_dir: Path, *, method: 
     say = progress or log.info
     t0 = time.perf_counter()
     if session.preset == "design":
-        cap = load_capture(session.folder, "design", pose=name)
+        cap = load_capture(session.folder, "design", pose=name, description=session.description)
     else:
         cap = load_capture(pose_dir, session.preset, description=session.description)
     method = method or session.method or cap.default_method
@@ -258,7 +223,7 @@ class CaptureObservations:
     observations: Observations
     poses: list
     skipped: dict
-    session: CaptureSession
+    session: Capture
     seconds: float = 0.0
 
     def summary(self) -> dict:

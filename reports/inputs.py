@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.calibration_record import (INTRINSICS, CalibrationRecord, load_calibration_record,  # noqa: F401
-                                      sha256)
-from calib.observations import ViewObservations  # noqa: F401  (the one view type; re-exported)
+from calib.calibration_record import INTRINSICS, CalibrationRecord, load_calibration_record  # noqa: F401
 
 from .errors import ReportError
 

@@ -24,7 +24,6 @@ rates are below 0.1 %), and the learned error rate on the capture is not above t
 """
 from __future__ import annotations
 
-import json
 import logging
 import math
 from pathlib import Path
@@ -47,6 +46,7 @@ def capture_noise(path, orientation: str = "v", pair=None) -> dict:
     from unwrap.dataset import FringeOrderDataset
     from unwrap.dataset_schema import read_attrs
     from unwrap.learned.smoothing import smooth_phase
+    from unwrap.reliability import plane_residual_noise
     import h5py
 
     with h5py.File(path, "r") as h5:
@@ -67,22 +67,13 @@ def capture_noise(path, orientation: str = "v", pair=None) -> dict:
         # residual of the pixel from the plane through its 5x5 neighbours (itself included)
         smooth = smooth_phase(Phi, ok[None, None], 5, "plane")[0, 0]
         interior = ok & (torch.nn.functional.avg_pool2d(ok[None, None].double(), 5, 1, 2)[0, 0] > 0.999)
-        e = (Phi[0, 0] - smooth)[interior].numpy()
-        res.append(e)
+        res.append((Phi[0, 0] - smooth)[interior].numpy())
         mods.append(it["modulation_high"][0][interior].double().numpy())
     if not res:
         raise ReportError(f"{path}: no sample with reference orders to measure the noise on")
-    e, B = np.concatenate(res), np.concatenate(mods)
-    dof = math.sqrt(25.0 / 22.0)             # a 3-parameter plane through 25 pixels, the pixel among them
-    sig = 1.4826 * np.median(np.abs(e)) * dof
-    sigma_I = float(np.median(1.4826 * np.abs(e) * dof * B) * math.sqrt(N / 2.0))
-    return {"sigma_I": sigma_I, "sigma_phase_rad": float(sig), "modulation": float(np.median(B)),
-            "pixels": int(e.size), "steps": N, "pair": list(pair)}
-
-
-def matched_full_well(noise: dict) -> float:
-    """Full well (electrons at full scale) whose shot noise gives the capture's ``sigma_I``."""
-    return float(noise["modulation"] / max(noise["sigma_I"], 1e-6) ** 2)
+    noise = plane_residual_noise(np.concatenate(res), np.concatenate(mods), N)
+    return {"sigma_I": noise["sigma_I"], "sigma_phase_rad": noise["sigma_phase_rad"],
+            "modulation": noise["modulation"], "pixels": noise["pixels"], "steps": N, "pair": list(pair)}
 
 
 def _world_depths(system_file) -> tuple[float, float]:
@@ -95,72 +86,55 @@ def _world_depths(system_file) -> tuple[float, float]:
     return float(s.camera.t[2]), float(s.projector.t[2])
 
 
-def twin_config_text(system_file, full_well: float, *, exposure=(0.45, 0.95), samples: int = 6, steps: int = 3,
-                     frequencies=(1, 16, 48, 96), depth_mm=(350, 450), size_mm=(100, 200), mesh_dir=None,
-                     seed: int = 5) -> str:
-    """Export TOML of twin renders of ``system_file`` with the matched noise and exposure: scene
-    and effect ranges as the training set's, objects at the capture's working distance (``depth_mm``
-    from the world origin), both devices focused on it (+-50 mm)."""
-    mesh_dir = Path(mesh_dir) if mesh_dir else Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
+def twin_config(system_file, full_well: float, *, mesh_dir, exposure=(0.45, 0.95), samples: int = 6, steps: int = 3,
+                frequencies=(1, 16, 48, 96), depth_mm=(350, 450), size_mm=(100, 200), seed: int = 5):
+    """The export config (``synth.dataset_config.ExportConfig``, built in memory) of twin renders of
+    ``system_file`` with the matched noise and exposure: scene and effect ranges as the training
+    set's, objects at the capture's working distance (``depth_mm`` from the world origin), both
+    devices focused on it (+-50 mm); meshes from ``mesh_dir``."""
+    import tomli_w
+
+    from synth.dataset_config import config_from_dict
+
     z_cam, z_prj = _world_depths(system_file)
     mid = 0.5 * (depth_mm[0] + depth_mm[1])
     f_cam = [mid - z_cam - 50, mid - z_cam + 50]
     f_prj = [mid - z_prj - 50, mid - z_prj + 50]
-    return f"""[export]
-samples = {int(samples)}
-seed = {int(seed)}
-min_object_fraction = 0.05
-
-[system]
-file = {json.dumps(str(Path(system_file).resolve()))}
-
-[patterns]
-orientations = ["v"]
-frequencies = {json.dumps([float(f) for f in frequencies])}
-steps = {int(steps)}
-
-[scene]
-objects = [1, 2]
-mesh_dir = {json.dumps(str(mesh_dir.resolve()))}
-meshes = ["cheburashka.obj", "suzanne.obj", "stanford-bunny.obj", "spot.obj"]
-mesh_fraction = 0.5
-procedural = ["sphere", "blobs", "heightfield"]
-size_mm = {json.dumps(list(size_mm))}
-depth_mm = {json.dumps(list(depth_mm))}
-background = 0.7
-background_gap_mm = [20, 120]
-background_tilt_deg = [0, 25]
-albedo = [0.3, 0.95]
-texture = 0.5
-texture_contrast = [0.1, 0.6]
-
-[effects]
-exposure = {json.dumps([round(float(e), 4) for e in exposure])}
-ambient = [0.0, 0.08]
-noise = {{full_well_e = {full_well:.1f}, read_noise_e = 2}}
-projector_defocus = {{aperture_mm = [0, 3], focus_offset_mm = {json.dumps([round(v, 1) for v in f_prj])}}}
-camera_defocus = {{aperture_mm = [0, 3], focus_offset_mm = {json.dumps([round(v, 1) for v in f_cam])}}}
-global_illumination = {{subsurface = [0, 0.6], scatter_mm = [0.5, 4], interreflection = [0, 0.1], interreflection_mm = [20, 60]}}
-bits = 8
-
-[output]
-codec = "gzip-1"
-"""
+    tree = {
+        "export": {"samples": int(samples), "seed": int(seed), "min_object_fraction": 0.05},
+        "system": {"file": str(Path(system_file).resolve())},
+        "patterns": {"orientations": ["v"], "frequencies": [float(f) for f in frequencies], "steps": int(steps)},
+        "scene": {"objects": [1, 2], "mesh_dir": str(Path(mesh_dir).resolve()),
+                  "meshes": ["cheburashka.obj", "suzanne.obj", "stanford-bunny.obj", "spot.obj"],
+                  "mesh_fraction": 0.5, "procedural": ["sphere", "blobs", "heightfield"], "size_mm": list(size_mm),
+                  "depth_mm": list(depth_mm), "background": 0.7, "background_gap_mm": [20, 120],
+                  "background_tilt_deg": [0, 25], "albedo": [0.3, 0.95], "texture": 0.5,
+                  "texture_contrast": [0.1, 0.6]},
+        "effects": {"exposure": [round(float(e), 4) for e in exposure], "ambient": [0.0, 0.08],
+                    "noise": {"full_well_e": round(float(full_well), 1), "read_noise_e": 2},
+                    "projector_defocus": {"aperture_mm": [0, 3], "focus_offset_mm": [round(v, 1) for v in f_prj]},
+                    "camera_defocus": {"aperture_mm": [0, 3], "focus_offset_mm": [round(v, 1) for v in f_cam]},
+                    "global_illumination": {"subsurface": [0, 0.6], "scatter_mm": [0.5, 4], "interreflection": [0, 0.1],
+                                            "interreflection_mm": [20, 60]},
+                    "bits": 8},
+        "output": {"codec": "gzip-1"},
+    }
+    return config_from_dict(tree, Path("."), tomli_w.dumps(tree), "matched twin")
 
 
-def render_matched_twin(real_file, system_file, out_dir, *, samples: int = 6, frequencies=(1, 16, 48, 96),
-                        progress: bool = True) -> dict:
-    """Measure the capture's noise, render the twin of ``system_file`` (synth) with the full well
-    and exposure that match it, and measure the renders the same way.
+def render_matched_twin(real_file, system_file, out_dir, *, mesh_dir, samples: int = 6,
+                        frequencies=(1, 16, 48, 96), progress: bool = True) -> dict:
+    """Measure the capture's noise, render the twin of ``system_file`` (synth; meshes from
+    ``mesh_dir``) with the full well and exposure that match it, and measure the renders the same way.
 
-    A 1-sample pilot (full well from :func:`matched_full_well`, exposure 0.45-0.95) is measured;
-    the exposure is then scaled by ``a = B_real / B_pilot`` (the export's light falloff is
-    referenced to the world origin's distance, which differs between systems) and the full well
+    A 1-sample pilot (full well from ``synth.sensor.shot_noise_full_well``, exposure 0.45-0.95) is
+    measured; the exposure is then scaled by ``a = B_real / B_pilot`` (the export's light falloff
+    is referenced to the world origin's distance, which differs between systems) and the full well
     by ``a (sigma_pilot / sigma_real)^2`` (shot noise: ``sigma_I^2 ~ I / full_well``) for the final
-    render.
-    RETURNED VALUE: {"file", "config", "noise_real", "noise_twin", "full_well", "exposure", "pilot"}."""
-    from synth.dataset_config import load_config
+    render. The export configs are built in memory (:func:`twin_config`).
+    RETURNED VALUE: {"file", "noise_real", "noise_twin", "full_well", "exposure", "pilot"}."""
     from synth.dataset_export import export_dataset
+    from synth.sensor import shot_noise_full_well
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -168,23 +142,21 @@ def render_matched_twin(real_file, system_file, out_dir, *, samples: int = 6, fr
     pair = (1.0, float(noise["pair"][1]))
 
     def render(name, fw, exposure, n):
-        cfg_path = out / f"{name}.toml"
-        cfg_path.write_text(twin_config_text(system_file, fw, exposure=exposure, samples=n, steps=noise["steps"],
-                                             frequencies=frequencies))
         path = out / f"{name}.h5"
-        export_dataset(load_config(cfg_path), path, progress=progress)
-        return cfg_path, path, capture_noise(path, pair=pair)
+        export_dataset(twin_config(system_file, fw, mesh_dir=mesh_dir, exposure=exposure, samples=n,
+                                   steps=noise["steps"], frequencies=frequencies), path, progress=progress)
+        return path, capture_noise(path, pair=pair)
 
-    fw0, exp0 = matched_full_well(noise), (0.45, 0.95)
-    _, _, pilot = render("twin_pilot", fw0, exp0, 1)
+    fw0, exp0 = shot_noise_full_well(noise["modulation"], noise["sigma_I"]), (0.45, 0.95)
+    _, pilot = render("twin_pilot", fw0, exp0, 1)
     a = noise["modulation"] / max(pilot["modulation"], 1e-6)
     fw = fw0 * a * (pilot["sigma_I"] / noise["sigma_I"]) ** 2
     exposure = (exp0[0] * a, exp0[1] * a)
     LOG.info("learned parity: capture sigma_I %.4f, B %.3f; pilot twin (%.0f e-) sigma_I %.4f, B %.3f -> exposure "
              "x%.2f, full well %.0f e-", noise["sigma_I"], noise["modulation"], fw0, pilot["sigma_I"],
              pilot["modulation"], a, fw)
-    cfg_path, path, twin = render("twin_parity", fw, exposure, samples)
-    return {"file": str(path), "config": str(cfg_path), "noise_real": noise, "noise_twin": twin, "full_well": fw,
+    path, twin = render("twin_parity", fw, exposure, samples)
+    return {"file": str(path), "noise_real": noise, "noise_twin": twin, "full_well": fw,
             "exposure": list(exposure), "pilot": {"full_well": fw0, "exposure": list(exp0), "noise": pilot}}
 
 
@@ -344,5 +316,6 @@ def slstudio_parity(shared_data, out_dir, model="learned", *, samples: int = 2, 
     real = out / "skull.h5"
     if not real.exists():
         export_capture(skull, real, reference_cloud=cloud, reference_system=system)
-    twin = render_matched_twin(real, system, out, samples=samples, progress=progress)
+    twin = render_matched_twin(real, system, out, mesh_dir=Path(shared_data) / "meshes", samples=samples,
+                               progress=progress)
     return section([real], [twin["file"]], model, twin_info=twin)

@@ -182,9 +182,11 @@ def write_twin_report(real_paths, twin_paths, out_dir, *, title="Twin-equivalenc
         raise ReportError("the twin ball render needs the real ball phase (--phase-real): its pose is fitted from it")
     out = Path(out_dir)
     if phases:
-        from .sphere_matrix import load_phase, sphere_section
+        from unwrap.phase_io import read_phase
+
+        from .sphere_matrix import sphere_section
         check_comparable(real, twin)
-        maps = {k: load_phase(v) for k, v in phases.items()}
+        maps = {k: read_phase(v) for k, v in phases.items()}
         extra_rows, ball_blocks = [], []
         if render_twin_ball:
             from synth.twin_ball import render_twin_ball_phase, write_twin_ball_phase

@@ -91,3 +91,40 @@ def quantise(images: torch.Tensor, bits: int, gain: float = 1.0, saturation: flo
         v.mul_(gain)
     v.clamp_(0.0, saturation).mul_(top).round_().clamp_(0, top)
     return v.to(torch.uint8 if bits <= 8 else torch.int32)
+
+
+# -- the full well that gives a noise level (the sensor model above, solved for its one unknown) --
+
+def predicted_phase_noise(A_lin, B_lin, full_well: float, steps: int, bits: int, read_noise_e: float) -> float:
+    """Median N-step phase noise (rad) for Poisson-Gaussian noise plus quantisation, per pixel
+    ``sqrt(2/N) sigma_I / B`` with ``sigma_I^2 = (A FW + read^2) / FW^2 + q^2 / 12``, q = 1 count
+    (``A_lin``, ``B_lin``: linear full-scale background and modulation of the pixels)."""
+    import numpy as np
+
+    q = 1.0 / ((1 << bits) - 1)
+    var = (A_lin * full_well + read_noise_e ** 2) / full_well ** 2 + q * q / 12
+    return float(np.median(np.sqrt(2.0 / steps) * np.sqrt(var) / B_lin))
+
+
+def solve_full_well(A_lin, B_lin, target: float, steps: int, bits: int, read_noise_e: float) -> float | None:
+    """Full well (electrons) whose :func:`predicted_phase_noise` is the ``target`` (rad), by
+    bisection in log space; None if even a noise-free camera (quantisation only) is noisier."""
+    lo, hi = 1.0, 1e12
+    if predicted_phase_noise(A_lin, B_lin, hi, steps, bits, read_noise_e) >= target:
+        return None
+    for _ in range(200):
+        mid = math.sqrt(lo * hi)
+        if predicted_phase_noise(A_lin, B_lin, mid, steps, bits, read_noise_e) > target:
+            lo = mid
+        else:
+            hi = mid
+        if hi / lo < 1 + 1e-6:
+            break
+    return float(hi)
+
+
+def shot_noise_full_well(modulation: float, sigma_I: float) -> float:
+    """Full well (electrons at full scale) whose shot noise alone gives the intensity noise
+    ``sigma_I`` at full-contrast fringes (``sigma_I^2 ~ I / full_well`` with ``I ~ B``):
+    ``B / sigma_I^2``. A first guess where the read noise and quantisation are unknown."""
+    return float(modulation / max(sigma_I, 1e-6) ** 2)

@@ -18,7 +18,7 @@ twin phase is rendered by our own renderer for the pose the real ball had:
    N-step least squares, multi-frequency unwrapping) into the absolute phase of the top
    frequency, float64, NaN where invalid;
 4. sensor noise matched to the real phase: the real map's phase noise is measured by
-   :func:`phase_noise_rad` (robust second differences, the smooth sphere's own curvature removed
+   :func:`unwrap.reliability.phase_noise_rad` (robust second differences, the smooth sphere's own curvature removed
    in quadrature with the same estimator on the noise-free truth), and the twin camera's full
    well (Poisson shot noise, 5 e- read noise, 8-bit quantisation) is solved so that the rendered
    phase carries the same noise, then checked by measuring the decoded render the same way;
@@ -55,6 +55,7 @@ import numpy as np
 from calib.triangulate import fit_sphere, points_from_phase, sphere_from_phase
 from unwrap.fused_mf import mf_unwrap_stacks
 from unwrap.phase_io import write_phase_file
+from unwrap.reliability import phase_noise_rad
 
 from .effects import Effects, Noise
 from .errors import SynthError
@@ -62,6 +63,7 @@ from .geometry import compute_geometry
 from .objects import Sphere
 from .render import render
 from .scene import Scene
+from .sensor import solve_full_well
 from .sequence import phase_sequence
 from .truth import phase_truth
 
@@ -118,60 +120,6 @@ def fit_ball_pose(system, phase, frequency: float, method: str = "distortion-awa
                          "the map does not look like a ball (wrong frequency or orientation?)")
     return {"centre_world_mm": centre.tolist(), "centre_cam_mm": centre_cam.tolist(), "radius_mm": float(radius),
             "rms_um": rms_um, "points": int(ok.sum()), "method": method}
-
-
-def phase_noise_rad(phase, reference=None, erode: int = 3) -> float:
-    """Phase noise (rad, 1 sigma) of a smooth absolute phase map, from second differences.
-
-    For white noise of sigma s, ``p[i-1] - 2 p[i] + p[i+1]`` has standard deviation ``s sqrt 6``;
-    its median absolute deviation (x 1.4826) is robust to the rim and to the odd outlier. Rows and
-    columns are averaged; pixels within ``erode`` of the footprint's edge are left out. With a
-    noise-free ``reference`` map of the same surface the estimator's own response to the surface's
-    curvature is removed in quadrature.
-    """
-    from scipy.ndimage import binary_erosion
-
-    def raw(p):
-        p = np.asarray(p, dtype=np.float64)
-        inner = binary_erosion(np.isfinite(p), iterations=erode)
-        out = []
-        for axis in (0, 1):
-            d2 = np.roll(p, 1, axis) - 2 * p + np.roll(p, -1, axis)
-            x = d2[inner & np.isfinite(d2)]
-            if x.size < 50:
-                raise SynthError(f"phase noise: only {x.size} interior pixels; the footprint is too small")
-            out.append(1.4826 * np.median(np.abs(x - np.median(x))) / np.sqrt(6))
-        return float(np.mean(out))
-
-    s = raw(phase)
-    if reference is not None:
-        s = float(np.sqrt(max(s ** 2 - raw(reference) ** 2, 0.0)))
-    return s
-
-
-def _predicted_sigma(A_lin, B_lin, full_well, steps, bits):
-    """Median N-step phase noise (rad) for Poisson-Gaussian noise plus quantisation, per pixel
-    ``sqrt(2/N) sigma_I / B`` with ``sigma_I^2 = (A FW + read^2) / FW^2 + q^2 / 12``, q = 1 count."""
-    q = 1.0 / ((1 << bits) - 1)
-    var = (A_lin * full_well + READ_NOISE_E ** 2) / full_well ** 2 + q * q / 12
-    return float(np.median(np.sqrt(2.0 / steps) * np.sqrt(var) / B_lin))
-
-
-def _solve_full_well(A_lin, B_lin, target, steps, bits):
-    """Full well (electrons) giving the target median phase noise; None if even a noise-free camera
-    (quantisation only) is noisier than the target."""
-    lo, hi = 1.0, 1e12
-    if _predicted_sigma(A_lin, B_lin, hi, steps, bits) >= target:
-        return None
-    for _ in range(200):
-        mid = np.sqrt(lo * hi)
-        if _predicted_sigma(A_lin, B_lin, mid, steps, bits) > target:
-            lo = mid
-        else:
-            hi = mid
-        if hi / lo < 1 + 1e-6:
-            break
-    return float(hi)
 
 
 def _stacks(images, n_frequencies: int, steps: int) -> list:
@@ -299,7 +247,7 @@ def _match_noise(ball: _TwinBall, real_phase, noise, seed, progress) -> dict:
     if target is not None:
         goal = target
         for _ in range(3):
-            full_well = _solve_full_well(A_lin[inner], B_lin[inner], goal, steps, bits)
+            full_well = solve_full_well(A_lin[inner], B_lin[inner], goal, steps, bits, READ_NOISE_E)
             if full_well is None:
                 note = (f"the target {target:.3g} rad is below the 8-bit quantisation floor {sigma_clean:.3g} rad: "
                         "rendered noise-free")

@@ -27,13 +27,15 @@ def two_noise_levels(tmp_path_factory):
 @pytest.mark.slow
 def test_capture_noise_follows_the_sensor_full_well(two_noise_levels):
     """Shot noise: sigma_I ~ 1/sqrt(full well), so 4x the full well halves the measured noise."""
-    from reports.learned_parity import capture_noise, matched_full_well
+    from reports.learned_parity import capture_noise
+    from synth.sensor import shot_noise_full_well
 
     lo, hi = capture_noise(two_noise_levels[1500]), capture_noise(two_noise_levels[6000])
     assert lo["steps"] == 4 and lo["pixels"] > 1000
     assert 1.6 < lo["sigma_I"] / hi["sigma_I"] < 2.5
     assert 1.6 < lo["sigma_phase_rad"] / hi["sigma_phase_rad"] < 2.5
-    assert 2.5 < matched_full_well(hi) / matched_full_well(lo) < 6.0
+    full_well = {k: shot_noise_full_well(n["modulation"], n["sigma_I"]) for k, n in (("lo", lo), ("hi", hi))}
+    assert 2.5 < full_well["hi"] / full_well["lo"] < 6.0
 
 
 @pytest.mark.slow

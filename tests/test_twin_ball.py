@@ -8,7 +8,8 @@ from calib.system import SystemModel
 from calib.triangulate import sphere_from_phase
 from reports.errors import ReportError
 from synth.errors import SynthError
-from synth.twin_ball import fit_ball_pose, phase_noise_rad, render_twin_ball_phase
+from synth.twin_ball import fit_ball_pose, render_twin_ball_phase
+from unwrap.reliability import phase_noise_rad
 from tests.conftest import shared_data
 from unwrap.phase_io import read_phase
 

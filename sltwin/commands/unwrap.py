@@ -81,8 +81,9 @@ def run(args) -> int:
     output_dir(args.output)
     if args.model is not None:
         from unwrap.learned.capture import unwrap_capture_learned
+        from unwrap.methods import PAIR_METHODS
 
-        if args.method not in (None, "mf", "mw", "nt"):
+        if args.method not in (None, *PAIR_METHODS):
             raise CommandError(f"--model works with --method mf, mw or nt, not {args.method}")
         if args.max_error_rate is not None or args.noise_sigma is not None:
             raise CommandError("--max-error-rate / --noise-sigma set the threshold from the traditional decoders' "

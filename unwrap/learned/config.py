@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 import tomli_w
 
+from ..methods import PAIR_METHODS
 from ..strict import apply_overrides, check_table, from_table, read_toml, schema_of, to_table
 from .errors import ConfigError
 from .features import KINDS
@@ -40,7 +41,7 @@ class DataConfig:
     train: tuple[str, ...] = ()                      # HDF5 dataset files (unwrap.dataset); empty: the synthetic set
     synthetic_samples: int = 0                      # > 0: train on this many in-memory synthetic scenes instead
     synthetic_size: tuple[int, ...] = (96, 128)     # (H, W) of a synthetic scene
-    methods: tuple[str, ...] = ("mf", "mw", "nt")
+    methods: tuple[str, ...] = PAIR_METHODS
     mf_frequencies: tuple[float, ...] = (1.0, 48.0)
     mw_frequencies: tuple[float, ...] = (47.0, 48.0)
     nt_frequencies: tuple[float, ...] = (47.0, 48.0)
@@ -117,7 +118,6 @@ class TrainConfig:
     run: RunConfig = field(default_factory=RunConfig)
 
 
-LEARNED_METHODS = ("mf", "mw", "nt")
 _POSITIVE_INT = {"data.synthetic_samples": 0, "data.val_samples": 1, "data.workers": 0, "model.width": 1,
                  "model.depth": 1, "model.max_width": 1, "model.max_correction": 1, "optim.batch_size": 1,
                  "optim.steps": 1, "optim.warmup_steps": 0, "run.log_every": 1, "run.val_every": 1,
@@ -138,13 +138,13 @@ def _check(cfg: TrainConfig):
     d = cfg.data
     if not 0.0 <= d.val_fraction < 1.0:
         raise ConfigError(f"data.val_fraction = {d.val_fraction}: expected 0 <= value < 1")
-    bad = [m for m in d.methods if m not in LEARNED_METHODS]
+    bad = [m for m in d.methods if m not in PAIR_METHODS]
     if bad or not d.methods:
         raise ConfigError(f"data.methods = {list(d.methods)}: expected a non-empty list of 'mf', 'mw', 'nt'")
     bad = [o for o in d.orientations if o not in ("v", "h")]
     if bad or not d.orientations:
         raise ConfigError(f"data.orientations = {list(d.orientations)}: expected a non-empty list of 'v', 'h'")
-    for m in LEARNED_METHODS:
+    for m in PAIR_METHODS:
         f = getattr(d, f"{m}_frequencies")
         if len(f) != 2 or not all(v > 0 for v in f) or not f[1] > f[0]:
             raise ConfigError(f"data.{m}_frequencies = {list(f)}: expected [low, high] with high > low > 0")

@@ -18,13 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..methods import PAIR_METHODS
 from .checkpoint import load_model
 from .evaluate import DROPS, TestSource, confidence_curve, score, speed_table
 from .metrics import ErrorCount
 from .paper import TABLE_S5, TABLE_S6
 
 log = logging.getLogger("unwrap.learned")
-METHODS = ("mf", "mw", "nt")
 ROW_PF, ROW_PA, ROW_MSE = "DT-TPU (prior-free)", "DP-TPU (physics-aware)", "MSE"
 
 
@@ -52,7 +52,7 @@ class _Cache:
         return self.done[key]
 
 
-def table_s5(cache: _Cache, frequencies=(48, 96), methods=METHODS) -> dict:
+def table_s5(cache: _Cache, frequencies=(48, 96), methods=PAIR_METHODS) -> dict:
     """{"table": {f: {row: {method: {"ours", "paper", "pixels"}}}}, "scored": {(method, f): Scored}}."""
     out, scored = {}, {}
     names = {"Traditional": "Traditional", ROW_PF: "DT-TPU", ROW_PA: "DP-TPU"}
@@ -67,12 +67,12 @@ def table_s5(cache: _Cache, frequencies=(48, 96), methods=METHODS) -> dict:
             for row in [r for r in s.counts if r != ROW_MSE]:
                 p = paper.get(names.get(row, ""))
                 rows.setdefault(row, {})[m] = {"ours": s.counts[row].rate, "pixels": s.counts[row].counted,
-                                               "paper": None if p is None else p[METHODS.index(m)]}
+                                               "paper": None if p is None else p[PAIR_METHODS.index(m)]}
         out[int(f)] = rows
     return {"table": out, "scored": scored}
 
 
-def table_s6(cache: _Cache, frequencies=(16, 32, 48, 64, 80, 96), methods=METHODS) -> dict:
+def table_s6(cache: _Cache, frequencies=(16, 32, 48, 64, 80, 96), methods=PAIR_METHODS) -> dict:
     """{f: {method: {"MSE": rate or None, "MSE + FL": rate, "traditional": rate, "paper": (mse, msefl)}}}."""
     out = {}
     for f in frequencies:
@@ -142,7 +142,7 @@ def _figures(out: Path, s5: dict, s6: dict, physics_name: str) -> list[str]:
     scored = s5["scored"]
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
     for ax, f in zip(axes, sorted({k[1] for k in scored})):
-        for m in METHODS:
+        for m in PAIR_METHODS:
             s = scored.get((m, f))
             if s is None or physics_name not in s.confidence:
                 continue
@@ -164,7 +164,7 @@ def _figures(out: Path, s5: dict, s6: dict, physics_name: str) -> list[str]:
         made.append(error_map_figure(out / f"error_maps_mf{int(f)}.png", ex, physics_name, f"MF, f = {f:g}"))
     if s6:
         fig, ax = plt.subplots(figsize=(6, 3.8))
-        for m in METHODS:
+        for m in PAIR_METHODS:
             fs = [f for f in sorted(s6) if m in s6[f]]
             if not fs:
                 continue
@@ -217,13 +217,13 @@ def markdown(res: dict) -> str:
     s5 = res.get("s5") or {}
     if s5:
         L += ["## S5 layout: traditional vs prior-free vs physics-aware [%]", "",
-              "| f | method | " + " | ".join(f"{m.upper()} ours | {m.upper()} paper" for m in METHODS) + " |",
-              "|---|---|" + "---:|---:|" * len(METHODS)]
+              "| f | method | " + " | ".join(f"{m.upper()} ours | {m.upper()} paper" for m in PAIR_METHODS) + " |",
+              "|---|---|" + "---:|---:|" * len(PAIR_METHODS)]
         for f, rows in s5.items():
             tag = "seen" if int(f) == 48 else "unseen"
             for row, per in rows.items():
                 cells = []
-                for m in METHODS:
+                for m in PAIR_METHODS:
                     c = per.get(m, {})
                     cells += [_pct(c.get("ours")), _paper(c.get("paper"))]
                 L.append(f"| {f} ({tag}) | {row} | " + " | ".join(cells) + " |")
@@ -234,11 +234,11 @@ def markdown(res: dict) -> str:
     s6 = res.get("s6") or {}
     if s6:
         L += ["## S6 layout: MSE vs MSE + Fourier loss [%]", "",
-              "| f | " + " | ".join(f"{m.upper()} MSE | {m.upper()} MSE+FL | {m.upper()} paper" for m in METHODS)
-              + " | MF traditional | MF prior-free |", "|---|" + "---:|---:|---:|" * len(METHODS) + "---:|---:|"]
+              "| f | " + " | ".join(f"{m.upper()} MSE | {m.upper()} MSE+FL | {m.upper()} paper" for m in PAIR_METHODS)
+              + " | MF traditional | MF prior-free |", "|---|" + "---:|---:|---:|" * len(PAIR_METHODS) + "---:|---:|"]
         for f, per in s6.items():
             cells = []
-            for m in METHODS:
+            for m in PAIR_METHODS:
                 c = per.get(m, {})
                 p = c.get("paper")
                 cells += [_pct(c.get("MSE")), _pct(c.get("MSE + FL")), "-" if p is None else f"{p[0]:.2f} / {p[1]:.2f}"]
@@ -284,7 +284,7 @@ def markdown(res: dict) -> str:
 
 
 def run_evaluation(source: TestSource, out_dir, *, physics, prior_free=None, mse_only=None, real=(),
-                   s5_frequencies=(48, 96), s6_frequencies=(16, 32, 48, 64, 80, 96), methods=METHODS,
+                   s5_frequencies=(48, 96), s6_frequencies=(16, 32, 48, 64, 80, 96), methods=PAIR_METHODS,
                    filtered_window: int = 15, speed: bool = True, training_runs: dict | None = None,
                    shared_machine: bool = True) -> dict:
     """Everything ``calib eval`` prints and saves (module docstring); returns the result dict with

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from ..methods import pair_at
 from .baselines import filtered_order
 from .checkpoint import load_model
 from .data import MethodTagged
@@ -31,15 +32,6 @@ from .metrics import ErrorCount, keep_drop_curve
 log = logging.getLogger("unwrap.learned")
 
 DROPS = (0.0, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2)
-
-
-def pair_for(method: str, f: float) -> tuple[float, float]:
-    """The (low, high) pair scored for a method at fringe frequency ``f`` (module docstring)."""
-    if method == "mf":
-        return (1.0, float(f))
-    if method in ("mw", "nt"):
-        return (float(f) - 1.0, float(f))
-    raise ModelError(f"method {method!r}: expected 'mf', 'mw' or 'nt'")
 
 
 @dataclass
@@ -56,7 +48,7 @@ class TestSource:
 
     def dataset(self, method: str, f: float, orientation: str):
         """The contract dataset of one (method, f, orientation), or None when the source lacks the pair."""
-        pair = pair_for(method, f)
+        pair = pair_at(method, f, ModelError)
         if self.files:
             from ..dataset import FringeOrderDataset
             if not _files_hold(self.files, pair, orientation):
@@ -113,7 +105,7 @@ def score(source: TestSource, method: str, f: float, models: dict, *, filtered_w
     ``Scored.checks['example']``.
     """
     models = _models(models)
-    pair = pair_for(method, f)
+    pair = pair_at(method, f, ModelError)
     counts = {"Traditional": ErrorCount()}
     if filtered_window:
         counts[f"Filtered {filtered_window}x{filtered_window}"] = ErrorCount()

@@ -30,7 +30,8 @@ import numpy as np
 import torch
 
 from .. import _xp
-from ..dataset import traditional
+from ..methods import coarse_ratio
+from ..temporal import decode_pair
 from . import features as Fe
 from .checkpoint import load_model
 from .errors import FrequencyRangeWarning, ModelError
@@ -56,11 +57,6 @@ def resolve_model(model, device="cpu"):
         return model
     path = shipped_model_path() if model in (None, "learned", "default") else Path(model)
     return load_model(path, device)
-
-
-def coarse_ratio(method: str, f_lo: float, f_hi: float) -> float:
-    """Noise gain of the prior: f_hi over the coarse (unit or beat) frequency."""
-    return f_hi / f_lo if method == "mf" else f_hi / (f_hi - f_lo)
 
 
 def fringe_period_px(phase_high, valid) -> float:
@@ -152,7 +148,7 @@ def unwrap_learned(method: str, phase_low, phase_high, modulation_low, modulatio
     if phi_lo.shape != phi_hi.shape or valid.shape != phi_hi.shape or phi_hi.ndim != 2:
         raise ModelError(f"phases {phi_lo.shape}, {phi_hi.shape} and valid {valid.shape}: expected one (H, W) shape")
     check = check_frequency_range(ck["meta"], method, (f_lo, f_hi), phi_hi, valid, on_outside=on_outside)
-    prior, order_trad, valid = traditional(method, np.nan_to_num(phi_lo), np.nan_to_num(phi_hi), f_lo, f_hi,
+    prior, order_trad, valid = decode_pair(method, np.nan_to_num(phi_lo), np.nan_to_num(phi_hi), f_lo, f_hi,
                                            float(width), valid)
     z = lambda a: torch.from_numpy(np.where(valid, np.nan_to_num(np.asarray(a, dtype=np.float64)), 0.0)  # noqa: E731
                                    .astype(np.float32))[None, None]
