@@ -217,7 +217,7 @@ def main(argv=None) -> int:
         stages = {k: v for k, v in b.items() if k not in ("total", "geometry cold", "geometry new pose")}
         print(f"- {name}: " + ", ".join(f"{k} {1000 * v:.1f}" for k, v in stages.items()))
     if blender:
-        from synth.parity import parity
+        from experiments.blender_parity import parity
         print("\nFidelity at full size (what the Cycles times above render; 12 steps, f = 48, v):\n")
         print("| scene (640x480) | mean abs. diff. (8-bit levels) | phase RMS (rad) | pixels |")
         print("|---|---|---|---|")

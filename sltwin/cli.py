@@ -23,7 +23,7 @@ shows the traceback (of every error) for a bug report. Ctrl-C ends with 130. Out
 before any work (:mod:`sltwin.outputs`).
 
 Progress: library packages log through one logger each (``calib``, ``unwrap``, ``twin_mapping``,
-``synth``, ``reports``); ``main`` shows their INFO lines on stderr for the duration of the command
+``synth``, ``experiments``, ``reports``); ``main`` shows their INFO lines on stderr for the duration of the command
 (``-q`` where a command has it: warnings only; ``--debug``: everything).
 """
 from __future__ import annotations
@@ -55,7 +55,7 @@ COMMANDS = [
 ]
 
 #: Loggers whose progress the command line shows.
-LOGGERS = ("calib", "unwrap", "twin_mapping", "synth", "reports", "sltwin")
+LOGGERS = ("calib", "unwrap", "twin_mapping", "synth", "experiments", "reports", "sltwin")
 
 
 def version() -> str:

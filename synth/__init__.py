@@ -13,8 +13,6 @@ Public surface:
   geometry stage).
 - output: ``write_render`` (PNG + HDF5 ground truth), ``render_board_session`` (a calibration
   session in the capture layout).
-- experiments: ``render_twin_ball_phase`` (the twin ball of the paper's Fig. 3 at the real
-  ball's pose).
 - ``SynthError`` (a ValueError).
 
 The render plan goes to the `synth` logger at DEBUG, progress at INFO.
@@ -30,7 +28,6 @@ from .output import write_render
 from .render import RenderResult, render
 from .scene import DEFAULT_BALL_RADIUS_MM, Scene, ideal_system, load_scene, scene_from_dict
 from .sequence import PatternSpec, gray_sequence, phase_sequence
-from .twin_ball import render_twin_ball_phase
 
 __all__ = [
     "Scene", "load_scene", "scene_from_dict", "ideal_system", "DEFAULT_BALL_RADIUS_MM",
@@ -38,6 +35,6 @@ __all__ = [
     "load_mesh", "steps_mesh", "heightfield_mesh", "blobs_heights",
     "PatternSpec", "phase_sequence", "gray_sequence", "Effects", "effects_from_table", "Defocus", "Noise",
     "render", "RenderResult", "compute_geometry", "Geometry",
-    "write_render", "render_board_session", "render_twin_ball_phase",
+    "write_render", "render_board_session",
     "SynthError",
 ]

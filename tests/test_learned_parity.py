@@ -27,7 +27,7 @@ def two_noise_levels(tmp_path_factory):
 @pytest.mark.slow
 def test_capture_noise_follows_the_sensor_full_well(two_noise_levels):
     """Shot noise: sigma_I ~ 1/sqrt(full well), so 4x the full well halves the measured noise."""
-    from reports.learned_parity import capture_noise
+    from experiments.learned_parity import capture_noise
     from synth.sensor import shot_noise_full_well
 
     lo, hi = capture_noise(two_noise_levels[1500]), capture_noise(two_noise_levels[6000])
@@ -41,12 +41,14 @@ def test_capture_noise_follows_the_sensor_full_well(two_noise_levels):
 @pytest.mark.slow
 def test_parity_section_scores_both_sides_and_states_a_verdict(two_noise_levels, tmp_path):
     from reports.html import to_markdown
+    from experiments.learned_parity import parity
     from reports.learned_parity import section
 
     model = constant_model(tmp_path / "zero.pt", 0)
     model_meta_ratio_ok = (8.0 / 48.0) >= 1 / 8                 # the tiny files hold MF (1, 8)
     assert model_meta_ratio_ok
-    (title, blocks), summary = section([two_noise_levels[1500]], [two_noise_levels[6000]], model, frequencies=(8,))
+    (title, blocks), summary = section(parity([two_noise_levels[1500]], [two_noise_levels[6000]], model,
+                                              frequencies=(8,)))
     rows = summary["rows"]
     assert [r["data"] for r in rows] == ["real", "twin"] and all(r["f"] == 8 for r in rows)
     for r in rows:                                              # a zero-correction model is the traditional order

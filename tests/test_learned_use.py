@@ -114,7 +114,7 @@ def test_calib_eval_writes_the_s5_and_s6_layouts_with_the_paper_numbers(tmp_path
 
 
 def test_speed_table_times_every_path(tmp_path):
-    from unwrap.learned.evaluate import speed_table
+    from experiments.learned_evaluation import speed_table
     sp = speed_table(constant_model(tmp_path / "p.pt", 0), size=(48, 64), repeats=1)
     for k in ("traditional_from_phases_ms", "traditional_from_frames_ms", "filtered_ms", "network_forward_ms",
               "learned_total_ms"):

@@ -1,6 +1,6 @@
 """Global illumination (synth.global_illumination): the closed-form contrast loss on a plane,
 nothing simulated when the config does not ask, energy kept, and the check against Blender Cycles'
-subsurface scattering on a plane and a sphere (synth.gi_reference)."""
+subsurface scattering on a plane and a sphere (experiments.gi_reference)."""
 import math
 import sys
 
@@ -106,7 +106,7 @@ def test_global_illumination_against_cycles_subsurface_scattering_on_a_plane_and
     sphere's high-frequency contrast loss agrees within 0.05, and our low-frequency phase bias is
     within Cycles' (sampling-noise-limited) bias RMS. The measured numbers are in docs/dataset.md."""
     from synth.blender_twin import blender_available
-    from synth.gi_reference import gi_versus_cycles
+    from experiments.gi_reference import gi_versus_cycles
 
     if not blender_available(sys.executable):
         pytest.skip("bpy not installed (make test installs it)")

@@ -38,7 +38,7 @@ def test_camera_defocus_matches_blender_thin_lens_depth_of_field_up_to_the_gauss
     from scipy.special import j1
 
     from synth.blender_twin import blender_available
-    from synth.parity import parity, parity_system
+    from experiments.blender_parity import parity, parity_system
     from synth.truth import phase_truth
 
     if not blender_available(sys.executable):

@@ -23,14 +23,14 @@ import math
 
 import numpy as np
 
-from .blender_twin import render_in_blender
-from .effects import Effects, GlobalIllumination
-from .meshes import sphere_mesh
-from .objects import Mesh, Sphere
-from .parity import parity_system
-from .render import render
-from .scene import DEFAULT_BALL_RADIUS_MM, Scene
-from .sequence import phase_sequence
+from synth.blender_twin import render_in_blender
+from synth.effects import Effects, GlobalIllumination
+from synth.meshes import sphere_mesh
+from synth.objects import Mesh, Sphere
+from .blender_parity import parity_system
+from synth.render import render
+from synth.scene import DEFAULT_BALL_RADIUS_MM, Scene
+from synth.sequence import phase_sequence
 
 
 def slab_mesh(half_mm: float = 400.0, thickness_mm: float = 40.0):

@@ -13,13 +13,13 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from .blender_twin import render_in_blender
-from .effects import Effects
-from .meshes import sphere_mesh
-from .objects import Plane, Sphere
-from .render import render
-from .scene import DEFAULT_BALL_RADIUS_MM, Scene, ideal_system
-from .sequence import phase_sequence
+from synth.blender_twin import render_in_blender
+from synth.effects import Effects
+from synth.meshes import sphere_mesh
+from synth.objects import Plane, Sphere
+from synth.render import render
+from synth.scene import DEFAULT_BALL_RADIUS_MM, Scene, ideal_system
+from synth.sequence import phase_sequence
 
 
 def parity_system(scale: int = 4):

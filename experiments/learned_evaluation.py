@@ -6,7 +6,7 @@ frequency ``f``: MF ``(1, f)``, MW ``(f - 1, f)`` (beat of one period), NT ``(f 
 
 SYNOPSIS
 
-    from unwrap.learned.evaluate import TestSource, score
+    from experiments.learned_evaluation import TestSource, score
     src = TestSource(files=["test.h5"])                       # or TestSource(synthetic=(20, (96, 128), 5))
     rows = score(src, "mf", 96, {"DP-TPU": "runs/a/model.pt"})
     rows["Traditional"].rate, rows["DP-TPU"].rate
@@ -20,16 +20,16 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..methods import pair_at
-from .baselines import filtered_order
-from .checkpoint import load_model
-from .data import MethodTagged
-from .errors import ModelError
-from .features import METHOD_INDEX, make_inputs
-from .infer import check_frequency_range, predict
-from .metrics import ErrorCount, keep_drop_curve
+from unwrap.methods import pair_at
+from unwrap.learned.baselines import filtered_order
+from unwrap.learned.checkpoint import load_model
+from unwrap.learned.data import MethodTagged
+from unwrap.learned.errors import ModelError
+from unwrap.learned.features import METHOD_INDEX, make_inputs
+from unwrap.learned.infer import check_frequency_range, predict
+from unwrap.learned.metrics import ErrorCount, keep_drop_curve
 
-log = logging.getLogger("unwrap.learned")
+log = logging.getLogger("experiments")
 
 DROPS = (0.0, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2)
 
@@ -50,14 +50,14 @@ class TestSource:
         """The contract dataset of one (method, f, orientation), or None when the source lacks the pair."""
         pair = pair_at(method, f, ModelError)
         if self.files:
-            from ..dataset import FringeOrderDataset
+            from unwrap.dataset import FringeOrderDataset
             if not _files_hold(self.files, pair, orientation):
                 log.info("skip %s f=%g %s: not in %s", method, f, orientation, self.files)
                 return None
             ds = FringeOrderDataset(self.files, method=method, frequencies=pair, orientation=orientation,
                                     crop=None, flip=False, seed=0)
         elif self.synthetic is not None:
-            from .synthetic import SyntheticFringeDataset
+            from unwrap.learned.synthetic import SyntheticFringeDataset
             n, size, seed = self.synthetic
             ds = SyntheticFringeDataset(n, size=size, method=method, frequencies=pair, orientation=orientation,
                                         seed=seed)
@@ -72,7 +72,7 @@ def _files_hold(files, pair, orientation: str) -> bool:
     """Whether every file holds both frequencies of ``pair`` and the orientation."""
     import h5py
 
-    from ..dataset_schema import read_attrs
+    from unwrap.dataset_schema import read_attrs
     for p in files:
         with h5py.File(p, "r") as h5:
             a = read_attrs(h5)
@@ -188,10 +188,10 @@ def speed_table(model, *, size=(480, 640), repeats: int = 5, device: str = "cpu"
     - ``filtered``: the 15x15 filtered baseline from the wrapped phases;
     - ``network_forward``: the network alone; ``learned_total``: prior + features + network + decode.
     """
-    from ..fused_mf import mf_unwrap_stacks
-    from ..patterns import fringe_intensity
-    from ..temporal import mf_unwrap
-    from .infer import unwrap_learned
+    from unwrap.fused_mf import mf_unwrap_stacks
+    from unwrap.patterns import fringe_intensity
+    from unwrap.temporal import mf_unwrap
+    from unwrap.learned.infer import unwrap_learned
 
     net, ck = model if isinstance(model, tuple) else load_model(model, device)
     H, W = size
@@ -200,7 +200,7 @@ def speed_table(model, *, size=(480, 640), repeats: int = 5, device: str = "cpu"
     Phi = {f: 2 * np.pi * f * u / 912 for f in (1, 48)}
     stacks = [np.clip(np.rint(255 * np.stack([fringe_intensity(Phi[f], n, 12, 0.5, 0.35) for n in range(12)])
                               + rng.normal(0, 2, (12, H, W))), 0, 255).astype(np.uint8) for f in (1, 48)]
-    from ..phase_shift import wrapped_phase
+    from unwrap.phase_shift import wrapped_phase
     ws = [wrapped_phase(s) for s in stacks]
     phi = [np.nan_to_num(w.phase) for w in ws]
     mods = [w.B / 255.0 for w in ws]

@@ -39,7 +39,7 @@ SYNOPSIS
 
     from calib import default_system
     from unwrap.phase_io import read_phase
-    from synth.twin_ball import render_twin_ball_phase
+    from experiments.twin_ball import render_twin_ball_phase
     real = default_system()
     phase, info = render_twin_ball_phase(real, real.ideal(), read_phase("standardball_phase_real.mat"), 96.0)
     info["pose"]["radius_mm"], info["floor"]["render_and_decode"]["distortion_aware_um"], info["footprint"]["iou"]
@@ -57,15 +57,17 @@ from unwrap.fused_mf import mf_unwrap_stacks
 from unwrap.phase_io import write_phase_file
 from unwrap.reliability import phase_noise_rad
 
-from .effects import Effects, Noise
-from .errors import SynthError
-from .geometry import compute_geometry
-from .objects import Sphere
-from .render import render
-from .scene import Scene
-from .sensor import solve_full_well
-from .sequence import phase_sequence
-from .truth import phase_truth
+from synth.effects import Effects, Noise
+from synth.errors import SynthError
+
+from .errors import ExperimentError
+from synth.geometry import compute_geometry
+from synth.objects import Sphere
+from synth.render import render
+from synth.scene import Scene
+from synth.sensor import solve_full_well
+from synth.sequence import phase_sequence
+from synth.truth import phase_truth
 
 BALL_FREQUENCIES = (1.0, 8.0, 96.0)
 """Default fringe ladder of the twin ball (periods across the projector width)."""
@@ -385,3 +387,36 @@ def write_twin_ball_phase(path, phase, info: dict):
     facts = json.dumps({k: v for k, v in info.items() if k != "file"}, default=float)
     return write_phase_file(path, {"v": {"phase": phase}}, frequency=float(info["patterns"]["frequencies"][-1]),
                             attrs={"twin_ball": facts})
+
+
+def twin_ball_for_report(real_paths, phases: dict, out_dir, *, frequency: float = 96.0, render: bool | None = None,
+                         render_system=None, options: dict | None = None, progress: bool = True):
+    """The twin ball the twin-equivalence report lays out, or None.
+
+    ``render``: render the twin ball phase at the real ball's fitted pose; default (None): when
+    ``phases`` (``{"real": path, "twin": path}``) holds a real phase without a twin phase.
+    ``render_system``: the system that renders it (default: the real calibration ``real_paths``
+    without skew and distortion, what the Blender twin represents; "real": with them);
+    ``options``: keyword arguments of :func:`render_twin_ball_phase`. The phase is written to
+    ``out_dir/twin_ball_phase.h5`` (``v/phase``, ``v/valid``).
+    RETURNED VALUE: None or (phase (H, W) rad, info dict with ``"file"``)."""
+    from pathlib import Path
+
+    from calib.calibration_record import load_calibration_record
+    from unwrap.phase_io import read_phase
+
+    phases = dict(phases or {})
+    if render is None:
+        render = "real" in phases and "twin" not in phases
+    if not render:
+        return None
+    if "real" not in phases:
+        raise ExperimentError("the twin ball render needs the real ball phase (--phase-real): its pose is fitted from it")
+    real = load_calibration_record(real_paths, "real").system
+    system = real if render_system == "real" else render_system if render_system is not None else real.ideal()
+    phase, info = render_twin_ball_phase(real, system, read_phase(phases["real"]), frequency, progress=progress,
+                                         **(options or {}))
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    info["file"] = str(write_twin_ball_phase(out / "twin_ball_phase.h5", phase, info))
+    return phase, info
