@@ -58,11 +58,10 @@ render plan of each sample says so)::
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from unwrap.strict import apply_overrides, check_table
+from unwrap.strict import apply_overrides, check_table, read_toml_text
 
 from .errors import ExportConfigError, SynthError  # noqa: F401  (ExportConfigError re-exported)
 
@@ -324,14 +323,7 @@ def load_config(path, overrides=()) -> ExportConfig:
     """Read an export TOML, then ``section.key=value`` ``overrides`` (ExportConfigError on any
     invalid key, naming it)."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise ExportConfigError(f"export config {path}: no such file") from None
-    try:
-        d = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ExportConfigError(f"export config {path}: invalid TOML ({exc})") from None
+    text, d = read_toml_text(path, ExportConfigError, "export config")
     check_table(d, SCHEMA, f"export config {path}", ExportConfigError)
     for item in overrides or ():
         check_table(apply_overrides({}, [item], ExportConfigError), SCHEMA, "overrides", ExportConfigError)

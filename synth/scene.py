@@ -27,14 +27,13 @@ TOML schema (every key optional unless marked; see docs/synth.md for the full re
 """
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from calib.system import SystemModel, default_system
-from unwrap.strict import check_keys, check_table
+from unwrap.strict import check_keys, check_table, read_toml_text
 
 from .boards import board_from_table
 from .effects import Effects, effects_from_table
@@ -201,12 +200,5 @@ def scene_from_dict(d: dict, base_dir: Path = Path("."), name: str = "scene", so
 def load_scene(path) -> Scene:
     """Read a scene TOML file (SynthError on any invalid key, naming it)."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise SynthError(f"scene file {path}: no such file") from None
-    try:
-        d = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise SynthError(f"scene file {path}: invalid TOML ({exc})") from None
+    text, d = read_toml_text(path, SynthError, "scene file")
     return scene_from_dict(d, path.parent, path.stem, text)

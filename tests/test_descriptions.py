@@ -95,3 +95,10 @@ def test_a_schema_is_what_the_dataclass_says():
     schema = schema_of(TrainConfig)
     assert set(schema) == {"data", "model", "loss", "optim", "run"} and schema["optim"]["steps"] is int
     assert check_table({"optim": {"lr": 1}}, schema, "t", ValueError) == {"optim": {"lr": 1}}
+
+
+def test_a_section_given_in_part_keeps_the_config_defaults_of_the_rest(tmp_path):
+    """[loss] is the loss module's LossWeights, whose own fourier default is 0; the config's is 0.1."""
+    (tmp_path / "c.toml").write_text("[loss]\nmse = 2\n[data]\nsynthetic_samples = 3\n")
+    cfg = resolve_config(tmp_path / "c.toml")
+    assert cfg.loss.mse == 2.0 and cfg.loss.fourier == TrainConfig().loss.fourier == 0.1

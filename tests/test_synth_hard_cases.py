@@ -104,7 +104,7 @@ def test_ball_in_front_of_a_wall_casts_the_predicted_shadow():
     ('[effects]\nbits = 9\n[patterns]\nsequence = [{kind = "white"}]', "effects.bits"),
     ('[effects]\nnoise = {full_well = 3}\n[patterns]\nsequence = [{kind = "white"}]', "effects.noise"),
     ('[[objects]]\nkind = "mesh"\nfile = "missing.obj"\n[patterns]\nsequence = [{kind = "white"}]', "missing.obj"),
-    ('[objects\n', "invalid TOML"),
+    ('[objects\n', "not valid TOML"),
     ('[[objects]]\nkind = "plane"\n', "patterns.sequence"),
     ('[[objects]]\nkind = "board"\nboard = {rows = 9, cols = 11, large_markers = [[20, 1]]}\n[patterns]\nsequence = [{kind = "white"}]', "large_markers"),
 ])

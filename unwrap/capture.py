@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import math
 import re
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -43,7 +42,7 @@ import numpy as np
 
 from .errors import UnwrapError
 from .graycode_capture import GRAY_KIND, design_gray_orientations, procam_orientations, read_gray_pattern
-from .strict import check_table
+from .strict import check_table, read_toml_text
 
 PRESETS = ("design", "slstudio", "slmaster", "kamino-phaseshift", "procam-graycode")
 PRESET_ALIASES = {"kamino": "kamino-phaseshift"}
@@ -179,11 +178,8 @@ CAPTURE_SCHEMA = {
 def read_toml(path) -> dict:
     """A capture description as a dict; UnwrapError naming the file when it is not valid TOML, has
     a key :data:`CAPTURE_SCHEMA` does not know (naming the closest) or a value of the wrong type."""
-    try:
-        meta = tomllib.loads(Path(path).read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise UnwrapError(f"{path}: not valid TOML ({exc})") from None
-    return check_table(meta, CAPTURE_SCHEMA, str(path), UnwrapError)
+    return check_table(read_toml_text(path, UnwrapError, "capture description")[1], CAPTURE_SCHEMA, str(path),
+                       UnwrapError)
 
 
 #: Lossless image formats a scanner's own layout may use (SLStudio and SLMaster write BMP).

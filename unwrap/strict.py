@@ -149,6 +149,8 @@ def _specs(cls) -> dict:
             out[f.name] = eval(f.type, vars(sys.modules[cls.__module__]), {})  # noqa: S307 (an annotation)
         else:
             out[f.name] = f.type
+        if dataclasses.is_dataclass(out[f.name]) and not isinstance(out[f.name], type):
+            raise TypeError(f"{cls.__name__}.{f.name}: a section's annotation must be its dataclass")
     return out
 
 
@@ -169,18 +171,22 @@ def from_table(cls, table: dict, where: str, error):
     return _build(cls, table)
 
 
-def _build(cls, table: dict):
+def _build(cls, table: dict, base=None):
+    """``cls`` from ``table``; keys the table leaves out keep ``base``'s values (a section's
+    default instance), else the field defaults."""
     hints = _specs(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
     kw = {}
     for key, value in table.items():
         spec = hints[key]
         if dataclasses.is_dataclass(spec):
-            kw[key] = _build(spec, value)
+            factory = fields[key].default_factory
+            kw[key] = _build(spec, value, None if factory is dataclasses.MISSING else factory())
         elif spec is float:
             kw[key] = float(value)
         else:
             kw[key] = _frozen(value)
-    return cls(**kw)
+    return cls(**kw) if base is None else dataclasses.replace(base, **kw)
 
 
 def to_table(obj) -> dict:
@@ -224,12 +230,19 @@ def apply_overrides(tree: dict, overrides, error) -> dict:
     return out
 
 
-def read_toml(path, error, what: str = "description") -> dict:
-    """The parsed TOML file ``path``; ``error`` naming the file when it is missing or not TOML."""
+def read_toml_text(path, error, what: str = "description") -> tuple[str, dict]:
+    """(text, parsed table) of the TOML file ``path``; ``error`` naming the file (``what``: the
+    kind of description) when it is missing or not TOML."""
     p = Path(path)
     try:
-        return tomllib.loads(p.read_text())
+        text = p.read_text()
+        return text, tomllib.loads(text)
     except FileNotFoundError:
-        raise error(f"{what} file not found: {p}") from None
+        raise error(f"{what} {p}: no such file") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise error(f"{p}: not valid TOML ({exc})") from None
+        raise error(f"{what} {p}: not valid TOML ({exc})") from None
+
+
+def read_toml(path, error, what: str = "description") -> dict:
+    """The parsed TOML file ``path`` (:func:`read_toml_text`)."""
+    return read_toml_text(path, error, what)[1]

@@ -23,7 +23,6 @@ SYNOPSIS
 """
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 
 import tomli_w
@@ -32,7 +31,7 @@ from ..methods import PAIR_METHODS
 from ..strict import apply_overrides, check_table, from_table, read_toml, schema_of, to_table
 from .errors import ConfigError
 from .features import KINDS
-from .losses import WEIGHTINGS
+from .losses import WEIGHTINGS, LossWeights
 
 @dataclass(frozen=True)
 class DataConfig:
@@ -69,17 +68,6 @@ class ModelConfig:
 
 
 @dataclass(frozen=True)
-class LossConfig:
-    """``[loss]``: the weights of :class:`unwrap.learned.losses.LossWeights`."""
-
-    mse: float = 1.0
-    fourier: float = 0.1
-    fourier_weighting: str = "focal"
-    fourier_alpha: float = 1.0
-    ce: float = 0.0
-
-
-@dataclass(frozen=True)
 class OptimConfig:
     """``[optim]``: optimiser and schedule (``grad_clip = inf``: no clipping)."""
 
@@ -113,7 +101,7 @@ class TrainConfig:
 
     data: DataConfig = field(default_factory=DataConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
-    loss: LossConfig = field(default_factory=LossConfig)
+    loss: LossWeights = field(default_factory=lambda: LossWeights(fourier=0.1))   # [loss]
     optim: OptimConfig = field(default_factory=OptimConfig)
     run: RunConfig = field(default_factory=RunConfig)
 
@@ -157,8 +145,6 @@ def _check(cfg: TrainConfig):
     o = cfg.optim
     if not (o.lr > 0 and o.weight_decay >= 0 and o.grad_clip >= 0):
         raise ConfigError(f"optim: lr {o.lr} must be > 0, weight_decay and grad_clip >= 0")
-    from .losses import LossWeights
-    LossWeights(**dataclasses.asdict(cfg.loss))
 
 
 def resolve_config(path=None, overrides=()) -> TrainConfig:
@@ -169,7 +155,7 @@ def resolve_config(path=None, overrides=()) -> TrainConfig:
     """
     tree = {}
     if path is not None:
-        tree = read_toml(path, ConfigError, "config")
+        tree = read_toml(path, ConfigError, "config file")
         check_table(tree, SCHEMA, str(path), ConfigError)
     for text in overrides or ():
         check_table(apply_overrides({}, [text], ConfigError), SCHEMA, "overrides", ConfigError)

@@ -302,7 +302,7 @@ class _Session:
             self._restore(read_checkpoint(run_dir / "last.pt"))
         self.net = torch.nn.parallel.DistributedDataParallel(
             self.model, device_ids=[local_rank] if device.type == "cuda" else None) if world > 1 else self.model
-        self.weights = LossWeights(**dataclasses.asdict(cfg.loss))
+        self.weights = cfg.loss
         d = cfg.data
         self.meta = {"methods": list(d.methods), "orientations": list(d.orientations),
                      "frequencies": {m: list(d.frequencies(m)) for m in d.methods},
