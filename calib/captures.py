@@ -50,6 +50,19 @@ from .observations import ObservationError, Observations, ViewObservations
 log = logging.getLogger(__name__)
 
 
+def _size(meta, key, toml):
+    size = meta.get(key, {}).get("size")
+    if size is None:
+        return None
+    try:
+        w, h = (int(v) for v in size)
+    except (TypeError, ValueError):
+        raise CaptureError(f"{toml}: [{key}] size must be [width, height], got {size!r}") from None
+    if w <= 0 or h <= 0:
+        raise CaptureError(f"{toml}: [{key}] size must be positive, got {size!r}")
+    return (w, h)
+
+
 def read_session(folder, capture_toml=None) -> Capture:
     """Describe the capture session in ``folder`` from its ``capture.toml`` (or ``capture_toml``),
     read once: an ``unwrap.capture.Capture`` with its board, poses and sizes (no frames yet)."""
