@@ -14,12 +14,12 @@ import numpy as np
 import torch
 
 from synth.blender_twin import render_in_blender
-from synth.effects import Effects
-from synth.meshes import sphere_mesh
-from synth.objects import Plane, Sphere
-from synth.render import render
-from synth.scene import DEFAULT_BALL_RADIUS_MM, Scene, ideal_system
-from synth.sequence import phase_sequence
+from synth.effects.spec import Effects
+from synth.scenes.meshes import sphere_mesh
+from synth.scenes.objects import Plane, Sphere
+from synth.renderer.render import render
+from synth.scenes.scene import DEFAULT_BALL_RADIUS_MM, Scene, ideal_system
+from synth.scenes.sequence import phase_sequence
 
 
 def parity_system(scale: int = 4):

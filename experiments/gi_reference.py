@@ -1,4 +1,4 @@
-"""Our global-illumination approximation (synth.global_illumination) against Blender Cycles'
+"""Our global-illumination approximation (synth.effects.global_illumination) against Blender Cycles'
 subsurface scattering on a plane (a thick slab: random-walk scattering needs a closed volume) and
 a sphere, on the parity twin (ideal system, 160x120 camera).
 
@@ -24,13 +24,13 @@ import math
 import numpy as np
 
 from synth.blender_twin import render_in_blender
-from synth.effects import Effects, GlobalIllumination
-from synth.meshes import sphere_mesh
-from synth.objects import Mesh, Sphere
+from synth.effects.spec import Effects, GlobalIllumination
+from synth.scenes.meshes import sphere_mesh
+from synth.scenes.objects import Mesh, Sphere
 from .blender_parity import parity_system
-from synth.render import render
-from synth.scene import DEFAULT_BALL_RADIUS_MM, Scene
-from synth.sequence import phase_sequence
+from synth.renderer.render import render
+from synth.scenes.scene import DEFAULT_BALL_RADIUS_MM, Scene
+from synth.scenes.sequence import phase_sequence
 
 
 def slab_mesh(half_mm: float = 400.0, thickness_mm: float = 40.0):

@@ -3,7 +3,7 @@ captures as on twin renders of the same system?
 
 Data (both through ``unwrap.dataset``):
 
-- real: capture datasets with reference orders (``synth.capture_export``; in ``../shared/data`` the
+- real: capture datasets with reference orders (``synth.export.capture``; in ``../shared/data`` the
   one with a reference is SLStudio's skull: MF with 1 and 16 periods, 3 steps, 1688x1352, the
   reference from SLStudio's own Gray-code scan);
 - twin: renders of the same system (its calibration, ``calib.load_system``) at the capture's steps
@@ -75,7 +75,7 @@ def capture_noise(path, orientation: str = "v", pair=None) -> dict:
 
 def _world_depths(system_file) -> tuple[float, float]:
     """Depth of the world origin in the camera and in the projector (mm): the export measures focus
-    distances from these (``synth.dataset_scenes``); for a system whose world is the camera (SLStudio)
+    distances from these (``synth.export.scenes``); for a system whose world is the camera (SLStudio)
     they are 0 and ~the baseline, not the working distance."""
     from calib import load_system
 
@@ -85,13 +85,13 @@ def _world_depths(system_file) -> tuple[float, float]:
 
 def twin_config(system_file, full_well: float, *, mesh_dir, exposure=(0.45, 0.95), samples: int = 6, steps: int = 3,
                 frequencies=(1, 16, 48, 96), depth_mm=(350, 450), size_mm=(100, 200), seed: int = 5):
-    """The export config (``synth.dataset_config.ExportConfig``, built in memory) of twin renders of
+    """The export config (``synth.export.config.ExportConfig``, built in memory) of twin renders of
     ``system_file`` with the matched noise and exposure: scene and effect ranges as the training
     set's, objects at the capture's working distance (``depth_mm`` from the world origin), both
     devices focused on it (+-50 mm); meshes from ``mesh_dir``."""
     import tomli_w
 
-    from synth.dataset_config import config_from_dict
+    from synth.export.config import config_from_dict
 
     z_cam, z_prj = _world_depths(system_file)
     mid = 0.5 * (depth_mm[0] + depth_mm[1])
@@ -124,14 +124,14 @@ def render_matched_twin(real_file, system_file, out_dir, *, mesh_dir, samples: i
     """Measure the capture's noise, render the twin of ``system_file`` (synth; meshes from
     ``mesh_dir``) with the full well and exposure that match it, and measure the renders the same way.
 
-    A 1-sample pilot (full well from ``synth.sensor.shot_noise_full_well``, exposure 0.45-0.95) is
+    A 1-sample pilot (full well from ``synth.effects.sensor.shot_noise_full_well``, exposure 0.45-0.95) is
     measured; the exposure is then scaled by ``a = B_real / B_pilot`` (the export's light falloff
     is referenced to the world origin's distance, which differs between systems) and the full well
     by ``a (sigma_pilot / sigma_real)^2`` (shot noise: ``sigma_I^2 ~ I / full_well``) for the final
     render. The export configs are built in memory (:func:`twin_config`).
     RETURNED VALUE: {"file", "noise_real", "noise_twin", "full_well", "exposure", "pilot"}."""
-    from synth.dataset_export import export_dataset
-    from synth.sensor import shot_noise_full_well
+    from synth.export.dataset import export_dataset
+    from synth.effects.sensor import shot_noise_full_well
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -194,7 +194,7 @@ def slstudio_parity(shared_data, out_dir, model="learned", *, samples: int = 2, 
 
     RETURNED VALUE: {"parity": :func:`parity`'s result, "twin": :func:`render_matched_twin`'s},
     or None when the capture is not there."""
-    from synth.capture_export import export_capture
+    from synth.export.capture import export_capture
 
     root = Path(shared_data) / "slstudio-ps2x3-calib"
     skull, cloud = root / "skull_2x3", root / "skull_reference" / "pointCloud_from_skull_gray.mat"

@@ -57,17 +57,17 @@ from unwrap.fused_mf import mf_unwrap_stacks
 from unwrap.phase_io import write_phase_file
 from unwrap.reliability import phase_noise_rad
 
-from synth.effects import Effects, Noise
+from synth.effects.spec import Effects, Noise
 from synth.errors import SynthError
 
 from .errors import ExperimentError
-from synth.geometry import compute_geometry
-from synth.objects import Sphere
-from synth.render import render
-from synth.scene import Scene
-from synth.sensor import solve_full_well
-from synth.sequence import phase_sequence
-from synth.truth import phase_truth
+from synth.renderer.geometry import compute_geometry
+from synth.scenes.objects import Sphere
+from synth.renderer.render import render
+from synth.scenes.scene import Scene
+from synth.effects.sensor import solve_full_well
+from synth.scenes.sequence import phase_sequence
+from synth.renderer.truth import phase_truth
 
 BALL_FREQUENCIES = (1.0, 8.0, 96.0)
 """Default fringe ladder of the twin ball (periods across the projector width)."""
@@ -402,7 +402,7 @@ def twin_ball_for_report(real_paths, phases: dict, out_dir, *, frequency: float 
     RETURNED VALUE: None or (phase (H, W) rad, info dict with ``"file"``)."""
     from pathlib import Path
 
-    from calib.calibration_record import load_calibration_record
+    from calib.io.record import load_calibration_record
     from unwrap.phase_io import read_phase
 
     phases = dict(phases or {})

@@ -64,8 +64,8 @@ def make_twin(out: Path):
 
 def render_session(out: Path, true_twin, seed: int) -> tuple[Path, dict]:
     """Step 2: the paper's calibration session rendered in the twin; returns the capture folder
-    and the session's truth (``synth.board_session.render_board_session``)."""
-    from synth.board_session import render_board_session
+    and the session's truth (``synth.scenes.board_session.render_board_session``)."""
+    from synth.scenes.board_session import render_board_session
 
     print("\n== [2/4] the paper's calibration session rendered in the twin (calib render-board)", flush=True)
     cap_dir = out / "captures"

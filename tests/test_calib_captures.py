@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 import tomli_w
 
-from calib.captures import CaptureError, observations_from_captures, read_session
+from calib.detect.captures import CaptureError, observations_from_captures, read_session
 from calib.io.calibration_json import system_from_dict
-from calib.marker_phase import MarkerPhaseError, fit_projector_points, window_radii
+from calib.detect.marker_phase import MarkerPhaseError, fit_projector_points, window_radii
 from calib.observations import ObservationError
 
 
@@ -52,7 +52,7 @@ def truth_detector(folder, camera_noise_px=0.0):
 def session(tmp_path_factory):
     """Three poses of the paper's session rendered in the ideal-pinhole twin, with sensor noise."""
     from calib import default_system
-    from synth.board_session import render_board_session
+    from synth.scenes.board_session import render_board_session
 
     s = default_system()
     twin = s.ideal({})

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from calib.captures import observations_from_captures
+from calib.detect.captures import observations_from_captures
 from sltwin.cli import main
 from tests.test_calib_captures import true_projector_pixels, truth_detector
 
@@ -20,7 +20,7 @@ def gray_session(tmp_path_factory):
     """Four poses of the paper's board in the ideal-pinhole twin, Gray code with inverses (10 column
     and 11 row bits for the 912 x 1140 projector), white and black frames, sensor noise."""
     from calib import default_system
-    from synth.board_session import render_board_session
+    from synth.scenes.board_session import render_board_session
 
     out = tmp_path_factory.mktemp("gray_captures")
     render_board_session(out, default_system().ideal({}), n_poses=4, pattern="graycode")
@@ -30,7 +30,7 @@ def gray_session(tmp_path_factory):
 def _z_scores(folder, quantisation_modelled=True):
     """Projector-pixel errors over their predicted per-coordinate sigma (N, 2), with the camera
     pixels exact (the truth), and the sigmas."""
-    import calib.captures as captures
+    import calib.detect.captures as captures
 
     detect, system, truth = truth_detector(folder)
     fit, fits = captures.fit_projector_points, []

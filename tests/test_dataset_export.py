@@ -1,4 +1,4 @@
-"""The dataset export (synth.dataset_export): determinism across shards, resume after kill -9 and
+"""The dataset export (synth.export.dataset): determinism across shards, resume after kill -9 and
 after a full disk, combine, configs refused by name, labels checked against traditional TPU."""
 import json
 import os
@@ -13,9 +13,9 @@ import h5py
 import numpy as np
 import pytest
 
-from synth.dataset_config import ExportConfigError, config_from_dict, load_config
-from synth.dataset_export import export_dataset
-from synth.dataset_writer import ExportError, combine, shard_from_environment, shard_path, shard_range
+from synth.export.config import ExportConfigError, config_from_dict, load_config
+from synth.export.dataset import export_dataset
+from synth.export.writer import ExportError, combine, shard_from_environment, shard_path, shard_range
 
 from dataset_helpers import MESHES, REPO, arrays_of, assert_same_arrays, tiny_config
 
@@ -221,6 +221,6 @@ def test_default_configs_parse_and_keep_test_meshes_out_of_training():
     assert {"global_illumination", "projector_defocus", "camera_defocus", "noise"} <= set(train.effects)
     assert test.frequencies == (1.0, 15.0, 16.0, 31.0, 32.0, 47.0, 48.0, 63.0, 64.0, 79.0, 80.0, 95.0, 96.0)
     if MESHES.exists():
-        from synth.dataset_scenes import check_meshes
+        from synth.export.scenes import check_meshes
         check_meshes(train)
         check_meshes(test)

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 import tomli_w
 
-from synth.dataset_config import ExportConfigError, config_from_dict, load_config
+from synth.export.config import ExportConfigError, config_from_dict, load_config
 from unwrap.learned.config import TrainConfig, resolve_config, to_toml
 from unwrap.learned.errors import ConfigError
 from unwrap.strict import check_table, from_table, schema_of, to_table
@@ -76,7 +76,7 @@ def test_export_config_refusals_name_the_key_and_the_type(doc, message):
 
 def test_capture_and_scene_descriptions_are_strict(tmp_path):
     from synth.errors import SynthError
-    from synth.scene import scene_from_dict
+    from synth.scenes.scene import scene_from_dict
     from unwrap.capture import read_toml
     from unwrap.errors import UnwrapError
 

@@ -12,7 +12,7 @@ from test_learned_use import constant_model  # noqa: E402
 
 @pytest.fixture(scope="module")
 def two_noise_levels(tmp_path_factory):
-    from synth.dataset_export import export_dataset
+    from synth.export.dataset import export_dataset
 
     out = {}
     for fw in (1500, 6000):
@@ -28,7 +28,7 @@ def two_noise_levels(tmp_path_factory):
 def test_capture_noise_follows_the_sensor_full_well(two_noise_levels):
     """Shot noise: sigma_I ~ 1/sqrt(full well), so 4x the full well halves the measured noise."""
     from experiments.learned_parity import capture_noise
-    from synth.sensor import shot_noise_full_well
+    from synth.effects.sensor import shot_noise_full_well
 
     lo, hi = capture_noise(two_noise_levels[1500]), capture_noise(two_noise_levels[6000])
     assert lo["steps"] == 4 and lo["pixels"] > 1000

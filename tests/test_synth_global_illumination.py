@@ -1,4 +1,4 @@
-"""Global illumination (synth.global_illumination): the closed-form contrast loss on a plane,
+"""Global illumination (synth.effects.global_illumination): the closed-form contrast loss on a plane,
 nothing simulated when the config does not ask, energy kept, and the check against Blender Cycles'
 subsurface scattering on a plane and a sphere (experiments.gi_reference)."""
 import math
@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from synth import Plane, Scene, Sphere, phase_sequence, render
-from synth.effects import Effects, GlobalIllumination, effects_from_table
+from synth.effects.spec import Effects, GlobalIllumination, effects_from_table
 from synth.errors import SynthError
-from synth.truth import phase_truth
+from synth.renderer.truth import phase_truth
 
 from synth_helpers import small_system
 

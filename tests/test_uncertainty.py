@@ -8,12 +8,12 @@ import pytest
 
 from calib import default_system
 from calib.board import Board
-from calib.bundle_adjustment import BAConfig, DeviceConfig
+from calib.adjustment.problem import BAConfig, DeviceConfig
 from calib.calibrate import run_calibration
-from calib.pose_error_model import fit_pose_error_model
-from calib.pose_resampling import system_parameters
-from calib.residual_diagnostics import diagnose_residuals
-from calib.residual_jacobian import adjustment_jacobian
+from calib.uncertainty.pose_error_model import fit_pose_error_model
+from calib.uncertainty.resampling import system_parameters
+from calib.uncertainty.diagnostics import diagnose_residuals
+from calib.adjustment.jacobian import adjustment_jacobian
 from calib.simulate import board_poses_world, simulate_observations
 
 SYSTEM = default_system().ideal()

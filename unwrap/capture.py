@@ -80,7 +80,7 @@ BOARD_IMAGE_SOURCES = ("white", "background", "modulation")
 @dataclass
 class Capture:
     """A capture folder and its description, parsed once: the one type of a capture session
-    (``calib.captures.read_session``: board, poses, sizes) and of one pose's frames
+    (``calib.detect.captures.read_session``: board, poses, sizes) and of one pose's frames
     (:func:`load_capture`: orientations).
 
     - folder: the capture (or pose) folder; preset: its frame layout; default_method: the

@@ -29,7 +29,7 @@ def add_arguments(parser):
 def run(args) -> int:
     import json
 
-    from synth.dataset_writer import ExportError, combine, parse_shard
+    from synth.export.writer import ExportError, combine, parse_shard
 
     modes = sum(x is not None for x in (args.config, args.combine, args.capture))
     if modes != 1:
@@ -39,7 +39,7 @@ def run(args) -> int:
         print(f"combined {len(args.combine)} shard(s) into {out} (virtual datasets, no data copied)")
         return 0
     if args.capture:
-        from synth.capture_export import export_capture
+        from synth.export.capture import export_capture
 
         s = export_capture(args.capture, args.output, preset=args.preset, reference=args.reference,
                            reference_cloud=args.reference_cloud, reference_system=args.reference_system)
@@ -47,7 +47,7 @@ def run(args) -> int:
         for c in s["captures"]:
             print(f"  {c['folder']} [{c['preset']}]: " + json.dumps(c["orientations"]))
         return 0
-    from synth.dataset_export import export_dataset, format_summary
+    from synth.export.dataset import export_dataset, format_summary
 
     shard = parse_shard(args.shard) if args.shard else None
     print(format_summary(export_dataset(args.config, args.output, shard=shard, progress=not args.quiet,

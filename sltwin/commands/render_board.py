@@ -29,8 +29,8 @@ def add_arguments(parser):
 
 def run(args) -> int:
     from calib.io import load_system
-    from synth.board_session import render_board_session
-    from synth.effects import Noise
+    from synth.scenes.board_session import render_board_session
+    from synth.effects.spec import Noise
 
     output_dir(args.output)
     if args.gray_block < 1:

@@ -23,13 +23,10 @@ CUDA; each rank a disjoint share of every epoch; only rank 0 writes) and uses mi
 """
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 import logging
 import math
-import os
-import random
 import sys
 import time
 from dataclasses import dataclass
@@ -41,20 +38,16 @@ from tqdm import tqdm
 
 from . import features as Fe
 from .checkpoint import FORMAT, FORMAT_VERSION, arch_from_config, build_model, export_model, read_checkpoint, save_atomic
-from .config import TrainConfig, resolve_config, to_toml
+from .config import TrainConfig, to_toml
 from .data import ResumableSampler, build_datasets
-from .errors import ConfigError, DatasetTooSmallError
+from .distributed import device_for, dist_env, rng_state, seed_everything, set_deterministic, set_rng_state
+from .errors import DatasetTooSmallError
 from .losses import LossWeights, composite_loss
 from .metrics import ErrorCount
+from .run_folder import (TRAIN_FIELDS, VAL_FIELDS, RunFiles, attach_file_log, cpu_seconds, open_run,
+                         plot_metrics)
 
 log = logging.getLogger("unwrap.learned")
-
-#: What may change when a run is resumed (everything else must match the saved config).
-RESUMABLE_OVERRIDES = ("optim.steps", "run.log_every", "run.val_every", "run.checkpoint_every", "run.threads",
-                       "data.workers")
-TRAIN_FIELDS = ("step", "epoch", "loss", "mse", "fourier", "ce", "lr", "samples_per_s", "time_s", "cpu_s")
-VAL_FIELDS = ("step", "loss", "error_traditional", "error_model", "pixels")
-
 
 @dataclass
 class TrainResult:
@@ -64,66 +57,6 @@ class TrainResult:
     best_error: float
     final_loss: float
     samples_per_s: float
-
-
-# ---------------------------------------------------------------- setup helpers
-def seed_everything(seed: int):
-    random.seed(seed)
-    np.random.seed(seed % 2 ** 32)
-    torch.manual_seed(seed)
-
-
-def set_deterministic(on: bool):
-    """Deterministic kernels (CPU and CUDA) or the fast defaults."""
-    if on:
-        os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
-    torch.use_deterministic_algorithms(bool(on))
-    torch.backends.cudnn.deterministic = bool(on)
-    torch.backends.cudnn.benchmark = not on
-
-
-def rng_state() -> dict:
-    st = {"torch": torch.get_rng_state(), "python": list(map(_jsonable, random.getstate())),
-          "numpy": _numpy_state()}
-    if torch.cuda.is_available():
-        st["cuda"] = torch.cuda.get_rng_state_all()
-    return st
-
-
-def _jsonable(x):
-    return list(x) if isinstance(x, tuple) else x
-
-
-def _numpy_state() -> dict:
-    name, keys, pos, has_gauss, cached = np.random.get_state()
-    return {"name": name, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos),
-            "has_gauss": int(has_gauss), "cached": float(cached)}
-
-
-def set_rng_state(st: dict):
-    torch.set_rng_state(st["torch"])
-    v, internal, gauss = st["python"]
-    random.setstate((v, tuple(internal), gauss))
-    n = st["numpy"]
-    np.random.set_state((n["name"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached"]))
-    if "cuda" in st and torch.cuda.is_available():
-        torch.cuda.set_rng_state_all(st["cuda"])
-
-
-def _dist_env():
-    """(rank, world, local_rank) from torchrun's environment (1 process without it)."""
-    world = int(os.environ.get("WORLD_SIZE", "1"))
-    return int(os.environ.get("RANK", "0")), world, int(os.environ.get("LOCAL_RANK", "0"))
-
-
-def _device(cfg, local_rank: int) -> torch.device:
-    want = cfg.run.device
-    if want == "cuda" or (want == "auto" and torch.cuda.is_available()):
-        if not torch.cuda.is_available():
-            raise ConfigError("run.device = 'cuda' but CUDA is not available")
-        torch.cuda.set_device(local_rank)
-        return torch.device("cuda", local_rank)
-    return torch.device("cpu")
 
 
 def lr_factor(step: int, cfg) -> float:
@@ -176,100 +109,6 @@ def validate(model, val, cfg, weights, device) -> dict:
     model.train()
     return {"loss": float(np.mean(losses)) if losses else float("nan"), "error_traditional": trad.rate,
             "error_model": net.rate, "pixels": net.counted}
-
-
-# ---------------------------------------------------------------- run-folder helpers
-class RunFiles:
-    """The run folder's logs (rank 0 only)."""
-
-    def __init__(self, run_dir: Path, resume_step: int | None):
-        self.dir = run_dir
-        for name, fields in (("train.csv", TRAIN_FIELDS), ("val.csv", VAL_FIELDS)):
-            path = run_dir / name
-            rows = []
-            if resume_step is not None and path.exists():   # drop rows written after the checkpoint
-                with open(path, newline="") as fh:
-                    rows = [r for r in csv.DictReader(fh) if int(r["step"]) <= resume_step]
-            with open(path, "w", newline="") as fh:
-                w = csv.DictWriter(fh, fieldnames=fields)
-                w.writeheader()
-                w.writerows(rows)
-
-    def append(self, name: str, fields, row: dict):
-        with open(self.dir / name, "a", newline="") as fh:
-            csv.DictWriter(fh, fieldnames=fields).writerow({k: row.get(k, "") for k in fields})
-
-    def read(self, name: str) -> list[dict]:
-        with open(self.dir / name, newline="") as fh:
-            return list(csv.DictReader(fh))
-
-
-def plot_metrics(run_dir: Path) -> Path | None:
-    """metrics.png: training loss and validation error rates vs step."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    files = RunFiles.__new__(RunFiles)
-    files.dir = run_dir
-    tr, va = files.read("train.csv"), files.read("val.csv")
-    if not tr:
-        return None
-    fig, ax = plt.subplots(1, 2, figsize=(10, 3.6))
-    ax[0].semilogy([int(r["step"]) for r in tr], [float(r["loss"]) for r in tr], lw=1)
-    ax[0].set(xlabel="step", ylabel="training loss", title="loss")
-    if va:
-        s = [int(r["step"]) for r in va]
-        ax[1].plot(s, [100 * float(r["error_traditional"]) for r in va], "k--", label="traditional")
-        ax[1].plot(s, [100 * float(r["error_model"]) for r in va], "o-", label="model")
-        ax[1].legend()
-    ax[1].set(xlabel="step", ylabel="fringe-order error rate [%]", title="validation")
-    fig.tight_layout()
-    path = run_dir / "metrics.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
-def _resume_config(run_dir: Path, overrides) -> TrainConfig:
-    saved = resolve_config(run_dir / "config.toml")
-    for text in overrides or ():
-        name = text.split("=", 1)[0].strip()
-        if name not in RESUMABLE_OVERRIDES:
-            raise ConfigError(f"--resume: {name!r} cannot change in a resumed run (allowed: "
-                              f"{', '.join(RESUMABLE_OVERRIDES)})")
-    return resolve_config(run_dir / "config.toml", overrides) if overrides else saved
-
-
-def _attach_file_log(run_dir: Path):
-    h = logging.FileHandler(run_dir / "log.txt")
-    h.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
-    log.addHandler(h)
-    log.setLevel(logging.INFO)
-    return h
-
-
-def _cpu_seconds() -> float:
-    """CPU seconds of this process plus its finished children (the data-loading workers of the
-    epochs so far: a worker's time is counted once it has been joined, at its epoch's end)."""
-    t = os.times()
-    return time.process_time() + t.children_user + t.children_system
-
-
-def _open_run(config, overrides, out_dir, resume) -> tuple[TrainConfig, Path]:
-    """(resolved config, run folder) of a new run or of the run ``resume`` continues."""
-    if resume is not None:
-        if config is not None:
-            raise ConfigError("give either a config (new run) or --resume RUN, not both")
-        run_dir = Path(resume)
-        if not (run_dir / "last.pt").is_file():
-            raise ConfigError(f"--resume {run_dir}: no last.pt there (not a run folder, or it never saved)")
-        return _resume_config(run_dir, overrides), run_dir
-    cfg = resolve_config(config, overrides)
-    run_dir = Path(out_dir) if out_dir is not None else Path("runs") / time.strftime("%Y%m%d-%H%M%S")
-    if (run_dir / "last.pt").exists():
-        raise ConfigError(f"{run_dir} already holds a run (last.pt); use --resume {run_dir} or another -o")
-    return cfg, run_dir
 
 
 def _make_optimiser(model, cfg: TrainConfig, device):
@@ -328,15 +167,15 @@ class _Session:
             self.run_dir.mkdir(parents=True, exist_ok=True)
             (self.run_dir / "config.toml").write_text(to_toml(self.cfg))
             self.files = RunFiles(self.run_dir, self.step if resumed else None)
-            self.handler = _attach_file_log(self.run_dir)
+            self.handler = attach_file_log(self.run_dir)
             log.info("%s run %s: %d training items (%d scenes), %d validation items, %d step(s)/epoch, world %d, "
                      "device %s%s", "resumed" if resumed else "new", self.run_dir, self.info["train_items"],
                      len(self.info["train_scenes"]), self.info["val_items"], steps_per_epoch, self.world,
                      self.device, f", step {self.step}" if resumed else "")
-        self.t_start, self.cpu_start = time.perf_counter(), _cpu_seconds()
+        self.t_start, self.cpu_start = time.perf_counter(), cpu_seconds()
 
     def cpu_s(self) -> float:
-        return self.cpu_before + _cpu_seconds() - self.cpu_start
+        return self.cpu_before + cpu_seconds() - self.cpu_start
 
     def state(self) -> dict:
         return {"format": FORMAT, "format_version": FORMAT_VERSION, "arch": self.arch,
@@ -437,14 +276,14 @@ def train(config=None, overrides=(), out_dir=None, *, resume=None, deterministic
       sessions; on_step: optional ``callback(step, loss)`` after every step (rank 0).
     RETURNED VALUE: :class:`TrainResult`.
     """
-    rank, world, local_rank = _dist_env()
-    cfg, run_dir = _open_run(config, overrides, out_dir, resume)
+    rank, world, local_rank = dist_env()
+    cfg, run_dir = open_run(config, overrides, out_dir, resume)
     if deterministic is not None:
         cfg = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, deterministic=bool(deterministic)))
     set_deterministic(cfg.run.deterministic)
     if cfg.run.threads:
         torch.set_num_threads(int(cfg.run.threads))
-    device = _device(cfg, local_rank)
+    device = device_for(cfg, local_rank)
     if world > 1 and not torch.distributed.is_initialized():
         torch.distributed.init_process_group("nccl" if device.type == "cuda" else "gloo")
     seed = int(cfg.run.seed)
