@@ -15,9 +15,9 @@ import torch
 
 from synth.blender_twin import render_in_blender
 from synth.effects.spec import Effects
+from synth.renderer.render import render
 from synth.scenes.meshes import sphere_mesh
 from synth.scenes.objects import Plane, Sphere
-from synth.renderer.render import render
 from synth.scenes.scene import DEFAULT_BALL_RADIUS_MM, Scene, ideal_system
 from synth.scenes.sequence import phase_sequence
 

@@ -25,12 +25,13 @@ import numpy as np
 
 from synth.blender_twin import render_in_blender
 from synth.effects.spec import Effects, GlobalIllumination
+from synth.renderer.render import render
 from synth.scenes.meshes import sphere_mesh
 from synth.scenes.objects import Mesh, Sphere
-from .blender_parity import parity_system
-from synth.renderer.render import render
 from synth.scenes.scene import DEFAULT_BALL_RADIUS_MM, Scene
 from synth.scenes.sequence import phase_sequence
+
+from .blender_parity import parity_system
 
 
 def slab_mesh(half_mm: float = 400.0, thickness_mm: float = 40.0):

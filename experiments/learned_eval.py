@@ -18,13 +18,11 @@ import logging
 import time
 from pathlib import Path
 
-import numpy as np
-
-from unwrap.methods import PAIR_METHODS
-from unwrap.learned.checkpoint import load_model
-from experiments.learned_evaluation import DROPS, TestSource, confidence_curve, score, speed_table
-from unwrap.learned.metrics import ErrorCount
 from twin_mapping.paper_tables import TABLE_S5, TABLE_S6
+from unwrap.learned.checkpoint import load_model
+from unwrap.methods import PAIR_METHODS
+
+from .learned_evaluation import DROPS, TestSource, confidence_curve, score, speed_table
 
 log = logging.getLogger("experiments")
 ROW_PF, ROW_PA, ROW_MSE = "DT-TPU (prior-free)", "DP-TPU (physics-aware)", "MSE"

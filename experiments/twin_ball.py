@@ -53,21 +53,20 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib.triangulate import fit_sphere, points_from_phase, sphere_from_phase
+from synth.effects.sensor import solve_full_well
+from synth.effects.spec import Effects, Noise
+from synth.errors import SynthError
+from synth.renderer.geometry import compute_geometry
+from synth.renderer.render import render
+from synth.renderer.truth import phase_truth
+from synth.scenes.objects import Sphere
+from synth.scenes.scene import Scene
+from synth.scenes.sequence import phase_sequence
 from unwrap.fused_mf import mf_unwrap_stacks
 from unwrap.phase_io import write_phase_file
 from unwrap.reliability import phase_noise_rad
 
-from synth.effects.spec import Effects, Noise
-from synth.errors import SynthError
-
 from .errors import ExperimentError
-from synth.renderer.geometry import compute_geometry
-from synth.scenes.objects import Sphere
-from synth.renderer.render import render
-from synth.scenes.scene import Scene
-from synth.effects.sensor import solve_full_well
-from synth.scenes.sequence import phase_sequence
-from synth.renderer.truth import phase_truth
 
 BALL_FREQUENCIES = (1.0, 8.0, 96.0)
 """Default fringe ladder of the twin ball (periods across the projector width)."""

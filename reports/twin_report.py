@@ -14,7 +14,6 @@ import numpy as np
 from calib.board_pose import cross_reprojection
 
 from .compare import parameter_rows, rig_rows
-from .errors import ReportError
 from .html import to_html, to_markdown
 from .inputs import CalibrationRecord, check_comparable, load_calibration_record
 
