@@ -213,7 +213,7 @@ def _noise_kernel():
 
     if not _noise_kernel_available():
         pytest.skip("numba is not installed")
-    from synth.effects.spec import _noise_kernel
+    from synth.effects import _noise_kernel
     return _noise_kernel
 
 
