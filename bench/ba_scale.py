@@ -77,7 +77,7 @@ def child(n_views: int, mode: str, n_dist: int, repeats: int, with_mrcal: bool) 
     """One configuration in this (fresh) process; returns the measurements."""
     import numpy as np
 
-    from calib.bundle_adjustment import BAConfig, DeviceConfig
+    from calib.adjustment.problem import BAConfig, DeviceConfig
     from calib.calibrate import run_calibration
 
     obs = _simulate(n_views)
@@ -102,7 +102,7 @@ def child(n_views: int, mode: str, n_dist: int, repeats: int, with_mrcal: bool) 
            "iterations": int(cal.ba.iterations), "evaluations": int(cal.ba.timings.get("evaluations", 0)),
            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
     if with_mrcal and mode == "single":
-        from calib.mrcal_reference import mrcal_calibrate
+        from calib.adjustment.mrcal_reference import mrcal_calibrate
         from calib.rotation import matrix_from_rotvec
 
         s = cal.seeds["camera"]

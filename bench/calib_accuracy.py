@@ -20,9 +20,9 @@ import numpy as np
 def main(argv=None):
     from calib import default_system
     from calib.board import Board
-    from calib.bundle_adjustment import BAConfig, DeviceConfig
+    from calib.adjustment.problem import BAConfig, DeviceConfig
     from calib.calibrate import run_calibration
-    from calib.mrcal_reference import mrcal_calibrate
+    from calib.adjustment.mrcal_reference import mrcal_calibrate
     from calib.rotation import matrix_from_rotvec
     from calib.simulate import simulate_observations
 

@@ -65,8 +65,8 @@ def observe_session(truth_system, work: Path, *, views=9, steps=12, frequencies=
                     jitter=None):
     """Render one session of ``truth_system`` and observe it (unwrap, detect, phase fit).
     Returns (Observations, number of images, {"render": s, "observe": s})."""
-    from calib.captures import observations_from_captures
-    from synth.board_session import render_board_session
+    from calib.detect.captures import observations_from_captures
+    from synth.scenes.board_session import render_board_session
 
     folder = work / f"s_{views}_{steps}_{'-'.join(map(str, frequencies))}_{seed}"
     if folder.exists():
@@ -98,7 +98,7 @@ def true_intrinsics(truth_system, n_dist: int, skew: bool) -> dict:
 def fit_session(obs, truth_system, *, n_dist=5, skew=False) -> dict:
     """Calibrate ``obs`` with ``n_dist`` distortion terms (skew estimated or fixed at 0);
     returns estimates, truths, sigmas, residual RMS and the adjustment's time."""
-    from calib.bundle_adjustment import BAConfig, DeviceConfig
+    from calib.adjustment.problem import BAConfig, DeviceConfig
     from calib.calibrate import run_calibration
 
     t0 = time.perf_counter()
@@ -181,7 +181,7 @@ def _saved_draws(save, key) -> dict:
 def spread_table(truth_system, work: Path, draws: int, out=sys.stdout, *, jitter=(1.0, 5.0), save=None,
                  models=((5, False),), system_name: str = "twin") -> dict:
     """Repeat the paper's session ``draws`` times (new sensor noise; with ``jitter`` every board
-    pose placed again at random, ``synth.board_session.pose_jitter``), fit every model
+    pose placed again at random, ``synth.scenes.board_session.pose_jitter``), fit every model
     ``(n_dist, skew)`` of ``models`` to each rendered draw, and compare the spread of each
     intrinsic's estimate with its mean predicted sigma, one table per model. Returns
     {model label: {parameter: spread / sigma, "_mean_z": {parameter: mean z}, "_pooled_rms_z": RMS

@@ -21,7 +21,7 @@ Rows (times are minima over ``repeats``; the machine is shared, so read the rati
 
 ``--baseline DIR``: an older checkout (``git archive REV | tar -x -C DIR``) run on the same inputs
 in the same run for the command-line rows and the learned rows its code has (its
-``unwrap.learned.evaluate.speed_table``): the before / after columns.
+``experiments.learned_evaluation.speed_table``): the before / after columns.
 """
 from __future__ import annotations
 
@@ -120,10 +120,10 @@ def learned_rows(onnx_path: Path, repeats: int) -> dict:
     from unwrap.fused_mf import mf_unwrap_stacks
     from unwrap.learned import fast_features as FF
     from unwrap.learned.baselines import filtered_order
-    from unwrap.learned.evaluate import speed_scene
+    from experiments.learned_evaluation import speed_scene
     from unwrap.learned.infer import unwrap_learned
     from unwrap.learned.runtime import load_predictor
-    from unwrap.pair_decode import traditional
+    from unwrap.temporal import decode_pair as traditional
     from unwrap.temporal import mf_unwrap
 
     stacks, phi, mods, valid = speed_scene((480, 640))
@@ -147,6 +147,7 @@ def learned_rows(onnx_path: Path, repeats: int) -> dict:
     return out
 
 
+# the baseline checkout (920e6f4) is older than the floor plan: its module path
 _OLD_LEARNED = ("import json, sys\nfrom unwrap.learned.evaluate import speed_table\n"
                 "from unwrap.learned.infer import shipped_model_path\n"
                 "print(json.dumps(speed_table(shipped_model_path(), repeats=int(sys.argv[1]))))\n")

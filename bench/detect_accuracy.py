@@ -34,7 +34,7 @@ def render_white(system, spec, tilt_deg, noise_seed=None):
     """(H, W) uint8 white frame of board ``spec`` (``synth.BoardTexture`` or ``calib.board.Board``) tilted by (rx, ry) degrees
     about the world origin, and the board -> world rotation."""
     from synth import Board, Effects, Noise, PatternSpec, Scene, render
-    from synth.poses import rotation_xyz_deg
+    from synth.scenes.poses import rotation_xyz_deg
 
     R_wb = rotation_xyz_deg([tilt_deg[0], tilt_deg[1], tilt_deg[2] if len(tilt_deg) > 2 else 0.0])
     noise = None if noise_seed is None else Noise(seed=int(noise_seed))

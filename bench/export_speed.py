@@ -37,8 +37,8 @@ def _load() -> str:
 
 
 def export_part(config, n: int, out: Path) -> dict:
-    from synth.dataset_config import load_config
-    from synth.dataset_export import export_dataset
+    from synth.export.config import load_config
+    from synth.export.dataset import export_dataset
 
     cfg = load_config(config)
     cfg.samples = n
@@ -51,7 +51,7 @@ def export_part(config, n: int, out: Path) -> dict:
 def codec_table(path: Path, codecs=("gzip-1", "gzip-4", "lzf", "none")) -> list:
     import h5py
 
-    from synth.dataset_writer import _filters
+    from synth.export.writer import _filters
 
     with h5py.File(path, "r") as h5:
         names = [n for n in ("v/phase", "v/modulation", "v/flags", "v/order", "v/coordinate", "h/phase", "h/modulation",

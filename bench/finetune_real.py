@@ -18,7 +18,7 @@ the run's validation set, scored once at the last step, so nothing is selected o
   reference = the Gray-code point cloud projected with the calibration (docs/dataset.md). top -> bottom and
   bottom -> top.
 
-Error rate = wrong orders / valid pixels with a reference (unwrap.learned.evaluate.score). The
+Error rate = wrong orders / valid pixels with a reference (experiments.learned_evaluation.score). The
 cost column is the fine-tuning run's steps and CPU seconds (train.csv, whole process).
 """
 from __future__ import annotations
@@ -61,7 +61,7 @@ def pyramid_capture(work: Path) -> Path:
 
 def export_files(work: Path, only=None) -> dict:
     """{name: .h5} of the labelled captures (skipped when the shared data are absent)."""
-    from synth.capture_export import export_capture
+    from synth.export.capture import export_capture
 
     files = {}
     if PYRAMID.exists() and only in (None, "pyramid"):
@@ -96,7 +96,7 @@ def score_file(path, models: dict) -> dict:
     import h5py
 
     from unwrap.dataset_schema import read_attrs
-    from unwrap.learned.evaluate import TestSource, score
+    from experiments.learned_evaluation import TestSource, score
 
     with h5py.File(path, "r") as h5:
         orients = tuple(read_attrs(h5)["orientations"])

@@ -2,16 +2,16 @@
 ``python -m bench.gi_bias [--quick] [--scenes ball-wall corner bunny-wall] [--samples 256]
 [--seeds 2] [--fresh] [--repeats 3] [--figures out/gi_bias] [--write-reference PATH] [-q]``.
 
-Scenes (synth.gi_bias): a 25.4 mm ball 4.6 mm before a matte wall, a concave 90 degree corner,
+Scenes (experiments.gi_bias): a 25.4 mm ball 4.6 mm before a matte wall, a concave 90 degree corner,
 the Stanford bunny 5 mm before the wall; albedo 0.8; the parity twin (ideal system, 160x120
 camera), 8 steps of vertical fringes at f = 1. Per scene and renderer the bias map is
 ``wrap(phi_gi - phi_direct)``; Cycles renders with 4 diffuse bounces at ``--samples`` samples
 per pixel with each of ``--seeds`` seeds (the reference is their circular mean; the RMS of two
 seeds' difference / sqrt 2 is one map's noise) against its own 1-sample direct frames.
 
-Rows: ours with synth.interreflection (1 and 2 bounces, default patches; on mesh scenes also
+Rows: ours with synth.effects.interreflection (1 and 2 bounces, default patches; on mesh scenes also
 without mesh visibility) and the old
-screen-space term (synth.global_illumination, ``interreflection`` 0.2 over 40 mm). Columns:
+screen-space term (synth.effects.global_illumination, ``interreflection`` 0.2 over 40 mm). Columns:
 pixels compared, Cycles bias RMS / p99 and noise, correlation and RMS difference / bias RMS per
 model, our time for the whole 8-frame stack (geometry included, minimum over ``--repeats``) and
 Cycles' time for the same 8 frames (sum of its per-frame render times; from the cache unless
@@ -50,8 +50,8 @@ def _log(quiet, *a):
 
 def _ours(name, repeats):
     """Our bias maps (1 bounce, 2 bounces, old term), the geometry and our best stack time (s)."""
-    from synth.effects import GlobalIllumination, Interreflection
-    from synth.gi_bias import bias_map, ours_images
+    from synth.effects.spec import GlobalIllumination, Interreflection
+    from experiments.gi_bias import bias_map, ours_images
 
     direct, res = ours_images(name, None)
     best = float("inf")
@@ -73,7 +73,7 @@ def _ours(name, repeats):
 
 
 def scene_objects(name):
-    from synth.gi_bias import bias_scene
+    from experiments.gi_bias import bias_scene
 
     return bias_scene(name).objects
 
@@ -81,7 +81,7 @@ def scene_objects(name):
 def _cycles_anchor(name, samples, threads) -> float:
     """Seconds of one fresh Cycles frame (4 bounces, ``samples``) of scene ``name``, this run."""
     from synth.blender_twin import render_in_blender
-    from synth.gi_bias import EXPOSURE, _setup, bias_scene
+    from experiments.gi_bias import EXPOSURE, _setup, bias_scene
 
     system, d_ref, patterns = _setup(8)
     proj = patterns[0].projector_image(system.projector.size, 0.5, 0.5)[None]
@@ -122,7 +122,7 @@ def _timings(rows):
 
 def _print_tables(rows, anchor, a):
     """The Markdown tables of :func:`main`."""
-    from synth.gi_bias import FINE_PERIODS
+    from experiments.gi_bias import FINE_PERIODS
 
     print(f"## Unit-phase interreflection bias, Cycles (4 bounces{', stored reference' if a.quick else ''}) vs ours\n")
     print("| scene | pixels | Cycles bias RMS / p99 (rad) | fringes (x64) p99 | Cycles noise / seed | model | correlation "
@@ -174,7 +174,7 @@ def main(argv=None) -> int:
     ap.add_argument("--write-reference", type=Path, default=None)
     ap.add_argument("-q", "--quiet", action="store_true")
     a = ap.parse_args(argv)
-    from synth.gi_bias import compare, comparison_mask, cycles_bias, load_reference, save_reference
+    from experiments.gi_bias import compare, comparison_mask, cycles_bias, load_reference, save_reference
 
     scenes = ["ball-wall"] if a.quick else a.scenes
     rows = []

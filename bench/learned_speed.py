@@ -2,7 +2,7 @@
 
 Run: ``python -m bench.learned_speed [--model PATH] [--repeats N] [--threads T]`` (``--quick``: 2 repeats).
 
-One orientation of a 640 x 480 frame, MF (1, 48), 12 steps (`unwrap.learned.evaluate.speed_table`):
+One orientation of a 640 x 480 frame, MF (1, 48), 12 steps (`experiments.learned_evaluation.speed_table`):
 the traditional TPU from frames (fused kernel: wrapped phases + MF in one pass) and from wrapped
 phases (the prior and its rounding), the filtered baseline (15 x 15 plane fit of the unit phase),
 the network alone and the whole learned path (prior + input features + network + decode). Every
@@ -39,7 +39,7 @@ def training_samples_per_s(model_path, repeats: int = 5, crop: int = 128, batch:
 def main(argv=None) -> int:
     import torch
 
-    from unwrap.learned.evaluate import speed_table
+    from experiments.learned_evaluation import speed_table
     from unwrap.learned.infer import shipped_model_path
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])

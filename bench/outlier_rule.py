@@ -38,7 +38,7 @@ def _normalised(cal, device):
 
 
 def real_data_tables() -> None:
-    from calib.bundle_adjustment import BAConfig
+    from calib.adjustment.problem import BAConfig
     from calib.calibrate import run_calibration
     from calib.observations import from_bouguet
 
@@ -99,7 +99,7 @@ def _without_skew(system):
 def simulation_table(draws: int) -> None:
     from calib import default_system
     from calib.board import Board
-    from calib.bundle_adjustment import BAConfig
+    from calib.adjustment.problem import BAConfig
     from calib.calibrate import reweight_views, run_calibration
 
     system = _without_skew(default_system())   # the adjustment holds skew at 0: no model error

@@ -15,7 +15,7 @@ rows on the same pixels; % dropped where a row drops pixels):
 
 Sources (read in place; absent ones are skipped): ``../shared/data/thomriiii-pyramid-mf-1-4-16``
 (MF 1/4/16, 8 steps: reference = the full ladder, tested pair 1 -> 16), SLStudio's skull (MF 1 ->
-16, 3 steps, reference from its Gray-code point cloud via ``synth.capture_export``), and twin
+16, 3 steps, reference from its Gray-code point cloud via ``synth.export.capture``), and twin
 scenes rendered by ``calib export`` from ``bench/data/spatial_{val,test}.toml`` (validation:
 training meshes; test: the held-out nefertiti / cheburashka / suzanne). kamino410, SLMaster and
 dp-tpu carry no two-frequency pair the MF / MW paths decode (listed with the reason).
@@ -45,7 +45,8 @@ def _pyramid_items(orientations=("v", "h")):
     """The pyramid capture: (1, 16) pair with the reference of the 1/4/16 ladder."""
     import cv2
 
-    from unwrap.phase_shift import fit_noise_sigma, wrapped_phase
+    from unwrap.phase_shift import wrapped_phase
+    from unwrap.reliability import fit_noise_sigma
     from unwrap.temporal import mf_unwrap
 
     root = SHARED / "thomriiii-pyramid-mf-1-4-16" / "structured"
@@ -112,7 +113,7 @@ def _skull_items(work: Path):
         return []
     out = work / "skull.h5"
     if not out.exists():
-        from synth.capture_export import export_capture
+        from synth.export.capture import export_capture
         export_capture(skull, out, reference_cloud=cloud, reference_system=system)
     return _file_items(out, "skull")
 
@@ -142,7 +143,7 @@ def _sigmas(it):
 
 def decode_item(it, params, *, learned=True, filtered=True):
     """Every row's orders (and confidences) for one item; times in ms."""
-    from unwrap.dataset import traditional
+    from unwrap.temporal import decode_pair as traditional
     from unwrap.spatial_orders import graphcut_orders
 
     s_lo, s_hi = _sigmas(it)
@@ -218,7 +219,7 @@ def calibrate(items):
     :data:`BREAK_RATIO` on every validation scene (so never worse than traditional there, with a
     margin for the step from the twin to real captures)."""
     from unwrap.spatial_orders import DEFAULTS, graphcut_orders
-    from unwrap.dataset import traditional
+    from unwrap.temporal import decode_pair as traditional
 
     best = None
     wrong = counted = 0

@@ -53,7 +53,7 @@ DOF_SAMPLES = 64  # the Blender DOF reference check (tests/test_synth_reference.
 def _scenes(quick: bool = False):
     from calib import default_system
     from synth import Mesh, Plane, Scene, Sphere, blobs_heights, heightfield_mesh, load_mesh, phase_sequence
-    from synth.effects import Defocus, Effects, Noise
+    from synth.effects.spec import Defocus, Effects, Noise
 
     system = default_system()
     seq = phase_sequence(("v", "h"), (1, 8, 48), 12)
@@ -80,8 +80,8 @@ def _scenes(quick: bool = False):
 
 def _world_meshes(scene):
     """The scene's objects as world-frame triangle meshes for Blender (analytic ones tessellated)."""
-    from synth.meshes import sphere_mesh
-    from synth.objects import Mesh, Plane, Sphere
+    from synth.scenes.meshes import sphere_mesh
+    from synth.scenes.objects import Mesh, Plane, Sphere
 
     out = []
     for o in scene.objects:
@@ -100,8 +100,8 @@ def _world_meshes(scene):
 
 
 def _time_ours(scene, repeats):
-    from synth import render
-    from synth.geometry import _RAY_CACHE, compute_geometry
+    from synth.renderer import render
+    from synth.renderer.geometry import _RAY_CACHE, compute_geometry
 
     best: dict = {}
 
@@ -127,7 +127,7 @@ def _time_ours(scene, repeats):
 def _twin_system(system):
     """What Blender renders: the ideal system (no skew, no distortion) with square camera pixels
     (fy differs from fx by 0.04 % in the built-in system)."""
-    from synth.scene import ideal_system
+    from synth.scenes.scene import ideal_system
 
     system = ideal_system(system)
     K = system.camera.K.copy()
@@ -217,7 +217,7 @@ def main(argv=None) -> int:
         stages = {k: v for k, v in b.items() if k not in ("total", "geometry cold", "geometry new pose")}
         print(f"- {name}: " + ", ".join(f"{k} {1000 * v:.1f}" for k, v in stages.items()))
     if blender:
-        from synth.parity import parity
+        from experiments.blender_parity import parity
         print("\nFidelity at full size (what the Cycles times above render; 12 steps, f = 48, v):\n")
         print("| scene (640x480) | mean abs. diff. (8-bit levels) | phase RMS (rad) | pixels |")
         print("|---|---|---|---|")
@@ -231,16 +231,16 @@ def _kernel_load_seconds() -> float:
     """Seconds to import and first-call the numba kernels (lens inversion, mesh engine, noise)
     on tiny inputs: what a fresh process pays once, before any frame."""
     from calib.distortion import undistort
-    from synth.effects import Noise
-    from synth.raycast import nearest_hits
-    from synth.sensor import add_noise
+    from synth.effects.spec import Noise
+    from synth.renderer.raycast import nearest_hits
+    from synth.effects.sensor import add_noise
 
     t0 = time.perf_counter()
     undistort(np.zeros((2, 2)), [0.1, 0.0, 0.0, 0.0], fast=True)
     tri = torch.tensor([[[0.0, 0, 1], [1, 0, 1], [0, 1, 1]]], dtype=torch.float64)
     s, idx, bary = nearest_hits(tri, torch.zeros((1, 2), dtype=torch.float64), 1e-3)
     try:
-        from synth._raycast_kernel import mesh_hits
+        from synth.renderer._raycast_kernel import mesh_hits
         z3 = np.zeros((1, 3))
         mesh_hits(s.numpy(), idx.numpy(), bary.numpy(), np.zeros((1, 2)), z3, np.zeros(3), np.eye(3),
                   np.zeros((1, 3), dtype=np.int64), z3, True, np.zeros(1), z3.copy(), z3.copy())

@@ -25,10 +25,10 @@ Public surface:
 Progress goes to the `calib` logger.
 """
 from .board import Board, paper_board
-from .bundle_adjustment import BAConfig, DeviceConfig
+from .adjustment.problem import BAConfig, DeviceConfig
 from .calibrate import Calibration, reweight_views, run_calibration
 from .coordinate_choice import coordinate_conditioning
-from .captures import observations_from_captures
+from .detect.captures import observations_from_captures
 from .detect import detect_board
 from .device import DeviceModel
 from .errors import (BoardError, BundleAdjustmentError, CalibError, CaptureError, DetectionError, FormatError,
@@ -40,7 +40,7 @@ from .pipeline import calibrate_captures, calibrate_observations
 from .system import SystemModel, default_system
 from .triangulate import (fit_sphere, points_from_phase, sphere_from_phase, triangulate, triangulate_both,
                           triangulate_linear)
-from .uncertainty import assess_uncertainty
+from .uncertainty.assess import assess_uncertainty
 
 __all__ = [
     "DeviceModel", "SystemModel", "default_system", "load_system", "save_system",

@@ -74,7 +74,7 @@ def fit_board_pose(system: SystemModel, view):
 
 def cross_reprojection(observations_of, through: SystemModel) -> dict:
     """RMS (px) per device and per view of ``observations_of``'s views (anything with ``.views``,
-    e.g. :class:`calib.observations.Observations` or a :class:`calib.calibration_record.CalibrationRecord`)
+    e.g. :class:`calib.observations.Observations` or a :class:`calib.io.record.CalibrationRecord`)
     through ``through``'s rig.
 
     RETURNED VALUE: ``{"per_view_rms_px": {device: [...]}, "rms_px": {device: rms},

@@ -2,7 +2,7 @@
 
 ``run_calibration(obs, config)`` is what ``calib run`` calls: it seeds each device with
 ``calib.zhang.init_device``, composes the projector-from-camera pose from the per-view seeds
-(joint mode), adjusts everything with ``calib.bundle_adjustment`` and returns the system in the
+(joint mode), adjusts everything with ``calib.adjustment.problem`` and returns the system in the
 DESIGN.md convention, world = the board at the first view (as the paper's tables), together with
 the adjustment's uncertainties and residuals.
 
@@ -12,7 +12,7 @@ SYNOPSIS (the paper's own observations: ``from_bouguet("CamCalibResult_real.mat"
     >>> import numpy as np
     >>> from calib import default_system
     >>> from calib.board import Board
-    >>> from calib.bundle_adjustment import BAConfig
+    >>> from calib.adjustment.problem import BAConfig
     >>> from calib.calibrate import run_calibration
     >>> from calib.simulate import simulate_observations
     >>> s = default_system().ideal()          # no skew: the default model holds it at 0
@@ -29,8 +29,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .ba_solver import BAResult, solve
-from .bundle_adjustment import BAConfig, RigState, build_problem
+from .adjustment.solver import BAResult, solve
+from .adjustment.problem import BAConfig, RigState, build_problem
 from .device import DeviceModel
 from .observations import ObservationError, Observations
 from .rotation import matrix_from_rotvec, nearest_rotation, rotvec_from_matrix
@@ -49,11 +49,11 @@ class Calibration:
     - seeds: {device: DeviceSeed}; timings: {"init_s", "build_s", "solve_s", "total_s"}.
     - baseline_scatter_mm: spread (std, mm) of the projector centre in the camera frame over the
       per-view seed compositions (what a rig built from independent per-device poses suffers).
-    - config: the :class:`calib.bundle_adjustment.BAConfig` it was solved with
+    - config: the :class:`calib.adjustment.problem.BAConfig` it was solved with
       (``outlier_threshold``: the rejection rule's threshold in robust sigmas, None: no rejection).
     - view_noise: {device: {view index: noise factor}} of the views :func:`reweight_views` gave
       their own noise level (None when it did not run).
-    - uncertainty: None, or what :mod:`calib.uncertainty` added (the error model's standard
+    - uncertainty: None, or what :mod:`calib.uncertainty.assess` added (the error model's standard
       deviations, resampled spreads, warnings), set by :func:`calib.pipeline.calibrate_observations`.
     """
 

@@ -18,7 +18,7 @@ Observation JSON schema (documented in docs/calib.md)::
 ``dprj_dcam`` is the local derivative of the projector pixel read at a camera pixel with respect
 to that camera pixel (projector px per camera px, from the phase fit around the feature). With
 it, the adjustment knows that a camera detection error ``e`` moves the projector pixel by
-``dprj_dcam @ e`` (see ``calib.bundle_adjustment``, "camera error transfer").
+``dprj_dcam @ e`` (see ``calib.adjustment.problem``, "camera error transfer").
 """
 from __future__ import annotations
 

@@ -1,12 +1,12 @@
 """Calibrate a capture folder, or point observations, and write every output: what ``calib run``
 and ``calib demo`` do, one function each.
 
-1. captures -> observations (:func:`calib.captures.observations_from_captures`: unwrapping, board
+1. captures -> observations (:func:`calib.detect.captures.observations_from_captures`: unwrapping, board
    detection, projector pixels from a local phase fit);
 2. observations -> calibration (:func:`calib.calibrate.run_calibration`: Zhang seeds, joint
    bundle adjustment; again with per-view noise levels where views stand out,
    :func:`calib.calibrate.reweight_views`);
-3. where skew is held at 0, a refit with skew free (:mod:`calib.skew_check`), which warns when
+3. where skew is held at 0, a refit with skew free (:mod:`calib.uncertainty.skew_check`), which warns when
    the data need a skew (a zero-skew model of a skewed system is biased);
 4. the uncertainty it reports (:func:`calib.uncertainty.assess_uncertainty`: the per-pose error
    model's sigmas by default, optionally a jackknife or bootstrap over poses beside them, the
@@ -15,8 +15,8 @@ and ``calib demo`` do, one function each.
 5. the outputs in ``out``: ``calibration.json`` (DESIGN.md keys plus uncertainties, residuals,
    board poses, solver facts, the skew check and, for captures, the capture summary),
    ``camera.cameramodel``, ``projector.cameramodel``, ``residuals.png``, ``residuals_per_pose.png``
-   and ``residuals_on_board.png`` (:mod:`calib.residual_diagnostics`); for captures also
-   ``observations.json`` and ``detections.png`` (:mod:`calib.capture_outputs`).
+   and ``residuals_on_board.png`` (:mod:`calib.uncertainty.diagnostics`); for captures also
+   ``observations.json`` and ``detections.png`` (:mod:`calib.io.capture_outputs`).
 
 Progress goes to the ``calib`` logger. Errors are ``calib`` errors (``ValueError`` subclasses):
 ``ObservationError`` (too few views or points), ``InitError`` (degenerate views),
@@ -36,15 +36,15 @@ import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from .bundle_adjustment import BAConfig
+from .adjustment.problem import BAConfig
 from .calibrate import Calibration, reweight_views, run_calibration, with_view_noise
-from .calibration_report import write_outputs
-from .capture_outputs import write_capture_outputs
-from .captures import CaptureObservations, observations_from_captures
+from .io.outputs import write_outputs
+from .io.capture_outputs import write_capture_outputs
+from .detect.captures import CaptureObservations, observations_from_captures
 from .errors import OutputError
 from .observations import Observations
-from .residual_diagnostics import plot_residual_diagnostics
-from .uncertainty import assess_uncertainty, warp_allowed
+from .uncertainty.diagnostics import plot_residual_diagnostics
+from .uncertainty.assess import assess_uncertainty, warp_allowed
 
 log = logging.getLogger(__name__)
 
@@ -81,7 +81,7 @@ def peak_memory_mb() -> float:
 
 def resolve_board_warp(config: BAConfig, obs: Observations, board_warp) -> BAConfig:
     """``config`` with the board warp decided: ``"auto"`` (estimated where the views allow it,
-    :func:`calib.uncertainty.warp_allowed`), True, False, or None (``config.board_warp`` as it is)."""
+    :func:`calib.uncertainty.assess.warp_allowed`), True, False, or None (``config.board_warp`` as it is)."""
     if board_warp is None:
         return config
     if board_warp == "auto":
@@ -92,10 +92,10 @@ def resolve_board_warp(config: BAConfig, obs: Observations, board_warp) -> BACon
 
 
 def skew_check_outputs(obs: Observations, cal: Calibration, config: BAConfig) -> dict:
-    """Refit with skew free (:mod:`calib.skew_check`) where ``config`` holds it at 0; a skew
+    """Refit with skew free (:mod:`calib.uncertainty.skew_check`) where ``config`` holds it at 0; a skew
     beyond the check's threshold is logged as a warning (shown even by ``calib run -q``).
     Returns ``{"skew_check": ...}`` for ``calibration.json``, or {} when nothing was checked."""
-    from .skew_check import check_skew
+    from .uncertainty.skew_check import check_skew
 
     log.info("skew check: refitting with skew free")
     try:
@@ -126,7 +126,7 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
     ``skew_check``: where skew is held at 0, refit with it free and warn when the data need it
     (:func:`skew_check_outputs`; the result goes into ``calibration.json``).
     ``board_warp``: see :func:`resolve_board_warp`; ``resample``: "none", "jackknife" or
-    "bootstrap" (``draws`` runs) beside the reported uncertainty (:mod:`calib.uncertainty`).
+    "bootstrap" (``draws`` runs) beside the reported uncertainty (:mod:`calib.uncertainty.assess`).
     ``figures``: "auto" (every figure up to :data:`FEW_VIEWS` views, above only the summary
     ``residuals.png``: the per-pose panels of 100 views cost more than the whole calibration),
     "all", "summary" or "none". The result carries the wall seconds per stage and the peak memory
@@ -197,9 +197,9 @@ def calibrate_captures(folder, out, config: BAConfig | None = None, *, capture_t
 
     ARGUMENTS
     - folder: capture folder (DESIGN.md layout, or a scanner's layout described by
-      ``capture_toml``); see :mod:`calib.captures`.
+      ``capture_toml``); see :mod:`calib.detect.captures`.
     - out: output folder (created).
-    - config: :class:`calib.bundle_adjustment.BAConfig` (default: joint, 5 distortion terms).
+    - config: :class:`calib.adjustment.problem.BAConfig` (default: joint, 5 distortion terms).
     - method: temporal unwrapping method (default: the capture's); strict: refuse the run when a
       pose cannot be used (default: skip it, and say so in the summary); degree: local polynomial
       degree of the projector-pixel fit (1 or 2).

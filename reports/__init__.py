@@ -8,8 +8,9 @@ Public surface:
   ``build_twin_report``: its sections and summary.
 - ``ReportError`` (a ValueError).
 
-The numbers come from calib (calibration records, board-pose fits, triangulation), synth (the
-twin ball) and twin_mapping (the paper's tables); progress goes to the `reports` logger.
+Reports lay out results they are given: the numbers come from calib (calibration records,
+board-pose fits, triangulation), experiments (the twin ball, the learned evaluation and parity)
+and twin_mapping (the paper's tables); progress goes to the `reports` logger.
 """
 from .errors import ReportError
 from .twin_report import build_twin_report, write_twin_report

@@ -1,12 +1,10 @@
 """Inputs of the twin-equivalence report: two calibration records
-(:mod:`calib.calibration_record`, re-exported here) and the check that they can be compared."""
+(:mod:`calib.io.record`, re-exported here) and the check that they can be compared."""
 from __future__ import annotations
 
 import numpy as np
 
-from calib.calibration_record import (INTRINSICS, CalibrationRecord, load_calibration_record,  # noqa: F401
-                                      sha256)
-from calib.observations import ViewObservations  # noqa: F401  (the one view type; re-exported)
+from calib.io.record import INTRINSICS, CalibrationRecord, load_calibration_record  # noqa: F401
 
 from .errors import ReportError
 

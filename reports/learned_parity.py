@@ -1,22 +1,5 @@
-"""The report's section on learned unwrapping: does the model trained on the twin behave on real
-captures as on twin renders of the same system?
-
-Data (both through ``unwrap.dataset``):
-
-- real: capture datasets with reference orders (``synth.capture_export``; in ``../shared/data`` the
-  one with a reference is SLStudio's skull: MF with 1 and 16 periods, 3 steps, 1688x1352, the
-  reference from SLStudio's own Gray-code scan);
-- twin: renders of the same system (its calibration, ``calib.load_system``) at the capture's steps
-  and size, at the capture's frequency and at others (the model's training ratio 48 and the
-  unseen 96), with the sensor noise matched to the capture's (:func:`capture_noise`).
-
-Noise match: on the capture's valid pixels the traditional absolute phase ``phi + 2 pi k`` of the
-high frequency is smooth (its rare 2 pi errors are outliers that the median ignores), so its residual from a 5x5 local plane (robust: 1.4826 x median absolute
-value, corrected for the fit's own degrees of freedom) is its noise ``sigma_Phi``; with the N-step
-noise gain, ``sigma_I = sigma_Phi * B * sqrt(N / 2)`` (full-scale units) per pixel, summarised by
-its median. For the twin's Poisson sensor ``sigma_I^2 ~ I / full_well`` with ``I ~ B`` (full-contrast
-fringes), so ``full_well = median(B) / sigma_I^2``. The twin renders are measured the same way and
-both numbers are reported.
+"""The report's section on learned unwrapping, laid out from the parity experiment's result
+(:func:`experiments.learned_parity.parity`): error-rate table, noise match, verdict, figures.
 
 Verdict: the model "behaves on real data as on the twin" when, at the capture's frequency, the
 learned/traditional error ratio on the capture is within a factor 2 of the twin's (or both error
@@ -26,199 +9,9 @@ when the capture's traditional error is more than 1.5x its twin's, the verdict s
 """
 from __future__ import annotations
 
-import json
-import logging
-import math
-from pathlib import Path
-
 import numpy as np
-import torch
 
-from .errors import ReportError
-
-LOG = logging.getLogger("reports")
 SECTION_TITLE = "Learned unwrapping: twin vs real"
-
-
-def capture_noise(path, orientation: str = "v", pair=None) -> dict:
-    """Sensor noise of a dataset file's high frequency (module docstring), on interior valid pixels.
-
-    RETURNED VALUE: {"sigma_I": median full-scale intensity noise, "sigma_phase_rad": median
-    phase noise, "modulation": median B (full scale), "pixels": pixels used, "steps": N}.
-    """
-    from unwrap.dataset import FringeOrderDataset
-    from unwrap.dataset_schema import read_attrs
-    from unwrap.learned.smoothing import smooth_phase
-    import h5py
-
-    with h5py.File(path, "r") as h5:
-        a = read_attrs(h5)
-    freqs = sorted(float(f) for f in a["frequencies"])
-    pair = pair or (freqs[0], freqs[-1])
-    steps = a["steps"]
-    N = int(steps[freqs.index(pair[1])] if isinstance(steps, list) else steps)
-    ds = FringeOrderDataset(path, method="mf", frequencies=pair, orientation=orientation, crop=None, seed=0)
-    res, mods = [], []
-    for i in range(len(ds)):
-        it = ds[i]
-        ok = it["valid"] & (it["order_traditional"] >= 0)
-        if int(ok.sum()) < 100:
-            continue
-        # the traditional absolute phase: its rare 2 pi errors are outliers the median ignores
-        Phi = (it["phase_high"][0].double() + 2 * math.pi * it["order_traditional"].double())[None, None]
-        # residual of the pixel from the plane through its 5x5 neighbours (itself included)
-        smooth = smooth_phase(Phi, ok[None, None], 5, "plane")[0, 0]
-        interior = ok & (torch.nn.functional.avg_pool2d(ok[None, None].double(), 5, 1, 2)[0, 0] > 0.999)
-        e = (Phi[0, 0] - smooth)[interior].numpy()
-        res.append(e)
-        mods.append(it["modulation_high"][0][interior].double().numpy())
-    if not res:
-        raise ReportError(f"{path}: no sample with reference orders to measure the noise on")
-    e, B = np.concatenate(res), np.concatenate(mods)
-    dof = math.sqrt(25.0 / 22.0)             # a 3-parameter plane through 25 pixels, the pixel among them
-    sig = 1.4826 * np.median(np.abs(e)) * dof
-    sigma_I = float(np.median(1.4826 * np.abs(e) * dof * B) * math.sqrt(N / 2.0))
-    return {"sigma_I": sigma_I, "sigma_phase_rad": float(sig), "modulation": float(np.median(B)),
-            "pixels": int(e.size), "steps": N, "pair": list(pair)}
-
-
-def matched_full_well(noise: dict) -> float:
-    """Full well (electrons at full scale) whose shot noise gives the capture's ``sigma_I``."""
-    return float(noise["modulation"] / max(noise["sigma_I"], 1e-6) ** 2)
-
-
-def _world_depths(system_file) -> tuple[float, float]:
-    """Depth of the world origin in the camera and in the projector (mm): the export measures focus
-    distances from these (``synth.dataset_scenes``); for a system whose world is the camera (SLStudio)
-    they are 0 and ~the baseline, not the working distance."""
-    from calib import load_system
-
-    s = load_system(system_file)
-    return float(s.camera.t[2]), float(s.projector.t[2])
-
-
-def twin_config_text(system_file, full_well: float, *, exposure=(0.45, 0.95), samples: int = 6, steps: int = 3,
-                     frequencies=(1, 16, 48, 96), depth_mm=(350, 450), size_mm=(100, 200), mesh_dir=None,
-                     seed: int = 5) -> str:
-    """Export TOML of twin renders of ``system_file`` with the matched noise and exposure: scene
-    and effect ranges as the training set's, objects at the capture's working distance (``depth_mm``
-    from the world origin), both devices focused on it (+-50 mm)."""
-    mesh_dir = Path(mesh_dir) if mesh_dir else Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
-    z_cam, z_prj = _world_depths(system_file)
-    mid = 0.5 * (depth_mm[0] + depth_mm[1])
-    f_cam = [mid - z_cam - 50, mid - z_cam + 50]
-    f_prj = [mid - z_prj - 50, mid - z_prj + 50]
-    return f"""[export]
-samples = {int(samples)}
-seed = {int(seed)}
-min_object_fraction = 0.05
-
-[system]
-file = {json.dumps(str(Path(system_file).resolve()))}
-
-[patterns]
-orientations = ["v"]
-frequencies = {json.dumps([float(f) for f in frequencies])}
-steps = {int(steps)}
-
-[scene]
-objects = [1, 2]
-mesh_dir = {json.dumps(str(mesh_dir.resolve()))}
-meshes = ["cheburashka.obj", "suzanne.obj", "stanford-bunny.obj", "spot.obj"]
-mesh_fraction = 0.5
-procedural = ["sphere", "blobs", "heightfield"]
-size_mm = {json.dumps(list(size_mm))}
-depth_mm = {json.dumps(list(depth_mm))}
-background = 0.7
-background_gap_mm = [20, 120]
-background_tilt_deg = [0, 25]
-albedo = [0.3, 0.95]
-texture = 0.5
-texture_contrast = [0.1, 0.6]
-
-[effects]
-exposure = {json.dumps([round(float(e), 4) for e in exposure])}
-ambient = [0.0, 0.08]
-noise = {{full_well_e = {full_well:.1f}, read_noise_e = 2}}
-projector_defocus = {{aperture_mm = [0, 3], focus_offset_mm = {json.dumps([round(v, 1) for v in f_prj])}}}
-camera_defocus = {{aperture_mm = [0, 3], focus_offset_mm = {json.dumps([round(v, 1) for v in f_cam])}}}
-global_illumination = {{subsurface = [0, 0.6], scatter_mm = [0.5, 4], interreflection = [0, 0.1], interreflection_mm = [20, 60]}}
-bits = 8
-
-[output]
-codec = "gzip-1"
-"""
-
-
-def render_matched_twin(real_file, system_file, out_dir, *, samples: int = 6, frequencies=(1, 16, 48, 96),
-                        progress: bool = True) -> dict:
-    """Measure the capture's noise, render the twin of ``system_file`` (synth) with the full well
-    and exposure that match it, and measure the renders the same way.
-
-    A 1-sample pilot (full well from :func:`matched_full_well`, exposure 0.45-0.95) is measured;
-    the exposure is then scaled by ``a = B_real / B_pilot`` (the export's light falloff is
-    referenced to the world origin's distance, which differs between systems) and the full well
-    by ``a (sigma_pilot / sigma_real)^2`` (shot noise: ``sigma_I^2 ~ I / full_well``) for the final
-    render.
-    RETURNED VALUE: {"file", "config", "noise_real", "noise_twin", "full_well", "exposure", "pilot"}."""
-    from synth.dataset_config import load_config
-    from synth.dataset_export import export_dataset
-
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    noise = capture_noise(real_file)
-    pair = (1.0, float(noise["pair"][1]))
-
-    def render(name, fw, exposure, n):
-        cfg_path = out / f"{name}.toml"
-        cfg_path.write_text(twin_config_text(system_file, fw, exposure=exposure, samples=n, steps=noise["steps"],
-                                             frequencies=frequencies))
-        path = out / f"{name}.h5"
-        export_dataset(load_config(cfg_path), path, progress=progress)
-        return cfg_path, path, capture_noise(path, pair=pair)
-
-    fw0, exp0 = matched_full_well(noise), (0.45, 0.95)
-    _, _, pilot = render("twin_pilot", fw0, exp0, 1)
-    a = noise["modulation"] / max(pilot["modulation"], 1e-6)
-    fw = fw0 * a * (pilot["sigma_I"] / noise["sigma_I"]) ** 2
-    exposure = (exp0[0] * a, exp0[1] * a)
-    LOG.info("learned parity: capture sigma_I %.4f, B %.3f; pilot twin (%.0f e-) sigma_I %.4f, B %.3f -> exposure "
-             "x%.2f, full well %.0f e-", noise["sigma_I"], noise["modulation"], fw0, pilot["sigma_I"],
-             pilot["modulation"], a, fw)
-    cfg_path, path, twin = render("twin_parity", fw, exposure, samples)
-    return {"file": str(path), "config": str(cfg_path), "noise_real": noise, "noise_twin": twin, "full_well": fw,
-            "exposure": list(exposure), "pilot": {"full_well": fw0, "exposure": list(exp0), "noise": pilot}}
-
-
-def _score(files, pair, model) -> dict:
-    from unwrap.learned.evaluate import TestSource, score
-
-    src = TestSource(files=[str(f) for f in files], orientations=("v", "h"))
-    s = score(src, "mf", pair[1], {"learned": model}, filtered_window=15, example=True) if pair[0] == 1 else None
-    if s is None:
-        return {}
-    return {"traditional": s.counts["Traditional"], "filtered": s.counts["Filtered 15x15"],
-            "learned": s.counts["learned"], "example": s.checks.get("example"), "check": s.checks.get("learned"),
-            "items": s.items}
-
-
-def parity(real_files, twin_files, model="learned", *, frequencies=(16, 48, 96)) -> dict:
-    """Error rates (traditional, filtered, learned) on the captures and the twin renders per frequency."""
-    from unwrap.learned.infer import resolve_model
-
-    net = resolve_model(model)
-    rows = []
-    for f in frequencies:
-        for kind, files in (("real", real_files), ("twin", twin_files)):
-            try:
-                r = _score(files, (1.0, float(f)), net)
-            except ValueError as exc:   # a frequency the file does not hold, a bad file
-                LOG.info("learned parity: %s f=%g skipped: %s", kind, f, exc)
-                r = {}
-            if r and r["traditional"].counted:
-                rows.append({"data": kind, "f": float(f), **{k: r[k] for k in ("traditional", "filtered", "learned")},
-                             "items": r["items"], "example": r["example"], "check": r["check"]})
-    return {"rows": rows, "model_meta": net[1]["meta"]}
 
 
 def verdict(rows) -> str:
@@ -269,11 +62,11 @@ def traditional_gap(rows) -> str:
              "partly fix."))
 
 
-def section(real_files, twin_files, model="learned", *, twin_info: dict | None = None, frequencies=(16, 48, 96)):
-    """(title, blocks) for reports.html plus a summary dict."""
+def section(res: dict, *, twin_info: dict | None = None):
+    """(title, blocks) for reports.html plus a summary dict, from ``res`` (the result of
+    :func:`experiments.learned_parity.parity`) and ``twin_info`` (of ``render_matched_twin``)."""
     from .figures import _fig_png, _plt
 
-    res = parity(real_files, twin_files, model, frequencies=frequencies)
     rows = res["rows"]
     trained = res["model_meta"].get("frequencies", {}).get("mf", [1, 48])
     blocks = [("p", "Fringe-order error rates on real captures with reference orders and on twin renders of the "
@@ -335,22 +128,3 @@ def section(real_files, twin_files, model="learned", *, twin_info: dict | None =
     return (SECTION_TITLE, blocks), summary
 
 
-def slstudio_parity(shared_data, out_dir, model="learned", *, samples: int = 2, progress: bool = True):
-    """The whole parity check on SLStudio's skull (``shared_data`` = ``../shared/data``): export the
-    capture with its Gray-code reference, render the matched twin, build the section.
-
-    RETURNED VALUE: ((title, blocks), summary), or None when the capture is not there."""
-    from synth.capture_export import export_capture
-
-    root = Path(shared_data) / "slstudio-ps2x3-calib"
-    skull, cloud = root / "skull_2x3", root / "skull_reference" / "pointCloud_from_skull_gray.mat"
-    system = root / "calibration" / "calibration.xml"
-    if not (skull.is_dir() and cloud.is_file() and system.is_file()):
-        return None
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    real = out / "skull.h5"
-    if not real.exists():
-        export_capture(skull, real, reference_cloud=cloud, reference_system=system)
-    twin = render_matched_twin(real, system, out, samples=samples, progress=progress)
-    return section([real], [twin["file"]], model, twin_info=twin)

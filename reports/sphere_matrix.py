@@ -7,17 +7,7 @@ real + twin 61.999 um, twin + real 32.125 um, twin + twin 28.256 um; its linear 
 from __future__ import annotations
 
 from calib.triangulate import cross_reconstruction as _cross_reconstruction
-from calib.triangulate import sphere_from_phase
 from twin_mapping.paper_tables import FIG3_SPHERE_RMS_UM
-from unwrap.phase_io import read_phase as load_phase  # noqa: F401  (kept name: the one phase reader)
-
-PAPER_FIG3_UM = FIG3_SPHERE_RMS_UM
-"""(phase, calibration) -> sphere-fit RMS in um as published in the paper's Fig. 3 (kept name)."""
-
-
-def sphere_rms_um(system, phase, frequency: float, method: str = "linear") -> dict:
-    """Kept name: :func:`calib.triangulate.sphere_from_phase` of a vertical-fringe phase map."""
-    return sphere_from_phase(system, phase, frequency, "v", method)
 
 
 def paper_key(label: str) -> str:
@@ -31,7 +21,7 @@ def cross_reconstruction(systems: dict, phases: dict, frequency: float) -> list[
     linear-method cell whose labels start with "real" / "twin"; ``ratio`` = ours / paper."""
     rows = _cross_reconstruction(systems, phases, frequency)
     for r in rows:
-        paper = PAPER_FIG3_UM.get((paper_key(r["phase"]), paper_key(r["calibration"]))) \
+        paper = FIG3_SPHERE_RMS_UM.get((paper_key(r["phase"]), paper_key(r["calibration"]))) \
             if r["method"] == "linear" else None
         r.update(paper_um=paper, ratio=r["rms_um"] / paper if paper else None)
     return rows

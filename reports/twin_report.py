@@ -15,7 +15,6 @@ from calib.board_pose import cross_reprojection
 from unwrap.safe_output import write_text
 
 from .compare import parameter_rows, rig_rows
-from .errors import ReportError
 from .html import to_html, to_markdown
 from .inputs import CalibrationRecord, check_comparable, load_calibration_record
 
@@ -159,48 +158,35 @@ def build_twin_report(real: CalibrationRecord, twin: CalibrationRecord, *, extra
 
 
 def write_twin_report(real_paths, twin_paths, out_dir, *, title="Twin-equivalence report", extra_sections=(),
-                      phases: dict | None = None, frequency: float = 96.0, render_twin_ball: bool | None = None,
-                      twin_render_system=None, twin_ball_options: dict | None = None, progress: bool = True) -> dict:
+                      phases: dict | None = None, frequency: float = 96.0, twin_ball=None) -> dict:
     """Read both calibrations, build the report, write report.html, report.md and summary.json.
 
     ``phases``: optional ``{"real": path, "twin": path}`` absolute phase maps of the same sphere
     (vertical fringes, ``frequency`` periods): adds the paper's Fig. 3 cross-reconstruction matrix.
-    ``render_twin_ball``: also render the twin ball phase at the real ball's fitted pose
-    (:mod:`synth.twin_ball`, phase label "twin (synth)"); default (None): when a real phase is given
-    without a twin phase. ``twin_render_system``: the system that renders it (default: the real
-    calibration without skew and distortion, what the Blender twin represents; "real": with them);
-    ``twin_ball_options``: keyword arguments of ``render_twin_ball_phase``. The rendered phase is
-    written to ``twin_ball_phase.h5`` (``v/phase``, ``v/valid``) and its facts to the summary.
+    ``twin_ball``: the twin ball rendered at the real ball's fitted pose, ``(phase, info)`` of
+    :func:`experiments.twin_ball.twin_ball_for_report` (phase label "twin (synth)"): its phase joins
+    the matrix, its facts the summary.
     """
     real = load_calibration_record(real_paths, "real")
     twin = load_calibration_record(twin_paths, "twin")
     extra = list(extra_sections)
     sphere_rows = ball_info = None
     phases = dict(phases or {})
-    if render_twin_ball is None:
-        render_twin_ball = "real" in phases and "twin" not in phases
-    if render_twin_ball and "real" not in phases:
-        raise ReportError("the twin ball render needs the real ball phase (--phase-real): its pose is fitted from it")
     out = Path(out_dir)
     if phases:
-        from .sphere_matrix import load_phase, sphere_section
-        check_comparable(real, twin)
-        maps = {k: load_phase(v) for k, v in phases.items()}
-        extra_rows, ball_blocks = [], []
-        if render_twin_ball:
-            from synth.twin_ball import render_twin_ball_phase, write_twin_ball_phase
+        from unwrap.phase_io import read_phase
 
+        from .sphere_matrix import sphere_section
+        check_comparable(real, twin)
+        maps = {k: read_phase(v) for k, v in phases.items()}
+        extra_rows, ball_blocks = [], []
+        if twin_ball is not None:
             from .twin_ball_section import TWIN_RENDER_LABEL, floor_rows, twin_ball_blocks
 
-            render_system = (real.system if twin_render_system == "real" else twin_render_system
-                             if twin_render_system is not None else real.system.ideal())
-            phase, ball_info = render_twin_ball_phase(real.system, render_system, maps["real"], frequency,
-                                                      progress=progress, **(twin_ball_options or {}))
+            phase, ball_info = twin_ball
             maps[TWIN_RENDER_LABEL] = phase
             extra_rows = floor_rows(ball_info)
             ball_blocks = twin_ball_blocks(ball_info, maps["real"], phase)
-            out.mkdir(parents=True, exist_ok=True)
-            ball_info["file"] = str(write_twin_ball_phase(out / "twin_ball_phase.h5", phase, ball_info))
         sphere_rows, blocks = sphere_section({"real": real.system, "twin": twin.system}, maps, frequency, extra_rows)
         extra.insert(0, ("Cross reconstruction of the ball (Fig. 3)", blocks + ball_blocks))
     sections, summary = build_twin_report(real, twin, extra_sections=extra)

@@ -8,7 +8,7 @@ refuses them in the packages so that no arrow hides.
 
 Layers, bottom to top (a package may import only packages below it)::
 
-    unwrap < calib < twin_mapping < synth < reports < sltwin
+    unwrap < calib < twin_mapping < synth < experiments < reports < sltwin
 
 ``bench`` (benchmarks) sits above all of them; tests and scripts are not part of the plan.
 
@@ -24,7 +24,7 @@ from collections import defaultdict
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-LAYERS = ("unwrap", "calib", "twin_mapping", "synth", "reports", "sltwin", "bench")
+LAYERS = ("unwrap", "calib", "twin_mapping", "synth", "experiments", "reports", "sltwin", "bench")
 """Packages from the bottom layer to the top one."""
 DRIVERS = ("twin_mapping/blender_template.py", "twin_mapping/blender_driver.py")
 """Files that run inside Blender's Python (never imported by the toolkit)."""

@@ -25,7 +25,7 @@ before any work and locked while the command runs (:func:`sltwin.outputs.claim`;
 ends, however it ends).
 
 Progress: library packages log through one logger each (``calib``, ``unwrap``, ``twin_mapping``,
-``synth``, ``reports``); ``main`` shows their INFO lines on stderr for the duration of the command
+``synth``, ``experiments``, ``reports``); ``main`` shows their INFO lines on stderr for the duration of the command
 (``-q`` where a command has it: warnings only; ``--debug``: everything).
 """
 from __future__ import annotations
@@ -59,7 +59,7 @@ COMMANDS = [
 ]
 
 #: Loggers whose progress the command line shows.
-LOGGERS = ("calib", "unwrap", "twin_mapping", "synth", "reports", "sltwin")
+LOGGERS = ("calib", "unwrap", "twin_mapping", "synth", "experiments", "reports", "sltwin")
 
 
 def version() -> str:

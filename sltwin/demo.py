@@ -14,7 +14,7 @@
    rendered by synth at the real ball's fitted pose) when the paper's data are beside the
    repository (../shared/data/dp-tpu), and the learned unwrapping's twin-vs-real parity with the
    shipped model (SLStudio's skull capture against twin renders of its system with matched noise,
-   when ../shared/data/slstudio-ps2x3-calib is there; reports.learned_parity).
+   when ../shared/data/slstudio-ps2x3-calib is there; experiments.learned_parity).
 
 The twin is what Blender can represent: the real calibration without skew and distortion. Tables
 go to stdout, progress to the packages' loggers.
@@ -64,8 +64,8 @@ def make_twin(out: Path):
 
 def render_session(out: Path, true_twin, seed: int) -> tuple[Path, dict]:
     """Step 2: the paper's calibration session rendered in the twin; returns the capture folder
-    and the session's truth (``synth.board_session.render_board_session``)."""
-    from synth.board_session import render_board_session
+    and the session's truth (``synth.scenes.board_session.render_board_session``)."""
+    from synth.scenes.board_session import render_board_session
 
     print("\n== [2/4] the paper's calibration session rendered in the twin (calib render-board)", flush=True)
     cap_dir = out / "captures"
@@ -124,6 +124,7 @@ def report(out: Path, cal_dir: Path, true_twin, estimate, data: Path) -> dict:
     """Step 4: ``calib report`` real vs twin-calibrated (with the ball when the paper's data are there)."""
     from calib.io.calibration_json import write_calibration_json
     from calib.system import default_system
+    from experiments.twin_ball import twin_ball_for_report
     from reports.twin_report import write_twin_report
 
     print("\n== [4/4] calib report: real vs twin-calibrated", flush=True)
@@ -137,14 +138,17 @@ def report(out: Path, cal_dir: Path, true_twin, estimate, data: Path) -> dict:
         phases = {}
     extra, parity = [], None
     if (data.parent / "slstudio-ps2x3-calib").is_dir():
-        from reports.learned_parity import slstudio_parity
+        from experiments.learned_parity import slstudio_parity
+        from reports.learned_parity import section
 
         print("   learned unwrapping: SLStudio skull capture vs its twin with matched noise (shipped model)", flush=True)
-        parity = slstudio_parity(data.parent, out / "learned_parity")
-        if parity is not None:
+        measured = slstudio_parity(data.parent, out / "learned_parity")
+        if measured is not None:
+            parity = section(measured["parity"], twin_info=measured["twin"])
             extra.append(parity[0])
+    ball = twin_ball_for_report(real_inputs, phases, out / "report", render_system=true_twin)
     summary = write_twin_report(real_inputs, [cal_dir / "calibration.json"], out / "report", phases=phases,
-                                twin_render_system=true_twin, extra_sections=extra)
+                                twin_ball=ball, extra_sections=extra)
     if parity is not None:
         summary["learned_parity"] = parity[1]
         for r in parity[1]["rows"]:

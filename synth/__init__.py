@@ -13,24 +13,21 @@ Public surface:
   geometry stage).
 - output: ``write_render`` (PNG + HDF5 ground truth), ``render_board_session`` (a calibration
   session in the capture layout).
-- experiments: ``render_twin_ball_phase`` (the twin ball of the paper's Fig. 3 at the real
-  ball's pose).
 - ``SynthError`` (a ValueError).
 
 The render plan goes to the `synth` logger at DEBUG, progress at INFO.
 """
-from .board_session import render_board_session
-from .boards import BoardSpec, BoardTexture
-from .effects import Defocus, Effects, Noise, effects_from_table
+from .scenes.board_session import render_board_session
+from .scenes.boards import BoardSpec, BoardTexture
+from .effects.spec import Defocus, Effects, Noise, effects_from_table
 from .errors import SynthError
-from .geometry import Geometry, compute_geometry
-from .meshes import blobs_heights, heightfield_mesh, load_mesh, steps_mesh
-from .objects import Board, Mesh, Plane, Sphere
-from .output import write_render
-from .render import RenderResult, render
-from .scene import DEFAULT_BALL_RADIUS_MM, Scene, ideal_system, load_scene, scene_from_dict
-from .sequence import PatternSpec, gray_sequence, phase_sequence
-from .twin_ball import render_twin_ball_phase
+from .renderer.geometry import Geometry, compute_geometry
+from .scenes.meshes import blobs_heights, heightfield_mesh, load_mesh, steps_mesh
+from .scenes.objects import Board, Mesh, Plane, Sphere
+from .renderer.output import write_render
+from .renderer.render import RenderResult, render
+from .scenes.scene import DEFAULT_BALL_RADIUS_MM, Scene, ideal_system, load_scene, scene_from_dict
+from .scenes.sequence import PatternSpec, gray_sequence, phase_sequence
 
 __all__ = [
     "Scene", "load_scene", "scene_from_dict", "ideal_system", "DEFAULT_BALL_RADIUS_MM",
@@ -38,6 +35,6 @@ __all__ = [
     "load_mesh", "steps_mesh", "heightfield_mesh", "blobs_heights",
     "PatternSpec", "phase_sequence", "gray_sequence", "Effects", "effects_from_table", "Defocus", "Noise",
     "render", "RenderResult", "compute_geometry", "Geometry",
-    "write_render", "render_board_session", "render_twin_ball_phase",
+    "write_render", "render_board_session",
     "SynthError",
 ]

@@ -5,7 +5,7 @@ import numpy as np
 
 from calib import DeviceModel, default_system
 from calib.system import SystemModel
-from synth.parity import downscaled_camera
+from experiments.blender_parity import downscaled_camera
 from unwrap.phase_shift import wrapped_phase
 
 

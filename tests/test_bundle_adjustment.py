@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 
 from calib import default_system
-from calib import ba_kernel
-from calib.ba_kernel import KernelSpec, point_kernel
-from calib.ba_normal import NormalEquations
-from calib.ba_solver import solve
+from calib.adjustment import kernel as ba_kernel
+from calib.adjustment.kernel import KernelSpec, point_kernel
+from calib.adjustment.normal import NormalEquations
+from calib.adjustment.solver import solve
 from calib.board import Board
-from calib.bundle_adjustment import BAConfig, DeviceConfig, build_problem
+from calib.adjustment.problem import BAConfig, DeviceConfig, build_problem
 from calib.calibrate import run_calibration, start_state
 from calib.observations import from_bouguet
 from calib.rotation import matrix_from_rotvec
@@ -108,7 +108,7 @@ def test_compiled_kernel_is_cached_on_disk_and_a_missing_compiler_falls_back_wit
     assert ba_kernel.compile_kernel(spec) == lib
     monkeypatch.setattr(ba_kernel, "_KERNELS", {})
     monkeypatch.setenv("CC", "no-such-compiler-here")
-    with caplog.at_level(logging.WARNING, logger="calib.ba_kernel"):
+    with caplog.at_level(logging.WARNING, logger="calib.adjustment.kernel"):
         k = point_kernel(KernelSpec(4, 2), "auto")
         point_kernel(KernelSpec(5, 2), "auto")
     assert k.backend == "vm"
@@ -268,7 +268,7 @@ def test_paper_observations_converge_in_few_iterations_and_k3_is_flagged_not_sil
     flagged = {f["name"]: f for f in cal.ba.poorly_determined}
     assert "projector.k3" in flagged and "not distinguishable from 0" in flagged["projector.k3"]["reasons"][0]
     assert not any(n.endswith((".fx", ".fy", ".cx", ".cy")) for n in flagged)
-    from calib.calibration_report import summary_table
+    from calib.io.outputs import summary_table
     table = summary_table(cal)
     assert any(line.startswith("projector.k3") and "poorly determined" in line for line in table.splitlines())
 
@@ -284,7 +284,7 @@ def test_k3_of_a_narrow_field_projector_is_finite_and_flagged():
 
 def test_a_degenerate_parameter_is_flagged_by_its_correlation():
     """A parameter the data cannot separate from another: k1 and k2 on points of one radius."""
-    from calib.ba_solver import poorly_determined
+    from calib.adjustment.solver import poorly_determined
 
     cov = np.array([[1.0, 0.99999], [0.99999, 1.0]]) * 1e-6
     flags = poorly_determined(["camera.k1", "camera.k2"], np.array([0.5, 0.2]), cov)
@@ -305,7 +305,7 @@ def test_a_singular_direction_is_named_by_its_parameters():
     """The refusal of a numerically singular problem names what the views do not determine."""
     from types import SimpleNamespace
 
-    from calib.ba_solver import _undetermined
+    from calib.adjustment.solver import _undetermined
 
     rng = np.random.default_rng(0)
     S, R = 3, 20

@@ -7,15 +7,17 @@ tests.
 """
 import json
 import shutil
+import tomllib
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import tomli_w
 
-from calib.captures import CaptureError, observations_from_captures, read_session
+from calib.detect.captures import CaptureError, observations_from_captures, read_session
 from calib.io.calibration_json import system_from_dict
-from calib.marker_phase import MarkerPhaseError, fit_projector_points, window_radii
+from calib.detect.marker_phase import MarkerPhaseError, fit_projector_points, window_radii
 from calib.observations import ObservationError
 
 
@@ -50,7 +52,7 @@ def truth_detector(folder, camera_noise_px=0.0):
 def session(tmp_path_factory):
     """Three poses of the paper's session rendered in the ideal-pinhole twin, with sensor noise."""
     from calib import default_system
-    from synth.board_session import render_board_session
+    from synth.scenes.board_session import render_board_session
 
     s = default_system()
     twin = s.ideal({})
@@ -172,7 +174,10 @@ def test_missing_and_truncated_frames_skip_the_pose_with_the_file_named_or_refus
 def test_wrong_step_count_is_refused_not_decoded_with_wrong_shifts(session, tmp_path):
     folder = copy_session(session, tmp_path / "c")
     toml = folder / "capture.toml"
-    toml.write_text(toml.read_text().replace("steps = [12, 12, 12]", "steps = [11, 11, 11]"))
+    meta = tomllib.loads(toml.read_text())
+    assert meta["pattern"]["steps"] == [12, 12, 12]
+    meta["pattern"]["steps"] = [11, 11, 11]
+    toml.write_text(tomli_w.dumps(meta))
     detect, *_ = truth_detector(folder)
     with pytest.raises(CaptureError, match="wrong step count"):
         observations_from_captures(folder, detector=detect, strict=True)

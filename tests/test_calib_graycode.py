@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from calib.captures import observations_from_captures
+from calib.detect.captures import observations_from_captures
 from sltwin.cli import main
 from tests.test_calib_captures import true_projector_pixels, truth_detector
 
@@ -20,7 +20,7 @@ def gray_session(tmp_path_factory):
     """Four poses of the paper's board in the ideal-pinhole twin, Gray code with inverses (10 column
     and 11 row bits for the 912 x 1140 projector), white and black frames, sensor noise."""
     from calib import default_system
-    from synth.board_session import render_board_session
+    from synth.scenes.board_session import render_board_session
 
     out = tmp_path_factory.mktemp("gray_captures")
     render_board_session(out, default_system().ideal({}), n_poses=4, pattern="graycode")
@@ -30,7 +30,7 @@ def gray_session(tmp_path_factory):
 def _z_scores(folder, quantisation_modelled=True):
     """Projector-pixel errors over their predicted per-coordinate sigma (N, 2), with the camera
     pixels exact (the truth), and the sigmas."""
-    import calib.captures as captures
+    import calib.detect.captures as captures
 
     detect, system, truth = truth_detector(folder)
     fit, fits = captures.fit_projector_points, []
@@ -93,13 +93,13 @@ def test_gray_code_session_runs_through_calib_run_from_images(gray_session, gray
 
 
 def test_leaving_one_pose_out_of_the_small_session_moves_the_estimates_as_the_sigmas_say(gray_run):
-    """The nested leave-one-pose-out check (calib.pose_holdout) on this 4-pose session: the shifts of
+    """The nested leave-one-pose-out check (calib.uncertainty.pose_holdout) on this 4-pose session: the shifts of
     fx, fy, cx, cy of both devices and the rig translation over the reported sigma have the RMS that
     honest sigmas give here (1/sqrt(3) = 0.58 for poses of equal leverage; the linearised
     expectation on these poses, `expected_rms`, is 0.91: unequal leverage). Measured: RMS z 1.06, 1.17x
     the expectation, max 3.0."""
     from calib.observations import read_observations_json
-    from calib.pose_holdout import holdout_z
+    from calib.uncertainty.pose_holdout import holdout_z
 
     res = holdout_z(read_observations_json(gray_run / "observations.json"))
     print(f"4-pose Gray session: leave-one-out RMS z {res.rms:.3f} (expected {res.expected_rms:.3f}), max {res.max:.2f}")

@@ -5,14 +5,14 @@ import pytest
 
 from calib import default_system
 from calib.board import Board
-from calib.bundle_adjustment import BAConfig
+from calib.adjustment.problem import BAConfig
 from calib.calibrate import reweight_views, run_calibration, view_noise_factors
-from calib.calibration_report import outlier_summary, summary_table
+from calib.io.outputs import outlier_summary, summary_table
 from calib.simulate import simulate_observations
 from calib.system import SystemModel
 from sltwin.cli import main
-from synth.board_session import board_reference_pose, render_board_session
-from synth.boards import BoardTexture
+from synth.scenes.board_session import board_reference_pose, render_board_session
+from synth.scenes.boards import BoardTexture
 from synth.errors import SynthError
 
 

@@ -11,11 +11,11 @@ import scipy.io
 
 from calib import default_system
 from calib.board import Board, BoardError
-from calib.bundle_adjustment import BAConfig, DeviceConfig
+from calib.adjustment.problem import BAConfig, DeviceConfig
 from calib.calibrate import run_calibration
 from sltwin.cli import main as cli_main
 from calib.io.bouguet import read_bouguet, read_bouguet_pair
-from calib.mrcal_reference import mrcal_calibrate
+from calib.adjustment.mrcal_reference import mrcal_calibrate
 from calib.observations import (ObservationError, Observations, from_bouguet, read_observations_json,
                                 write_observations_json)
 from calib.rotation import matrix_from_rotvec
@@ -290,7 +290,7 @@ def test_jointly_adjusted_rig_with_distortion_aware_triangulation_beats_40um(dp_
 
 
 def test_parameters_fixed_at_given_values_stay_there_and_the_rest_is_estimated():
-    from calib.bundle_adjustment import BundleAdjustmentError
+    from calib.adjustment.problem import BundleAdjustmentError
 
     obs, _ = _paper_like_obs(9)
     cfg = BAConfig(camera=DeviceConfig(5, values=(("cx", 312.5), ("k3", 0.0))), outlier_threshold=None)

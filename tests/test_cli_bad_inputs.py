@@ -162,6 +162,17 @@ def files(tmp_path_factory):
     _write_gray_capture(cap / "gray_block_0", block=1)
     toml = cap / "gray_block_0" / "capture.toml"
     toml.write_text(toml.read_text().replace("block_px = 1", "block_px = 0"))
+    # every description is strict (unwrap.strict): a typo names the closest key, a wrong type the expected one
+    _write_capture(cap / "typo", extra="shift_sing = -1")
+    _write_capture(cap / "steps_string")
+    toml = cap / "steps_string" / "capture.toml"
+    toml.write_text(toml.read_text().replace("steps = 4", 'steps = "4"'))
+    (bad / "export_typo.toml").write_text("[export]\nsamples = 1\nsed = 3\n")
+    (bad / "export_steps_float.toml").write_text("[export]\nsamples = 1\n[patterns]\nsteps = 4.0\n")
+    (bad / "export_ok.toml").write_text("[export]\nsamples = 1\n")
+    (bad / "scene_typo.toml").write_text("[[objects]]\nkind = 'sphere'\nradius = 3\n" + SCENE.split("\n", 3)[3])
+    (bad / "scene_a_string.toml").write_text(SCENE.replace("[[patterns.sequence]]",
+                                                           "[patterns]\nA = 'x'\n[[patterns.sequence]]"))
     procam = cap / "procam_no_toml" / "capture_0"
     procam.mkdir(parents=True)
     for i in range(18):
@@ -310,6 +321,18 @@ CASES = [
     ("unwrap-gray-stray-fringe-frame", "unwrap {cap}/gray_with_fringes -o {out}", "v_f001_n00.png"),
     ("unwrap-gray-all-black", "unwrap {cap}/gray_all_black -o {out}", "no valid pixel"),
     ("unwrap-gray-block-0", "unwrap {cap}/gray_block_0 -o {out}", "block_px"),
+    ("unwrap-capture-unknown-key", "unwrap {cap}/typo -o {out}", "did you mean 'pattern.shift_sign'"),
+    ("unwrap-capture-steps-string", "unwrap {cap}/steps_string -o {out}", "pattern.steps = '4': expected an integer"),
+    ("run-capture-unknown-key", "run {cap}/typo -o {out}", "did you mean 'pattern.shift_sign'"),
+    ("export-unknown-key", "export {bad}/export_typo.toml -o {out}.h5", "did you mean 'export.seed'"),
+    ("export-steps-float", "export {bad}/export_steps_float.toml -o {out}.h5",
+     "patterns.steps = 4.0: expected an integer"),
+    ("export-unknown-override", "export {bad}/export_ok.toml --set export.smaples=2 -o {out}.h5",
+     "did you mean 'export.samples'"),
+    ("render-scene-unknown-key", "render {bad}/scene_typo.toml -o {out}", "did you mean 'objects[0].radius_mm'"),
+    ("render-scene-a-string", "render {bad}/scene_a_string.toml -o {out}", "patterns.A = 'x': expected a number"),
+    ("train-steps-float", "train optim.steps=4.0 -o {out}", "optim.steps = 4.0: expected an integer"),
+    ("train-steps-string", 'train optim.steps="4" -o {out}', "optim.steps = '4': expected an integer"),
     ("unwrap-procam-no-projector-size", "unwrap {cap}/procam_no_toml/capture_0 -o {out}", "projector size"),
     # calib plan-fringes: ladders calib unwrap refuses
     ("plan-mf-not-absolute", "plan-fringes --sets mf:8,48", "mf:8,48"),

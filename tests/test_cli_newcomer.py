@@ -177,7 +177,7 @@ def test_a_cameramodel_that_cannot_be_written_is_a_warning_that_says_so(tmp_path
     import logging
 
     from calib.board import Board
-    from calib.bundle_adjustment import BAConfig, DeviceConfig
+    from calib.adjustment.problem import BAConfig, DeviceConfig
     from calib.pipeline import calibrate_observations
     from calib.simulate import simulate_observations
 

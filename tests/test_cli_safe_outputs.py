@@ -312,8 +312,8 @@ def test_export_resume_renders_a_damaged_part_again_and_names_it(tmp_path, monke
     import h5py
 
     from dataset_helpers import arrays_of, assert_same_arrays, tiny_config
-    from synth.dataset_export import export_dataset
-    from synth.dataset_writer import ShardWriter
+    from synth.export.dataset import export_dataset
+    from synth.export.writer import ShardWriter
 
     cfg = tiny_config(tmp_path, samples=3)
     ref = tmp_path / "ref.h5"
@@ -364,7 +364,7 @@ def test_the_second_of_two_concurrent_exports_is_told_the_pid_of_the_first(tmp_p
 # ------------------------------------------------------------------ memory estimated before allocating
 def test_memory_is_estimated_before_allocating_and_refused_naming_the_key():
     from synth.errors import SynthError
-    from synth.render import check_render_memory
+    from synth.renderer.render import check_render_memory
     from unwrap.learned.checkpoint import arch_from_config
     from unwrap.learned.config import resolve_config
     from unwrap.learned.errors import ConfigError
@@ -374,7 +374,7 @@ def test_memory_is_estimated_before_allocating_and_refused_naming_the_key():
     with pytest.raises(SynthError, match="8001 images of 640x480 px need about 19.7 GB, this machine has 10 GB"):
         check_render_memory(8001, (640, 480), available=10e9)
     cfg = resolve_config(None, ["data.synthetic_samples=8"])
-    arch = arch_from_config(cfg["model"])
+    arch = arch_from_config(cfg.model)
     base = check_training_memory(cfg, arch, (128, 128), available=16e9)
     assert base == training_bytes(arch, 8, (128, 128)) and 1e7 < base < 2e9
     # the estimate follows what the config asks for: 4 x the batch, about 4 x the memory

@@ -1,4 +1,4 @@
-"""The dataset export (synth.dataset_export): determinism across shards, resume after kill -9 and
+"""The dataset export (synth.export.dataset): determinism across shards, resume after kill -9 and
 after a full disk, combine, configs refused by name, labels checked against traditional TPU."""
 import json
 import os
@@ -13,9 +13,9 @@ import h5py
 import numpy as np
 import pytest
 
-from synth.dataset_config import ExportConfigError, config_from_dict, load_config
-from synth.dataset_export import export_dataset
-from synth.dataset_writer import ExportError, combine, shard_from_environment, shard_path, shard_range
+from synth.export.config import ExportConfigError, config_from_dict, load_config
+from synth.export.dataset import export_dataset
+from synth.export.writer import ExportError, combine, shard_from_environment, shard_path, shard_range
 
 from dataset_helpers import REPO, arrays_of, assert_same_arrays, tiny_config
 
@@ -155,18 +155,20 @@ def test_shard_from_torchrun_and_slurm_environment():
 
 
 @pytest.mark.parametrize("doc, message", [
-    ({"export": {"samples": 3, "sed": 1}}, r"export: unknown key\(s\) \['sed'\]"),
+    ({"export": {"samples": 3, "sed": 1}}, r"unknown key 'export.sed' \(did you mean 'export.seed'\?\)"),
     ({"export": {"samples": 3}, "effects": {"noise": {"full_well_e": [9000, 100]}}},
      r"effects.noise.full_well_e: impossible range \[9000.0, 100.0\]"),
     ({"export": {"samples": 3}, "effects": {"camera_defocus": {"apperture_mm": 2}}},
-     r"effects.camera_defocus: unknown key\(s\) \['apperture_mm'\]"),
+     r"unknown key 'effects.camera_defocus.apperture_mm' \(did you mean 'effects.camera_defocus.aperture_mm'\?\)"),
     ({"export": {"samples": 3}, "effects": {"global_illumination": {"subsurface": [0, 1.5]}}},
      r"effects.global_illumination.subsurface: 1.5 outside \[0.0, 1.0\]"),
     ({"export": {"samples": 3}, "scene": {"size_mm": [0, 10]}}, r"scene.size_mm: 0 outside"),
     ({"export": {}}, "export.samples: missing"),
     ({"export": {"samples": 3}, "patterns": {"frequencies": [48, 1]}}, "patterns.frequencies: expected strictly"),
     ({"export": {"samples": 3}, "scene": {"mesh_fraction": 0.5}}, "scene.mesh_fraction: 0.5 but scene.meshes is empty"),
-    ({"export": {"samples": 3}, "bogus": {}}, r"config: unknown key\(s\) \['bogus'\]"),
+    ({"export": {"samples": 3}, "bogus": {}}, r"unknown section \[bogus\]"),
+    ({"export": {"samples": 3}, "patterns": {"steps": 4.0}}, "patterns.steps = 4.0: expected an integer"),
+    ({"export": {"samples": "3"}}, "export.samples = '3': expected an integer, got a string"),
 ])
 def test_config_with_unknown_key_or_impossible_range_is_refused_naming_the_key(doc, message):
     with pytest.raises(ExportConfigError, match=message):
@@ -223,7 +225,7 @@ def test_default_configs_parse_and_keep_test_meshes_out_of_training():
 
 @pytest.mark.realdata
 def test_default_configs_name_meshes_that_exist_and_load():
-    from synth.dataset_scenes import check_meshes
+    from synth.export.scenes import check_meshes
     from tests.conftest import shared_data
 
     shared_data("meshes")                                       # skipped, and said so, without the data

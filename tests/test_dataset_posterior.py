@@ -1,4 +1,4 @@
-"""Systems drawn from a calibration's posterior (synth.posterior; export ``perturb = "posterior"``)."""
+"""Systems drawn from a calibration's posterior (synth.export.posterior; export ``perturb = "posterior"``)."""
 import json
 from types import SimpleNamespace
 
@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from calib import default_system
-from calib.calibration_report import covariance_of_system
+from calib.io.outputs import covariance_of_system
 from calib.io.calibration_json import system_to_dict
 from synth.errors import SynthError
-from synth.posterior import PosteriorSampler
+from synth.export.posterior import PosteriorSampler
 
 
 def _write(tmp_path, names, cov):
@@ -64,7 +64,7 @@ def test_zero_covariance_returns_the_system_and_missing_covariance_is_refused(tm
 
 
 def test_posterior_export_draws_one_system_per_sample_and_stays_deterministic(tmp_path):
-    from synth.dataset_export import export_dataset
+    from synth.export.dataset import export_dataset
 
     from dataset_helpers import arrays_of, assert_same_arrays, tiny_config
 

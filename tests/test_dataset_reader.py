@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from synth.dataset_export import export_dataset
+from synth.export.dataset import export_dataset
 from unwrap.dataset import FringeOrderDataset, open_dataset
 from unwrap.dataset_schema import DatasetSchemaError, decode_phase, encode_phase
 from unwrap.errors import UnwrapError
@@ -150,7 +150,7 @@ def test_reader_refuses_foreign_files_versions_pairs_and_subsets_clearly(twin_fi
 
 @pytest.mark.realdata
 def test_real_skull_capture_reads_through_the_same_reader_with_its_point_cloud_reference(tmp_path):
-    from synth.capture_export import export_capture
+    from synth.export.capture import export_capture
 
     root = shared_data("slstudio-ps2x3-calib")
     s = export_capture(root / "skull_2x3", tmp_path / "skull.h5",
@@ -167,7 +167,7 @@ def test_real_skull_capture_reads_through_the_same_reader_with_its_point_cloud_r
 
 @pytest.mark.realdata
 def test_real_slmaster_capture_gray_reference_equals_unwraps_gray_decode(tmp_path):
-    from synth.capture_export import export_capture
+    from synth.export.capture import export_capture
     from unwrap.pipeline import unwrap_capture
 
     root = shared_data("slmaster-monocular-12step-cgc")

@@ -12,7 +12,7 @@ from calib.detect import (BoardDetection, DetectionError, circle_image_centre, d
 from bench.detect_accuracy import centre_errors, close_system, render_white
 from calib.detect.blobs import fit_ellipse_direct
 from calib.system import default_system
-from synth.poses import rotation_xyz_deg
+from synth.scenes.poses import rotation_xyz_deg
 
 
 @pytest.fixture(scope="session")

@@ -19,7 +19,7 @@ def test_the_package_modules_carry_examples():
 
 @pytest.mark.parametrize("name", MODULES)
 def test_docstring_examples_run(name):
-    module = importlib.import_module(name)   # not getattr(package, ...): synth.render is also a function
+    module = importlib.import_module(name)   # not getattr(package, ...): synth.renderer.render is also a function
     finder = doctest.DocTestFinder()
     runner = doctest.DocTestRunner(optionflags=doctest.ELLIPSIS)
     tests = [t for t in finder.find(module) if t.examples]

@@ -46,7 +46,7 @@ def render_ladder_capture(folder, *, seed=0, bias_f16=0.6, weak_b=10.0, noise=0.
 
 
 def _export(folder, out, **kw):
-    from synth.capture_export import export_capture
+    from synth.export.capture import export_capture
     return export_capture(folder, out, reference="ladder", ladder_min_modulation=0.05, **kw)
 
 
@@ -128,15 +128,15 @@ def _tiny_cfg():
 
 def _first_batch_loss(cfg, model):
     from unwrap.learned.data import ResumableSampler, build_datasets
-    from unwrap.learned.losses import LossWeights
-    from unwrap.learned.train import seed_everything, training_step_loss
+    from unwrap.learned.distributed import seed_everything
+    from unwrap.learned.train import training_step_loss
 
-    seed_everything(cfg["run"]["seed"])
+    seed_everything(cfg.run.seed)
     train, _, _ = build_datasets(cfg)
-    sampler = ResumableSampler(len(train), seed=cfg["run"]["seed"])
+    sampler = ResumableSampler(len(train), seed=cfg.run.seed)
     batch = next(iter(torch.utils.data.DataLoader(train, batch_size=2, sampler=sampler, drop_last=True)))
     with torch.no_grad():
-        loss, _ = training_step_loss(model.train(), batch, cfg, LossWeights(**cfg["loss"]))
+        loss, _ = training_step_loss(model.train(), batch, cfg, cfg.loss)
     return float(loss)
 
 
@@ -147,8 +147,8 @@ def test_init_starts_from_the_checkpoint_and_keeps_training(tmp_path):
     from unwrap.learned.train import train
 
     cfg = resolve_config(None, _tiny_cfg() + ["model.init=learned"])
-    assert cfg["optim"]["lr"] == FINETUNE_LR
-    assert resolve_config(None, _tiny_cfg() + ["model.init=learned", "optim.lr=1e-3"])["optim"]["lr"] == 1e-3
+    assert cfg.optim.lr == FINETUNE_LR
+    assert resolve_config(None, _tiny_cfg() + ["model.init=learned", "optim.lr=1e-3"]).optim.lr == 1e-3
     init, _ = load_model(shipped_model_path())
     expected = _first_batch_loss(cfg, init)
     losses = []

@@ -13,9 +13,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "scripts"))
 import import_graph  # noqa: E402
 
-PACKAGES = ("unwrap", "calib", "twin_mapping", "synth", "reports", "sltwin")
+PACKAGES = ("unwrap", "calib", "twin_mapping", "synth", "experiments", "reports", "sltwin")
 ERROR_ROOTS = {"unwrap": "UnwrapError", "calib": "CalibError", "twin_mapping": "TwinError", "synth": "SynthError",
-               "reports": "ReportError", "sltwin": "CommandError"}
+               "experiments": "ExperimentError", "reports": "ReportError", "sltwin": "CommandError"}
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +32,8 @@ def test_no_package_imports_a_package_above_it(graph):
     # the layering is not vacuous: each layer does use the ones below
     pg = import_graph.package_graph(graph)
     assert "unwrap" in pg["calib"] and "calib" in pg["twin_mapping"] and "twin_mapping" in pg["synth"]
-    assert "synth" in pg["reports"] and "reports" in pg["sltwin"] and "unwrap" not in pg
+    assert "synth" in pg["experiments"] and "experiments" in pg["reports"] and "reports" in pg["sltwin"]
+    assert "unwrap" not in pg
 
 
 def test_no_import_is_hidden_in_a_string():
@@ -41,10 +42,23 @@ def test_no_import_is_hidden_in_a_string():
 
 def test_no_library_package_holds_a_command_line():
     for name, path in import_graph.package_files().items():
-        if name.split(".")[0] in ("unwrap", "calib", "twin_mapping", "synth", "reports"):
+        if name.split(".")[0] in ("unwrap", "calib", "twin_mapping", "synth", "experiments", "reports"):
             tree = ast.parse(path.read_text())
             imported = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
             assert "argparse" not in imported, name
+
+
+def test_experiments_take_no_command_line_and_import_no_report(graph):
+    """The experiments floor computes; the reports above it lay out what it returns (nothing in
+    experiments may reach up into reports, nor parse arguments: the commands do)."""
+    names = [n for n in import_graph.package_files() if n.split(".")[0] == "experiments"]
+    assert len(names) >= 6, names
+    for name in names:
+        tree = ast.parse(import_graph.package_files()[name].read_text())
+        imported = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+        imported |= {n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+        assert "argparse" not in imported, name
+        assert not any(m == "reports" or m.startswith("reports.") for m in imported), name
 
 
 def test_functions_stay_readable_in_one_sitting():

@@ -136,7 +136,7 @@ def test_kamino_preset_keeps_its_former_name_and_says_what_it_reads(tmp_path):
 
 def test_exporting_a_gray_only_capture_as_phase_data_is_refused_by_name(tmp_path):
     from synth.errors import SynthError
-    from synth.capture_export import export_capture
+    from synth.export.capture import export_capture
 
     root = _write_design(tmp_path / "s")
     with pytest.raises(SynthError, match="Gray code only"):

@@ -31,7 +31,7 @@ def _torch_batch(method, s, prior, order_trad, valid, freqs):
 
 def _scene(method="mf", freqs=(1, 48), size=(120, 160), index=3):
     from unwrap.learned.synthetic import synthetic_sample
-    from unwrap.pair_decode import traditional
+    from unwrap.temporal import decode_pair as traditional
 
     s = synthetic_sample(index, size=size, method=method, frequencies=freqs)
     valid = np.asarray(s["valid"], bool) & np.isfinite(s["phase_low"]) & np.isfinite(s["phase_high"])

@@ -7,7 +7,7 @@ import torch
 
 from unwrap.learned.checkpoint import (FORMAT, FORMAT_VERSION, arch_from_config, build_model, export_model,
                                        load_model, read_checkpoint, save_atomic)
-from unwrap.learned.config import DEFAULTS, resolve_config, to_toml
+from unwrap.learned.config import resolve_config, to_toml
 from unwrap.learned.errors import CheckpointError, ConfigError
 from unwrap.learned.losses import LossWeights, composite_loss, fourier_loss, mse_loss
 from unwrap.learned.network import FringeUNet
@@ -77,7 +77,7 @@ def test_network_keeps_any_image_size_and_is_batch_independent():
 
 def _ck(tmp_path, **model_overrides):
     cfg = resolve_config(None, [f"model.{k}={v}" for k, v in model_overrides.items()] + ["data.synthetic_samples=4"])
-    arch = arch_from_config(cfg["model"])
+    arch = arch_from_config(cfg.model)
     ck = {"format": FORMAT, "format_version": FORMAT_VERSION, "arch": arch, "model": build_model(arch).state_dict(),
           "meta": {"frequencies": {"mf": [1.0, 48.0]}}}
     return save_atomic(ck, tmp_path / "m.pt"), ck
@@ -169,4 +169,12 @@ def test_resolved_config_round_trips_through_its_toml(tmp_path):
     cfg = resolve_config(None, ["data.synthetic_samples=6", "loss.fourier=0.5", "data.crop=[64, 64]"])
     (tmp_path / "r.toml").write_text(to_toml(cfg))
     assert resolve_config(tmp_path / "r.toml") == cfg
-    assert set(cfg) == set(DEFAULTS)
+    assert cfg.loss.fourier == 0.5 and cfg.data.crop == (64, 64)
+
+
+def test_an_infinite_grad_clip_round_trips_so_the_run_can_resume(tmp_path):
+    """optim.grad_clip=inf (no clipping) was written as JSON's ``Infinity``, which TOML rejects."""
+    cfg = resolve_config(None, ["data.synthetic_samples=6", "optim.grad_clip=inf"])
+    (tmp_path / "r.toml").write_text(to_toml(cfg))
+    back = resolve_config(tmp_path / "r.toml")
+    assert back == cfg and back.optim.grad_clip == float("inf")

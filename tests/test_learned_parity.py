@@ -12,7 +12,7 @@ from test_learned_use import constant_model  # noqa: E402
 
 @pytest.fixture(scope="module")
 def two_noise_levels(tmp_path_factory):
-    from synth.dataset_export import export_dataset
+    from synth.export.dataset import export_dataset
 
     out = {}
     for fw in (1500, 6000):
@@ -27,18 +27,21 @@ def two_noise_levels(tmp_path_factory):
 @pytest.mark.slow
 def test_capture_noise_follows_the_sensor_full_well(two_noise_levels):
     """Shot noise: sigma_I ~ 1/sqrt(full well), so 4x the full well halves the measured noise."""
-    from reports.learned_parity import capture_noise, matched_full_well
+    from experiments.learned_parity import capture_noise
+    from synth.effects.sensor import shot_noise_full_well
 
     lo, hi = capture_noise(two_noise_levels[1500]), capture_noise(two_noise_levels[6000])
     assert lo["steps"] == 4 and lo["pixels"] > 1000
     assert 1.6 < lo["sigma_I"] / hi["sigma_I"] < 2.5
     assert 1.6 < lo["sigma_phase_rad"] / hi["sigma_phase_rad"] < 2.5
-    assert 2.5 < matched_full_well(hi) / matched_full_well(lo) < 6.0
+    full_well = {k: shot_noise_full_well(n["modulation"], n["sigma_I"]) for k, n in (("lo", lo), ("hi", hi))}
+    assert 2.5 < full_well["hi"] / full_well["lo"] < 6.0
 
 
 @pytest.mark.slow
 def test_parity_section_scores_both_sides_and_states_a_verdict(two_noise_levels, tmp_path):
     from reports.html import to_markdown
+    from experiments.learned_parity import parity
     from reports.learned_parity import section
 
     import h5py
@@ -47,7 +50,8 @@ def test_parity_section_scores_both_sides_and_states_a_verdict(two_noise_levels,
     for path in two_noise_levels.values():                      # the tiny files hold MF (1, 8), 4 steps
         with h5py.File(path, "r") as h5:
             assert [float(f) for f in h5.attrs["frequencies"]] == [1.0, 8.0]
-    (title, blocks), summary = section([two_noise_levels[1500]], [two_noise_levels[6000]], model, frequencies=(8,))
+    (title, blocks), summary = section(parity([two_noise_levels[1500]], [two_noise_levels[6000]], model,
+                                              frequencies=(8,)))
     rows = summary["rows"]
     assert [r["data"] for r in rows] == ["real", "twin"] and all(r["f"] == 8 for r in rows)
     for r in rows:                                              # a zero-correction model is the traditional order
@@ -93,7 +97,7 @@ def test_calib_report_with_learned_files_adds_the_parity_section(tmp_path, capsy
     from calib import default_system
     from calib.io.calibration_json import write_calibration_json
     from sltwin.cli import main
-    from synth.dataset_export import export_dataset
+    from synth.export.dataset import export_dataset
 
     files = {}
     for fw in (1500, 6000):

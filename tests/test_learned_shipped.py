@@ -4,7 +4,7 @@ fixed scenes"), far less often than the traditional order. A retrained, damaged 
 checkpoint changes these numbers."""
 import pytest
 
-from unwrap.learned import evaluate
+import experiments.learned_evaluation as evaluate
 from unwrap.learned.infer import shipped_model_path
 
 pytestmark = pytest.mark.slow

@@ -21,7 +21,7 @@ META = {"frequencies": {"mf": [1.0, 48.0], "mw": [47.0, 48.0], "nt": [47.0, 48.0
 def constant_model(path, correction: int = 0, kind: str = "physics"):
     """A checkpoint whose network outputs one correction class everywhere (confidence ~1)."""
     cfg = resolve_config(None, ["data.synthetic_samples=4", "model.width=4", "model.depth=1", f"model.kind='{kind}'"])
-    arch = arch_from_config(cfg["model"])
+    arch = arch_from_config(cfg.model)
     net = build_model(arch)
     last = net.refine[-1]
     with torch.no_grad():
@@ -114,7 +114,7 @@ def test_calib_eval_writes_the_s5_and_s6_layouts_with_the_paper_numbers(tmp_path
 
 
 def test_speed_table_times_every_path(tmp_path):
-    from unwrap.learned.evaluate import speed_table
+    from experiments.learned_evaluation import speed_table
     sp = speed_table(constant_model(tmp_path / "p.pt", 0), size=(48, 64), repeats=1)
     assert sp["size"] == "64x48" and sp["device"] == "cpu"
     for k in ("traditional_from_phases_ms", "traditional_from_frames_ms", "filtered_ms", "network_forward_ms",

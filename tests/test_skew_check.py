@@ -1,4 +1,4 @@
-"""The skew check of ``calib run`` (calib.skew_check): a zero-skew model fitted to a skewed
+"""The skew check of ``calib run`` (calib.uncertainty.skew_check): a zero-skew model fitted to a skewed
 system is told apart from one that fits (issue 15, item 5: the rendered built-in system has a
 camera skew of -0.233 px and a projector skew of -0.951 px; fitted without skew, the camera cy
 lands 3.4 sigma from the truth)."""
@@ -8,12 +8,12 @@ import numpy as np
 
 from calib import default_system
 from calib.board import paper_board
-from calib.bundle_adjustment import BAConfig, DeviceConfig
+from calib.adjustment.problem import BAConfig, DeviceConfig
 from calib.calibrate import run_calibration
 from sltwin.cli import main as cli_main
 from calib.observations import write_observations_json
 from calib.simulate import simulate_observations
-from calib.skew_check import check_skew
+from calib.uncertainty.skew_check import check_skew
 from calib.system import SystemModel
 
 BOARD = paper_board()   # the paper's 9 x 11 circle board

@@ -7,7 +7,7 @@ import torch
 
 from calib import default_system
 from synth import Plane, Scene, Sphere, compute_geometry, phase_sequence, render
-from synth.effects import Effects
+from synth.effects.spec import Effects
 
 from synth_helpers import nstep_phase, small_system, wrap
 

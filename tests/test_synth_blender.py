@@ -13,7 +13,7 @@ pytestmark = [pytest.mark.blender, pytest.mark.skipif(not blender_available(sys.
 
 @pytest.mark.parametrize("kind", ["plane", "sphere"])
 def test_blender_parity_within_0p02_levels_and_5e4_rad(kind):
-    from synth.parity import parity
+    from experiments.blender_parity import parity
 
     r = parity(kind, scale=4, steps=12, frequency=48, python=sys.executable)
     assert r["size"] == (160, 120)

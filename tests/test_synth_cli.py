@@ -88,7 +88,7 @@ def test_calib_render_board_writes_the_capture_layout_with_truth(tmp_path):
 
 def test_pose_jitter_places_the_board_again_within_its_bounds_and_is_reproducible():
     from calib.rotation import rotvec_from_matrix
-    from synth.board_session import pose_jitter
+    from synth.scenes.board_session import pose_jitter
     from synth.errors import SynthError
 
     a = pose_jitter(50, 1.0, 5.0, seed=3)
@@ -105,8 +105,8 @@ def test_pose_jitter_places_the_board_again_within_its_bounds_and_is_reproducibl
 
 
 def test_jittered_session_truth_poses_are_where_the_board_was_rendered(tmp_path):
-    from synth.board_session import pose_jitter, render_board_session
-    from synth.poses import rotation_xyz_deg
+    from synth.scenes.board_session import pose_jitter, render_board_session
+    from synth.scenes.poses import rotation_xyz_deg
     from calib import default_system
 
     out = tmp_path / "s"

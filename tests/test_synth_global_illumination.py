@@ -1,6 +1,6 @@
-"""Global illumination (synth.global_illumination): the closed-form contrast loss on a plane,
+"""Global illumination (synth.effects.global_illumination): the closed-form contrast loss on a plane,
 nothing simulated when the config does not ask, energy kept, and the check against Blender Cycles'
-subsurface scattering on a plane and a sphere (synth.gi_reference)."""
+subsurface scattering on a plane and a sphere (experiments.gi_reference)."""
 import math
 import sys
 
@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from synth import Plane, Scene, Sphere, phase_sequence, render
-from synth.effects import Effects, GlobalIllumination, effects_from_table
+from synth.effects.spec import Effects, GlobalIllumination, effects_from_table
 from synth.errors import SynthError
-from synth.truth import phase_truth
+from synth.renderer.truth import phase_truth
 
 from synth_helpers import small_system
 
@@ -107,7 +107,7 @@ def test_global_illumination_against_cycles_subsurface_scattering_on_a_plane_and
     sphere's high-frequency contrast loss agrees within 0.05, and our low-frequency phase bias is
     within Cycles' (sampling-noise-limited) bias RMS. The measured numbers are in docs/dataset.md."""
     from synth.blender_twin import blender_available
-    from synth.gi_reference import gi_versus_cycles
+    from experiments.gi_reference import gi_versus_cycles
 
     if not blender_available(sys.executable):
         pytest.skip("bpy not installed (make test installs it)")

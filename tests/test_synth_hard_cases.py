@@ -6,9 +6,9 @@ import torch
 
 from synth import (Plane, Scene, Sphere, SynthError, compute_geometry, gray_sequence, load_scene,
                    phase_sequence, render)
-from synth.effects import Effects
-from synth.poses import rotation_xyz_deg
-from synth.projection import sample_nearest
+from synth.effects.spec import Effects
+from synth.scenes.poses import rotation_xyz_deg
+from synth.renderer.projection import sample_nearest
 
 from synth_helpers import small_system
 
@@ -104,7 +104,7 @@ def test_ball_in_front_of_a_wall_casts_the_predicted_shadow():
     ('[effects]\nbits = 9\n[patterns]\nsequence = [{kind = "white"}]', "effects.bits"),
     ('[effects]\nnoise = {full_well = 3}\n[patterns]\nsequence = [{kind = "white"}]', "effects.noise"),
     ('[[objects]]\nkind = "mesh"\nfile = "missing.obj"\n[patterns]\nsequence = [{kind = "white"}]', "missing.obj"),
-    ('[objects\n', "invalid TOML"),
+    ('[objects\n', "not valid TOML"),
     ('[[objects]]\nkind = "plane"\n', "patterns.sequence"),
     ('[[objects]]\nkind = "board"\nboard = {rows = 9, cols = 11, large_markers = [[20, 1]]}\n[patterns]\nsequence = [{kind = "white"}]', "large_markers"),
 ])
@@ -123,7 +123,7 @@ def test_effects_are_applied_only_when_asked_and_say_so():
     for stage in ("cast shadows: skipped", "projector defocus: skipped", "camera defocus: skipped",
                   "sensor noise: skipped", "vignetting: skipped", "projector gamma: skipped"):
         assert stage in text
-    from synth.effects import Defocus, Noise
+    from synth.effects.spec import Defocus, Noise
     eff = Effects(noise=Noise(seed=3), projector_defocus=Defocus(5.0, 600.0), camera_defocus=Defocus(5.0, 600.0),
                   vignetting=0.5, projector_gamma=2.2, ambient=0.05)
     full = render(Scene(system, [Plane("p", np.eye(3), [0, 0, 0])], seq, eff))

@@ -1,4 +1,4 @@
-"""Diffuse interreflection (synth.interreflection): absent unless asked for, the point-to-disc
+"""Diffuse interreflection (synth.effects.interreflection): absent unless asked for, the point-to-disc
 form factor and its reciprocity, the whole one-bounce integral against independent quadrature in
 a concave corner, and the unit-phase bias of a ball before a wall against Blender Cycles (a
 stored reference made by ``python -m bench.gi_bias --write-reference``, tests/data)."""
@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 import torch
 
+from experiments.blender_parity import parity_system
+from experiments.gi_bias import (EXPOSURE, bias_map, bias_scene, compare, load_reference, ours_images)
 from synth import Scene, phase_sequence, render
-from synth.effects import Effects, Interreflection, effects_from_table
+from synth.effects.interreflection import _kernel_dense
+from synth.effects.spec import Effects, Interreflection, effects_from_table
 from synth.errors import SynthError
-from synth.gi_bias import (EXPOSURE, bias_map, bias_scene, compare, load_reference, ours_images)
-from synth.interreflection import _kernel_dense
-from synth.parity import parity_system
-from synth.scene import scene_from_dict
-from synth.sequence import PatternSpec
+from synth.scenes.scene import scene_from_dict
+from synth.scenes.sequence import PatternSpec
 
 DATA = Path(__file__).resolve().parent / "data"
 
@@ -149,7 +149,7 @@ def test_shadowed_pixels_receive_light_and_nonlinear_patterns_get_it_too():
     system = parity_system(4)
     sc = bias_scene("ball-wall")
     pats = [PatternSpec("white", "white")] + phase_sequence(("v",), (1,), 4)
-    from synth.sequence import gray_sequence
+    from synth.scenes.sequence import gray_sequence
     pats += gray_sequence("v", system.projector.size, 10)[:2] + gray_sequence("v", system.projector.size, 10)[-1:]
     a = render(Scene(system, sc.objects, pats, Effects()), quantised=False)
     b = render(Scene(system, sc.objects, pats, Effects(interreflection=Interreflection())), quantised=False)
@@ -184,8 +184,8 @@ def _brute_occluded(tri, X, Y, e0, e1):
 
 
 def test_segment_grid_occlusion_equals_brute_force_and_decimation_keeps_the_shape():
-    from synth._segment_kernel import SegmentGrid, decimate
-    from synth.meshes import sphere_mesh
+    from synth.effects._segment_kernel import SegmentGrid, decimate
+    from synth.scenes.meshes import sphere_mesh
 
     V, F = sphere_mesh(20.0, 24, 12)
     V2, F2 = sphere_mesh(8.0, 12, 6)
@@ -207,7 +207,7 @@ def test_a_ridge_blocks_indirect_light_between_the_bands_beside_it():
     """A non-convex mesh lights itself (plan: not skipped); with mesh visibility a ridge between
     two low bands blocks some pairs: never more light than without the test, less somewhere."""
     from synth import Mesh
-    from synth.meshes import steps_mesh
+    from synth.scenes.meshes import steps_mesh
 
     system = parity_system(4)
     V, F = steps_mesh((150.0, 100.0), [0.0, 0.0, 30.0, 0.0, 0.0], 4)

@@ -6,8 +6,8 @@ import torch
 
 from conftest import shared_data
 from synth import Mesh, Plane, Scene, SynthError, compute_geometry, load_mesh, phase_sequence, steps_mesh
-from synth.meshes import sphere_mesh
-from synth.raycast import nearest_hits
+from synth.scenes.meshes import sphere_mesh
+from synth.renderer.raycast import nearest_hits
 
 from synth_helpers import small_system
 

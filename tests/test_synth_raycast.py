@@ -1,4 +1,4 @@
-"""The two mesh engines of synth.raycast.nearest_hits (numba on the CPU, torch elsewhere) give the
+"""The two mesh engines of synth.renderer.raycast.nearest_hits (numba on the CPU, torch elsewhere) give the
 same nearest hits as each other and as an independent dense ray-triangle solve, on meshes and on
 the hard cases: degenerate triangles, triangles behind or crossing the device plane, rays in a
 triangle's plane, empty inputs, non-finite rays, rays far apart."""
@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from synth import SynthError
-from synth.meshes import sphere_mesh, steps_mesh
-from synth.raycast import nearest_hits, numba_engine_available
+from synth.scenes.meshes import sphere_mesh, steps_mesh
+from synth.renderer.raycast import nearest_hits, numba_engine_available
 
 pytestmark = pytest.mark.skipif(not numba_engine_available(), reason="numba is not installed")
 
@@ -145,9 +145,9 @@ def test_rays_spread_far_apart_get_a_bounded_grid_and_the_same_hits():
 
 @pytest.mark.parametrize("smooth", [True, False])
 def test_fused_mesh_hit_pass_equals_the_torch_post_processing(smooth, monkeypatch):
-    import synth.objects as objects
+    import synth.scenes.objects as objects
     from synth import Mesh, blobs_heights, heightfield_mesh
-    from synth.geometry import camera_rays
+    from synth.renderer.geometry import camera_rays
 
     from synth_helpers import small_system
 

@@ -12,10 +12,10 @@ import pytest
 import torch
 
 from synth import Plane, Scene, phase_sequence, render
-from synth.effects import Defocus, Effects, Noise
-from synth.poses import rotation_xyz_deg
-from synth.sensor import add_noise, quantise
-from synth.sequence import PatternSpec
+from synth.effects.spec import Defocus, Effects, Noise
+from synth.scenes.poses import rotation_xyz_deg
+from synth.effects.sensor import add_noise, quantise
+from synth.scenes.sequence import PatternSpec
 
 from synth_helpers import nstep_phase, small_system, wrap
 
@@ -38,8 +38,8 @@ def test_camera_defocus_matches_blender_thin_lens_depth_of_field_up_to_the_gauss
     from scipy.special import j1
 
     from synth.blender_twin import blender_available
-    from synth.parity import parity, parity_system
-    from synth.truth import phase_truth
+    from experiments.blender_parity import parity, parity_system
+    from synth.renderer.truth import phase_truth
 
     if not blender_available(sys.executable):
         pytest.skip("bpy not installed (make test installs it)")
@@ -188,7 +188,7 @@ def test_poisson_gaussian_noise_has_mean_e_and_variance_e_plus_read_squared(valu
     """In electrons e = value * full_well: mean e, variance e + read^2 (shot noise exact Poisson
     below 50 e-: with no read noise the counts are integers with P(0) = exp(-e)); for the CPU
     kernel (its own random numbers) and the torch version alike."""
-    from synth.sensor import _add_noise_torch
+    from synth.effects.sensor import _add_noise_torch
 
     if engine == "cpu kernel":
         _noise_kernel()
@@ -209,11 +209,11 @@ def test_poisson_gaussian_noise_has_mean_e_and_variance_e_plus_read_squared(valu
 
 
 def _noise_kernel():
-    from synth.sensor import _noise_kernel_available
+    from synth.effects.sensor import _noise_kernel_available
 
     if not _noise_kernel_available():
         pytest.skip("numba is not installed")
-    from synth import _noise_kernel
+    from synth.effects import _noise_kernel
     return _noise_kernel
 
 

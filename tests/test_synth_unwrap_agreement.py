@@ -36,7 +36,7 @@ def test_fringe_orders_agree_with_unwrap_at_every_valid_pixel(ball_on_wall, o, e
 
 def test_8bit_images_unwrap_without_fringe_order_jumps(ball_on_wall):
     system, scene, res = ball_on_wall
-    from synth.sensor import quantise
+    from synth.effects.sensor import quantise
     imgs8 = quantise(res.images.clone(), 8).numpy()
     Phi, order, valid = res.truth(system.projector.size, scene.patterns)["v"][48.0]
     u = _unwrap(res, "v", 912, imgs8)

@@ -1,4 +1,4 @@
-"""The twin ball of Fig. 3 rendered by synth at the pose of the real ball (synth.twin_ball)."""
+"""The twin ball of Fig. 3 rendered by synth at the pose of the real ball (experiments.twin_ball)."""
 import numpy as np
 import pytest
 
@@ -6,9 +6,9 @@ from calib.device import DeviceModel
 from calib.io import load_system
 from calib.system import SystemModel
 from calib.triangulate import sphere_from_phase
-from reports.errors import ReportError
 from synth.errors import SynthError
-from synth.twin_ball import fit_ball_pose, phase_noise_rad, render_twin_ball_phase
+from experiments.twin_ball import fit_ball_pose, render_twin_ball_phase
+from unwrap.reliability import phase_noise_rad
 from tests.conftest import shared_data
 from unwrap.phase_io import read_phase
 
@@ -164,10 +164,10 @@ def test_bad_ball_inputs_are_refused_with_a_clear_message():
 
 @pytest.mark.realdata
 def test_twin_ball_render_without_a_real_phase_is_refused(tmp_path):
-    from reports.twin_report import write_twin_report
+    from experiments.errors import ExperimentError
+    from experiments.twin_ball import twin_ball_for_report
 
     d = shared_data("dp-tpu")
-    with pytest.raises(ReportError, match="needs the real ball phase"):
-        write_twin_report([d / "CamCalibResult_real.mat", d / "PrjCalibResult_real.mat"],
-                          [d / "CamCalibResult_sim.mat", d / "PrjCalibResult_sim.mat"], tmp_path,
-                          phases={"twin": d / "standardball_phase_sim.mat"}, render_twin_ball=True)
+    with pytest.raises(ExperimentError, match="needs the real ball phase"):
+        twin_ball_for_report([d / "CamCalibResult_real.mat", d / "PrjCalibResult_real.mat"],
+                             {"twin": d / "standardball_phase_sim.mat"}, tmp_path, render=True)

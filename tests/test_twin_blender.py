@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from calib import default_system
-from twin_mapping.blender_check import bpy_available, check_twin_in_blender
+from twin_mapping.blender_check import check_twin_in_blender
+from twin_mapping.blender_run import blender_available as bpy_available
 
 pytestmark = pytest.mark.blender
 TOL_PX = 3e-4

@@ -8,12 +8,12 @@ import pytest
 
 from calib import default_system
 from calib.board import Board
-from calib.bundle_adjustment import BAConfig, DeviceConfig
+from calib.adjustment.problem import BAConfig, DeviceConfig
 from calib.calibrate import run_calibration
-from calib.pose_error_model import fit_pose_error_model
-from calib.pose_resampling import system_parameters
-from calib.residual_diagnostics import diagnose_residuals
-from calib.residual_jacobian import adjustment_jacobian
+from calib.uncertainty.pose_error_model import fit_pose_error_model
+from calib.uncertainty.resampling import system_parameters
+from calib.uncertainty.diagnostics import diagnose_residuals
+from calib.adjustment.jacobian import adjustment_jacobian
 from calib.simulate import board_poses_world, simulate_observations
 
 SYSTEM = default_system().ideal()
@@ -74,7 +74,7 @@ def test_per_pose_shifts_the_error_model_sees_and_the_adjustment_does_not():
     rms_z = np.sqrt(np.sum(z ** 2, axis=0) / (len(est) - 1))
     print("spread / model sigma", np.round(ratio_model, 2), "spread / independent", np.round(ratio_independent, 2),
           "rms z", np.round(rms_z, 2))
-    # the sigmas carry the few-pose inflation (calib.level_uncertainty), which makes E[z^2] = 1 for
+    # the sigmas carry the few-pose inflation (calib.uncertainty.level_uncertainty), which makes E[z^2] = 1 for
     # z = shift / sigma: measured RMS z 0.58-1.28 (median 0.84), spread / RMS sigma 0.45-0.88
     assert 0.7 < np.median(rms_z) < 1.3 and np.all((rms_z > 0.5) & (rms_z < 1.8)), rms_z
     assert np.median(ratio_independent) > 1.8, ratio_independent
@@ -132,10 +132,10 @@ def _many_pose_session(n, seed):
 
 
 def test_the_few_pose_inflation_grows_as_poses_shrink_and_vanishes_for_many():
-    """calib.level_uncertainty: per-pose levels estimated from few poses inflate the sigmas (a
+    """calib.uncertainty.level_uncertainty: per-pose levels estimated from few poses inflate the sigmas (a
     Student-t effect): more for 4 poses than for 8, near 1 for 24; exactly 1 without shared errors.
     Measured (largest over the parameters): 4 poses 1.64, 8 poses 1.20, 24 poses 1.04."""
-    from calib.level_uncertainty import MIN_DOF
+    from calib.uncertainty.level_uncertainty import MIN_DOF
 
     def worst(n, seed=0):
         obs = _many_pose_session(n, seed)
@@ -157,7 +157,7 @@ def test_the_few_pose_inflation_grows_as_poses_shrink_and_vanishes_for_many():
 
 
 def test_a_small_session_with_shared_errors_says_its_sigmas_are_not_to_be_trusted():
-    from calib.uncertainty import assess_uncertainty
+    from calib.uncertainty.assess import assess_uncertainty
 
     obs = _many_pose_session(4, 3)
     report = assess_uncertainty(run_calibration(obs, CONFIG), obs)

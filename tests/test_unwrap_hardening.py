@@ -11,7 +11,8 @@ from unwrap.consistency import prior_check
 from unwrap.errors import UnwrapError
 from unwrap.fused_mf import mf_unwrap_stacks
 from unwrap.patterns import absolute_phase, fringe_intensity, projector_coordinate
-from unwrap.phase_shift import fit_noise_sigma, wrapped_phase
+from unwrap.phase_shift import wrapped_phase
+from unwrap.reliability import fit_noise_sigma
 from unwrap.pipeline import unwrap_capture
 from unwrap.plan import parse_set
 from unwrap.reliability import error_rate, modulation_threshold, phase_sigma

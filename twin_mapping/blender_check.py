@@ -17,11 +17,8 @@ import numpy as np
 from calib.system import SystemModel
 
 from .blender_export import write_blender_script
-from .blender_run import blender_available, run_in_blender
+from .blender_run import run_in_blender
 from .twin import to_twin
-
-bpy_available = blender_available
-"""Kept name of :func:`twin_mapping.blender_run.blender_available`."""
 
 
 def points_in_view(device, n: int, rng, depth_mm=(400.0, 1500.0)):

@@ -42,7 +42,7 @@ def _rz(a):
 
 def matrix_from_euler_xyz(angles) -> np.ndarray:
     """(alpha, beta, gamma) radians -> ``Rz(gamma) Ry(beta) Rx(alpha)`` (3,3). The one XYZ-Euler
-    builder of the toolkit (``synth.poses.rotation_xyz_deg`` takes degrees and calls it)."""
+    builder of the toolkit (``synth.scenes.poses.rotation_xyz_deg`` takes degrees and calls it)."""
     a, b, g = (float(v) for v in np.asarray(angles, dtype=np.float64).reshape(3))
     return _rz(g) @ _ry(b) @ _rx(a)
 

@@ -32,11 +32,10 @@ from .graycode import (binarize, complementary_gray_unwrap, gray_coarse_unwrap, 
 from .monte_carlo import monte_carlo_error_rate
 from .patterns import absolute_phase, fringe_intensity, fringe_pattern, phase_shift, projector_coordinate
 from .phase_io import read_phase, write_phase_file
-from .phase_shift import (WrappedPhase, equal_shifts, fit_noise_sigma, least_squares_weights, phase_noise_gain,
-                          wrapped_phase)
+from .phase_shift import WrappedPhase, equal_shifts, least_squares_weights, phase_noise_gain, wrapped_phase
 from .pipeline import unwrap_capture, write_results
 from .plan import plan_fringes
-from .reliability import error_rate, modulation_threshold, phase_error_pdf, phase_sigma
+from .reliability import error_rate, fit_noise_sigma, modulation_threshold, phase_error_pdf, phase_sigma
 from .temporal import Unwrapped, base_phase, mf_unwrap, mw_unwrap, nt_lookup_table, nt_unwrap, refine
 
 __all__ = [

@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import math
 import re
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -43,6 +42,7 @@ import numpy as np
 
 from .errors import UnwrapError
 from .graycode_capture import GRAY_KIND, design_gray_orientations, procam_orientations, read_gray_pattern
+from .strict import check_table, read_toml_text
 
 PRESETS = ("design", "slstudio", "slmaster", "kamino-phaseshift", "procam-graycode")
 PRESET_ALIASES = {"kamino": "kamino-phaseshift"}
@@ -73,15 +73,37 @@ class OrientationCapture:
     black: Path | None = None
 
 
+#: Where ``calib run`` looks for the board, in order (``[capture] board_image``).
+BOARD_IMAGE_SOURCES = ("white", "background", "modulation")
+
+
 @dataclass
 class Capture:
-    """A capture folder: its layout (``preset``), orientations, default method and, where its
-    description states it, the camera image size (W, H) the frames must have."""
+    """A capture folder and its description, parsed once: the one type of a capture session
+    (``calib.detect.captures.read_session``: board, poses, sizes) and of one pose's frames
+    (:func:`load_capture`: orientations).
+
+    - folder: the capture (or pose) folder; preset: its frame layout; default_method: the
+      preset's (or the description's) temporal unwrapping method.
+    - orientations: {"v"|"h": OrientationCapture} of the frames (empty for a session).
+    - camera_size, projector_size: (W, H) px where the description states them.
+    - toml: the description's path; description: the capture.toml as a dict (read once, passed on
+      to the pose loads); method: ``[capture] method`` (None when absent).
+    - poses: [(name, folder)] one per board pose; board_image: board detection sources in order;
+      board: the printed board (a ``calib.board.Board``, set by calib's reader).
+    """
     folder: Path
     preset: str
     orientations: dict = field(default_factory=dict)
     default_method: str = "mf"
     camera_size: tuple | None = None
+    projector_size: tuple | None = None
+    toml: Path | None = None
+    description: dict = field(default_factory=dict)
+    method: str | None = None
+    poses: list = field(default_factory=list)
+    board_image: tuple = BOARD_IMAGE_SOURCES
+    board: object = None
 
 
 def read_image(path) -> np.ndarray:
@@ -183,12 +205,26 @@ def read_stack(files) -> np.ndarray:
     return FrameReader().stack(files)
 
 
+#: The keys and types of a ``capture.toml`` (DESIGN.md); the strict reader (:mod:`unwrap.strict`)
+#: refuses any other key naming the closest known one. ``[board]`` is checked by
+#: ``calib.board.Board.from_dict``, ``[render]`` (what rendered the capture) is free.
+CAPTURE_SCHEMA = {
+    "board": dict,
+    "pattern": {"kind": str, "steps": int | tuple[int, ...], "frequencies": tuple[float, ...], "shift_sign": int,
+                "phase_offset": float, "shifts": tuple[float, ...] | tuple[tuple[float, ...], ...],
+                "block_px": int, "inverse": bool},
+    "camera": {"size": tuple[int, ...]},
+    "projector": {"size": tuple[int, ...]},
+    "capture": {"preset": str, "method": str, "poses": tuple[str, ...], "board_image": tuple[str, ...]},
+    "render": dict,
+}
+
+
 def read_toml(path) -> dict:
-    """A capture description as a dict; UnwrapError naming the file when it is not valid TOML."""
-    try:
-        return tomllib.loads(Path(path).read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise UnwrapError(f"{path}: not valid TOML ({exc})") from None
+    """A capture description as a dict; UnwrapError naming the file when it is not valid TOML, has
+    a key :data:`CAPTURE_SCHEMA` does not know (naming the closest) or a value of the wrong type."""
+    return check_table(read_toml_text(path, UnwrapError, "capture description")[1], CAPTURE_SCHEMA, str(path),
+                       UnwrapError)
 
 
 #: Lossless image formats a scanner's own layout may use (SLStudio and SLMaster write BMP).
@@ -224,9 +260,10 @@ def load_capture(folder, preset: str | None = None, pose: str | None = None, *,
                  description: dict | None = None) -> Capture:
     """Describe the capture in ``folder`` (no pixels read yet). See the module docstring.
 
-    ``description``: the session's capture.toml as a dict, for layouts whose frames do not say
-    everything (``procam-graycode``: the projector size); default: ``capture.toml`` in the folder
-    or, for a pose folder, in its parent."""
+    ``description``: the session's capture.toml as a dict, already read (a session's poses do
+    not read it again), or for layouts whose frames do not say everything (``procam-graycode``:
+    the projector size); default: ``capture.toml`` in the folder or, for a pose folder, in its
+    parent."""
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"capture folder not found: {folder}")
@@ -236,8 +273,9 @@ def load_capture(folder, preset: str | None = None, pose: str | None = None, *,
         raise UnwrapError(f"unknown capture preset {preset!r}: expected one of {PRESETS}")
     if preset == "procam-graycode":
         return _procam(folder, description)
-    return {"design": _design, "slstudio": _slstudio, "slmaster": _slmaster,
-            "kamino-phaseshift": _kamino}[preset](folder, pose)
+    if preset == "design":
+        return _design(folder, pose, description)
+    return {"slstudio": _slstudio, "slmaster": _slmaster, "kamino-phaseshift": _kamino}[preset](folder, pose)
 
 
 def design_frame_stem(orientation: str, frequency: float, step: int) -> str:
@@ -245,14 +283,15 @@ def design_frame_stem(orientation: str, frequency: float, step: int) -> str:
     return f"{orientation}_f{int(round(frequency)):03d}_n{step:02d}"
 
 
-def read_design_pattern(toml) -> tuple:
-    """``[pattern]`` and ``[projector]`` of a DESIGN.md ``capture.toml``: (frequencies (list of
-    float), steps (list of int, one per frequency), projector size (W, H)). UnwrapError names a
-    missing or inconsistent key."""
+def read_design_pattern(toml, meta: dict | None = None) -> tuple:
+    """``[pattern]`` and ``[projector]`` of a DESIGN.md ``capture.toml`` (``meta``: its contents
+    when already read): (frequencies (list of float), steps (list of int, one per frequency),
+    projector size (W, H)). UnwrapError names a missing or inconsistent key."""
     toml = Path(toml)
-    if not toml.exists():
-        raise FileNotFoundError(f"{toml.parent}: capture.toml missing (DESIGN.md layout)")
-    meta = read_toml(toml)
+    if meta is None:
+        if not toml.exists():
+            raise FileNotFoundError(f"{toml.parent}: capture.toml missing (DESIGN.md layout)")
+        meta = read_toml(toml)
     kind = meta.get("pattern", {}).get("kind", "phase-shift")
     if kind == GRAY_KIND:
         raise UnwrapError(f"{toml}: [pattern] kind = \"graycode\": a Gray-code-only session has no phase-shift "
@@ -338,17 +377,19 @@ def _check_no_extra_frames(cap: Capture, frames_dir: Path, steps) -> None:
                           "or frequencies?")
 
 
-def check_design_description(toml) -> dict:
+def check_design_description(toml, meta: dict | None = None) -> dict:
     """Validate a DESIGN.md ``capture.toml`` of either kind (phase shift: :func:`read_design_pattern`;
-    Gray code only: :func:`unwrap.graycode_capture.read_gray_pattern`); returns it as a dict."""
+    Gray code only: :func:`unwrap.graycode_capture.read_gray_pattern`); returns it as a dict
+    (``meta``: its contents when already read)."""
     toml = Path(toml)
-    if not toml.exists():
-        raise FileNotFoundError(f"{toml.parent}: capture.toml missing (DESIGN.md layout)")
-    meta = read_toml(toml)
+    if meta is None:
+        if not toml.exists():
+            raise FileNotFoundError(f"{toml.parent}: capture.toml missing (DESIGN.md layout)")
+        meta = read_toml(toml)
     if meta.get("pattern", {}).get("kind") == GRAY_KIND:
         read_gray_pattern(meta, toml)
     else:
-        read_design_pattern(toml)
+        read_design_pattern(toml, meta)
     return meta
 
 
@@ -388,9 +429,9 @@ def _procam(folder: Path, description) -> Capture:
     return cap
 
 
-def _design(folder: Path, pose) -> Capture:
+def _design(folder: Path, pose, description: dict | None = None) -> Capture:
     toml = folder / "capture.toml"
-    meta = check_design_description(toml)
+    meta = check_design_description(toml, description)
     if meta.get("pattern", {}).get("kind") == GRAY_KIND:
         frames_dir = _frames_dir(folder, pose, "[vh]_gray_b*.*")
         stray = sorted(p.name for p in frames_dir.glob("[vh]_f*_n*.*"))
@@ -400,7 +441,7 @@ def _design(folder: Path, pose) -> Capture:
         cap = _gray_capture(folder, "design", design_gray_orientations(frames_dir, read_gray_pattern(meta, toml)))
         cap.camera_size = camera_size(meta, toml)
         return cap
-    freqs, steps, (W, H) = read_design_pattern(toml)
+    freqs, steps, (W, H) = read_design_pattern(toml, meta)
     shifts = design_shifts(meta.get("pattern", {}), toml, steps)
     frames_dir = _frames_dir(folder, pose, "[vh]_f*_n*.*")
     cap = Capture(folder, "design", default_method=meta.get("capture", {}).get("method", "mf"),

@@ -31,7 +31,6 @@ unwrapping as wrong). For real captures it is the stored reference order (-1 whe
 """
 from __future__ import annotations
 
-import math
 import os
 from pathlib import Path
 
@@ -44,25 +43,10 @@ from .dataset_schema import (FLAG_LOW_MODULATION, FLAG_OUT_OF_RANGE, FLAG_SATURA
                              DatasetSchemaError, check_schema, decode_modulation, decode_phase,
                              orientation_frequencies)
 from .errors import UnwrapError
-from .pair_decode import traditional  # noqa: F401  (moved there: torch-free)
+from .methods import check_pair
+from .temporal import decode_pair
 
-METHODS = ("mf", "mw", "nt")
 _BAD = FLAG_LOW_MODULATION | FLAG_SATURATED | FLAG_OUT_OF_RANGE
-
-
-def _check_pair(method: str, f_lo: float, f_hi: float):
-    if method not in METHODS:
-        raise UnwrapError(f"method {method!r}: expected one of {METHODS}")
-    if not f_hi > f_lo:
-        raise UnwrapError(f"frequencies ({f_lo:g}, {f_hi:g}): expected (low, high) with high > low")
-    if method == "mf" and f_lo > 1 + 1e-12:
-        raise UnwrapError(f"mf needs a unit frequency (<= 1 period) as the low one, got {f_lo:g}")
-    if method == "mw" and f_hi - f_lo > 1 + 1e-9:
-        raise UnwrapError(f"mw pair ({f_lo:g}, {f_hi:g}): the beat {f_hi - f_lo:g} periods exceeds 1, so it "
-                          "is not absolute")
-    if method == "nt":
-        if f_lo != int(f_lo) or f_hi != int(f_hi) or math.gcd(int(f_lo), int(f_hi)) != 1:
-            raise UnwrapError(f"nt pair ({f_lo:g}, {f_hi:g}): expected coprime whole numbers")
 
 
 class FringeOrderDataset(Dataset):
@@ -86,7 +70,7 @@ class FringeOrderDataset(Dataset):
             raise UnwrapError("FringeOrderDataset: no file given")
         self.paths = [Path(p) for p in paths]
         f_lo, f_hi = (float(f) for f in frequencies)
-        _check_pair(method, f_lo, f_hi)
+        check_pair(method, f_lo, f_hi)
         if orientation not in ("v", "h"):
             raise UnwrapError(f"orientation {orientation!r}: expected 'v' or 'h'")
         self.method, self.f_lo, self.f_hi, self.orientation = method, f_lo, f_hi, orientation
@@ -184,7 +168,7 @@ class FringeOrderDataset(Dataset):
         fl = h5[f"{o}/flags"]
         valid = ((h5["masks"][(k,) + win] & MASK_LIT) != 0) & ((fl[(k, jl) + win] & _BAD) == 0) \
             & ((fl[(k, jh) + win] & _BAD) == 0)
-        prior, order_trad, valid = traditional(self.method, phi_lo, phi_hi, self.f_lo, self.f_hi, width, valid)
+        prior, order_trad, valid = decode_pair(self.method, phi_lo, phi_hi, self.f_lo, self.f_hi, width, valid)
         if kind == "twin":
             coord = h5[f"{o}/coordinate"][(k,) + win].astype(np.float64)
             Phi = TWO_PI * self.f_hi * np.nan_to_num(coord) / width

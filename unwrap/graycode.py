@@ -164,7 +164,7 @@ def gray_code_unwrap(code_index, block_px: float, width: float, *, reliable=None
     ``Phi = 2 pi f u_p / width``, order ``k = c``, prior ``c`` (exact: no phase to round). The map
     is quantised: within a block the true coordinate differs from the centre by up to ``b / 2``
     (uniform, variance ``b^2 / 12``), an error that a local fit of many camera pixels does not
-    average away like noise (``calib.marker_phase`` models it). Where ``width`` is not a multiple
+    average away like noise (``calib.detect.marker_phase`` models it). Where ``width`` is not a multiple
     of ``b`` the last block is cut at the pattern's edge and its centre is that of its part inside,
     ``(c b + width - 1) / 2``: like every decoder's, the coordinate lies inside the pattern (the
     range constraint of :func:`unwrap.temporal.finish_unwrapped`). Codes beyond the pattern

@@ -101,41 +101,6 @@ def phase_noise_gain(shifts) -> float:
     return float(0.5 * (cov[1, 1] + cov[2, 2]))
 
 
-def fit_noise_sigma(stack, shifts=None, mask=None, *, chunk_pixels: int = 65536) -> float:
-    """Intensity noise per frame (input units) from the residuals of the N-step fit, N >= 4.
-
-    Each pixel's N frames are fitted by ``A + B cos(phi - delta_n)`` (3 parameters); the residual
-    sum of squares has ``N - 3`` degrees of freedom, so ``RSS / (N - 3)`` is an unbiased estimate
-    of the noise variance there. The estimate is the root of its mean over the pixels of ``mask``
-    (default: all) that no frame saturates (the integer dtype's maximum). It includes the
-    quantisation noise (1/12 of a level squared) and any deviation from a sinusoid (a gamma
-    curve), as the phase does.
-
-    ARGUMENTS: stack (N, ...) frames (numpy); shifts (N,) rad (default ``2 pi n/N``); mask
-    (...) bool. RETURNED VALUE: sigma (float, input units). UnwrapError for N < 4 or no pixel.
-    """
-    stack = np.asarray(stack)
-    N = stack.shape[0]
-    if N < 4:
-        raise UnwrapError(f"{N} frames: the fit of A, B and phi leaves no residual to estimate the noise "
-                          "from (needs N >= 4); give the noise level instead")
-    delta = equal_shifts(N) if shifts is None else np.asarray(shifts, dtype=np.float64).reshape(-1)
-    P = least_squares_weights(delta)
-    M = np.stack([np.ones_like(delta), np.cos(delta), np.sin(delta)], axis=1)
-    residual_maker = np.eye(N) - M @ P                      # I - hat matrix, (N, N)
-    flat = stack.reshape(N, -1)
-    keep = np.ones(flat.shape[1], bool) if mask is None else np.asarray(mask, bool).reshape(-1).copy()
-    if np.issubdtype(flat.dtype, np.integer):
-        keep &= ~(flat >= np.iinfo(flat.dtype).max).any(axis=0)
-    total, count = 0.0, int(keep.sum())
-    if count == 0:
-        raise UnwrapError("no unsaturated pixel to estimate the noise from")
-    for s in range(0, flat.shape[1], chunk_pixels):
-        block = flat[:, s:s + chunk_pixels][:, keep[s:s + chunk_pixels]].astype(np.float64)
-        total += float(np.sum((residual_maker @ block) ** 2))
-    return math.sqrt(total / (count * (N - 3)))
-
-
 def _as_stack(stack, axis: int):
     if isinstance(stack, (list, tuple)):
         if len(stack) == 0:

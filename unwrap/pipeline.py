@@ -27,14 +27,14 @@ from .consistency import check_priors, prior_check
 from .errors import UnwrapError
 from .fused_mf import mf_unwrap_stacks
 from .graycode import binarize, complementary_gray_unwrap, gray_coarse_unwrap, gray_code_unwrap, gray_to_index
+from .methods import METHODS, PAIR_METHODS
 from .patterns import projector_coordinate
 from .phase_io import write_phase_file
-from .phase_shift import fit_noise_sigma, wrapped_phase
-from .reliability import modulation_threshold, predicted_error_rate
+from .phase_shift import wrapped_phase
+from .reliability import fit_noise_sigma, modulation_threshold, predicted_error_rate
 from .safe_output import save_figure
 from .temporal import Unwrapped, mf_unwrap, mw_unwrap, nt_unwrap
 
-METHODS = ("mf", "mw", "nt", "gray")
 
 log = logging.getLogger(__name__)
 
@@ -124,7 +124,7 @@ def read_orientation(oc: OrientationCapture, reader: FrameReader, progress: bool
 
 def _reliability_model(oc: OrientationCapture, method: str):
     """The reliability model's method name for ``method`` on this capture, or None."""
-    if method in ("mf", "mw", "nt"):
+    if method in PAIR_METHODS:
         return method
     if method == "gray" and oc.gray is not None and oc.gray.get("kind") == "complementary":
         return "cgray"
@@ -313,12 +313,19 @@ def unwrap_capture(folder, method: str | None = None, *, preset: str | None = No
     Options as :func:`unwrap_orientation`; the frames must have the description's camera size."""
     cap: Capture = load_capture(folder, preset, pose)
     method = method or cap.default_method
+    return each_orientation(cap, method, lambda oc: unwrap_orientation(
+        oc, method, min_modulation=min_modulation, max_error_rate=max_error_rate, noise_sigma=noise_sigma,
+        check_prior=check_prior, camera_size=cap.camera_size, progress=progress), progress)
+
+
+def each_orientation(cap: Capture, label: str, decode, progress: bool = False) -> dict:
+    """The per-orientation loop of a capture: ``{"v": decode(oc), ...}`` over its
+    :class:`unwrap.capture.OrientationCapture` items, one progress line each (``label``: the
+    method named in it). The traditional and the learned capture paths share it."""
     out = {}
     for o, oc in cap.orientations.items():
-        _log(progress, f"unwrap {cap.folder} [{cap.preset}] orientation {o}, method {method}")
-        out[o] = unwrap_orientation(oc, method, min_modulation=min_modulation, max_error_rate=max_error_rate,
-                                    noise_sigma=noise_sigma, check_prior=check_prior,
-                                    camera_size=cap.camera_size, progress=progress)
+        _log(progress, f"unwrap {cap.folder} [{cap.preset}] orientation {o}, method {label}")
+        out[o] = decode(oc)
     return out
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 
 from .errors import UnwrapError
+from .methods import METHODS
 from .reliability import error_rate, phase_sigma
 from .temporal import check_mf_ladder, check_mw_set, check_nt_pair
 
@@ -22,7 +23,6 @@ DEFAULT_SETS = ("mf:1,8,48", "mf:1,4,16,64", "mf:1,12,96", "mf:1,96", "mw:48,47"
 #: Method names, as ``calib unwrap --method`` spells them; ``gray`` is complementary Gray code
 #: (one code period per fringe period plus a half-period bit, SLMaster's), whose reliability
 #: model exists. ``cgray`` is accepted for it, as earlier versions printed it.
-METHODS = ("mf", "mw", "nt", "gray")
 
 
 def parse_set(text: str):

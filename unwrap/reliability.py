@@ -39,6 +39,7 @@ import numpy as np
 from scipy.special import erf
 
 from .errors import UnwrapError
+from .phase_shift import equal_shifts, least_squares_weights
 
 _GRID = 4001
 
@@ -272,3 +273,89 @@ def predicted_error_rate(method: str, frequencies, steps, sigma: float, modulati
         total += rate * count
         left -= int(count)
     return float(total / B.size)
+
+
+# -- noise estimators: the inputs of the model above ---------------------------------------------
+
+def fit_noise_sigma(stack, shifts=None, mask=None, *, chunk_pixels: int = 65536) -> float:
+    """Intensity noise per frame (input units) from the residuals of the N-step fit, N >= 4.
+
+    Each pixel's N frames are fitted by ``A + B cos(phi - delta_n)`` (3 parameters); the residual
+    sum of squares has ``N - 3`` degrees of freedom, so ``RSS / (N - 3)`` is an unbiased estimate
+    of the noise variance there. The estimate is the root of its mean over the pixels of ``mask``
+    (default: all) that no frame saturates (the integer dtype's maximum). It includes the
+    quantisation noise (1/12 of a level squared) and any deviation from a sinusoid (a gamma
+    curve), as the phase does.
+
+    ARGUMENTS: stack (N, ...) frames (numpy); shifts (N,) rad (default ``2 pi n/N``); mask
+    (...) bool. RETURNED VALUE: sigma (float, input units). UnwrapError for N < 4 or no pixel.
+    """
+    stack = np.asarray(stack)
+    N = stack.shape[0]
+    if N < 4:
+        raise UnwrapError(f"{N} frames: the fit of A, B and phi leaves no residual to estimate the noise "
+                          "from (needs N >= 4); give the noise level instead")
+    delta = equal_shifts(N) if shifts is None else np.asarray(shifts, dtype=np.float64).reshape(-1)
+    P = least_squares_weights(delta)
+    M = np.stack([np.ones_like(delta), np.cos(delta), np.sin(delta)], axis=1)
+    residual_maker = np.eye(N) - M @ P                      # I - hat matrix, (N, N)
+    flat = stack.reshape(N, -1)
+    keep = np.ones(flat.shape[1], bool) if mask is None else np.asarray(mask, bool).reshape(-1).copy()
+    if np.issubdtype(flat.dtype, np.integer):
+        keep &= ~(flat >= np.iinfo(flat.dtype).max).any(axis=0)
+    total, count = 0.0, int(keep.sum())
+    if count == 0:
+        raise UnwrapError("no unsaturated pixel to estimate the noise from")
+    for s in range(0, flat.shape[1], chunk_pixels):
+        block = flat[:, s:s + chunk_pixels][:, keep[s:s + chunk_pixels]].astype(np.float64)
+        total += float(np.sum((residual_maker @ block) ** 2))
+    return math.sqrt(total / (count * (N - 3)))
+
+
+def phase_noise_rad(phase, reference=None, erode: int = 3) -> float:
+    """Phase noise (rad, 1 sigma) of a smooth absolute phase map, from second differences.
+
+    For white noise of sigma s, ``p[i-1] - 2 p[i] + p[i+1]`` has standard deviation ``s sqrt 6``;
+    its median absolute deviation (x 1.4826) is robust to the rim and to the odd outlier. Rows and
+    columns are averaged; pixels within ``erode`` of the footprint's edge are left out. With a
+    noise-free ``reference`` map of the same surface the estimator's own response to the surface's
+    curvature is removed in quadrature.
+    """
+    from scipy.ndimage import binary_erosion
+
+    def raw(p):
+        p = np.asarray(p, dtype=np.float64)
+        inner = binary_erosion(np.isfinite(p), iterations=erode)
+        out = []
+        for axis in (0, 1):
+            d2 = np.roll(p, 1, axis) - 2 * p + np.roll(p, -1, axis)
+            x = d2[inner & np.isfinite(d2)]
+            if x.size < 50:
+                raise UnwrapError(f"phase noise: only {x.size} interior pixels; the footprint is too small")
+            out.append(1.4826 * np.median(np.abs(x - np.median(x))) / np.sqrt(6))
+        return float(np.mean(out))
+
+    s = raw(phase)
+    if reference is not None:
+        s = float(np.sqrt(max(s ** 2 - raw(reference) ** 2, 0.0)))
+    return s
+
+
+def plane_residual_noise(residuals, modulation, steps: int, dof: float = math.sqrt(25.0 / 22.0)) -> dict:
+    """Phase and intensity noise from residuals of an absolute phase from a local plane fit.
+
+    ``residuals`` (rad) of each pixel from the plane through its neighbours (a 5 x 5 window with
+    the pixel among them by default: ``dof = sqrt(25 / 22)`` undoes the fit's own degrees of
+    freedom); the robust sigma is 1.4826 x the median absolute residual (rare 2 pi order errors are
+    outliers it ignores). With the N-step noise gain (:func:`phase_sigma` inverted) each pixel's
+    intensity noise is ``sigma_phase * B * sqrt(N / 2)`` (full-scale units, ``modulation`` B),
+    summarised by its median.
+
+    RETURNED VALUE: {"sigma_phase_rad", "sigma_I", "modulation" (median B), "pixels"}.
+    """
+    e = np.abs(np.asarray(residuals, dtype=np.float64).reshape(-1))
+    B = np.asarray(modulation, dtype=np.float64).reshape(-1)
+    sigma_phase = 1.4826 * np.median(e) * dof
+    sigma_I = float(np.median(1.4826 * e * dof * B) * math.sqrt(steps / 2.0))
+    return {"sigma_phase_rad": float(sigma_phase), "sigma_I": sigma_I, "modulation": float(np.median(B)),
+            "pixels": int(e.size)}

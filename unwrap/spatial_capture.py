@@ -24,7 +24,8 @@ from ._xp import TWO_PI
 from .capture import FrameReader, load_capture
 from .consistency import check_priors, prior_check
 from .errors import UnwrapError
-from .phase_shift import fit_noise_sigma, wrapped_phase
+from .phase_shift import wrapped_phase
+from .reliability import fit_noise_sigma
 from .pipeline import OrientationResult, check_min_modulation
 from .spatial_orders import DEFAULTS, GATE, gate, graphcut_orders, phase_noise
 from .temporal import Unwrapped, constrain_to_pattern
@@ -90,7 +91,7 @@ def spatial_orientation(oc, method: str = "mf", *, model=None, use_gate: bool = 
     elif steps[1] >= 4:
         sigma, how = fit_noise_sigma(stacks[i_hi], sets[i_hi].shifts, valid), "fit residuals"
     else:
-        from .dataset import traditional
+        from .temporal import decode_pair as traditional
         _, n0, ok0 = traditional(method, phi_lo, phi_hi, *pair, float(oc.width), valid)
         sigma, how = noise_from_phase(np.where(ok0, phi_hi + TWO_PI * n0, np.nan), ok0, hi.B, steps[1]), "phase residual"
     s_lo, s_hi = phase_noise(lo.B, steps[0], sigma), phase_noise(hi.B, steps[1], sigma)

@@ -372,7 +372,7 @@ def graphcut_orders(method: str, phase_low, phase_high, frequencies, valid, sigm
     :func:`edge_weights` (``modulation``, ``min_modulation`` in the same units); ``bridge``: add
     :func:`bridge_edges` for pixels with fewer than 2 valid 4-neighbours.
     """
-    from .dataset import traditional
+    from .temporal import decode_pair as traditional
 
     t0 = time.perf_counter()
     if smoothness is None:

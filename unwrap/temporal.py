@@ -429,3 +429,24 @@ def nt_unwrap(phases, frequencies, *, width=None, valid=None, phase_sigma=None, 
     levels = [(float(f1), None, k1), (float(f2), None, k2)]
     return finish_unwrapped(namespace(Phi), Phi, k.astype(np.float64), prior, ok & (k1 <= f1) & (k2 >= 0) & (k2 <= f2),
                             fout, "nt", levels, width=width, wrap_orders=int(fout))
+
+
+def decode_pair(method: str, phi_lo, phi_hi, f_lo: float, f_hi: float, width: float, valid):
+    """The traditional decode of one (low, high) pair (``unwrap.methods.PAIR_METHODS``) on wrapped
+    phases (rad): (prior float64 (H,W), order int64 (H,W) -1 invalid, valid bool); ``order`` is
+    the method's order of the high frequency clipped to [0, round(f_hi)]. The learned network's
+    input and the dataset reader's ``order_traditional``."""
+    if method == "mf":
+        r = mf_unwrap([phi_lo, phi_hi], (f_lo, f_hi), width=width, valid=valid)
+        k = r.levels[-1][2]
+    elif method == "mw":
+        r = mw_unwrap([phi_lo, phi_hi], (f_lo, f_hi), width=width, valid=valid)
+        k = r.levels[-1][2]
+    else:
+        r = nt_unwrap([phi_lo, phi_hi], (f_lo, f_hi), width=width, valid=valid)
+        k = r.levels[1][2]
+    prior = np.asarray(r.prior, dtype=np.float64)
+    ok = valid & np.isfinite(prior)
+    kmax = math.floor(f_hi + 0.5)
+    order = np.where(ok, np.clip(np.nan_to_num(np.asarray(k, dtype=np.float64)), 0, kmax), -1).astype(np.int64)
+    return np.where(ok, prior, 0.0), order, ok

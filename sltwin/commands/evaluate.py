@@ -1,6 +1,6 @@
 """``calib eval [--model M] [--prior-free P] [--mse-only S] (--test FILE ... | --synthetic N) [--real FILE ...]
 -o OUT``: tables S5 / S6 beside the paper's, confidence curves, real captures, speed
-(unwrap.learned.eval_report)."""
+(experiments.learned_eval)."""
 from __future__ import annotations
 
 from sltwin.errors import CommandError
@@ -35,8 +35,9 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
-    from unwrap.learned.eval_report import run_evaluation
-    from unwrap.learned.evaluate import TestSource
+    from experiments.learned_eval import evaluate_models
+    from reports.learned_eval import write_evaluation
+    from experiments.learned_evaluation import TestSource
     from unwrap.learned.infer import shipped_model_path
 
     from pathlib import Path
@@ -73,10 +74,10 @@ def run(args) -> int:
     src = TestSource(files=list(args.test), synthetic=(args.synthetic, (96, 128), 9001) if args.synthetic else None,
                      max_samples=args.max_samples)
     physics = shipped_model_path() if args.model in ("learned", "default") else args.model
-    res = run_evaluation(src, args.output, physics=physics, prior_free=args.prior_free, mse_only=args.mse_only,
-                         real=list(args.real), s5_frequencies=tuple(args.s5), s6_frequencies=tuple(args.s6),
-                         methods=tuple(args.methods), filtered_window=args.window, speed=not args.no_speed,
-                         training_runs=runs)
+    res = write_evaluation(evaluate_models(
+        src, physics=physics, prior_free=args.prior_free, mse_only=args.mse_only, real=list(args.real),
+        s5_frequencies=tuple(args.s5), s6_frequencies=tuple(args.s6), methods=tuple(args.methods),
+        filtered_window=args.window, speed=not args.no_speed, training_runs=runs), args.output)
     print(res["markdown"])
     print(f"wrote {args.output}/eval.md, eval.json, {', '.join(res['figures'])}")
     return 0

@@ -1,6 +1,6 @@
 """``calib export``: the twin's training data (or a real capture) as sharded, resumable HDF5.
 
-    calib export CONFIG.toml -o data/train.h5 [--shard i/n]      # render; resumes when rerun
+    calib export CONFIG.toml -o data/train.h5 [--shard i/n] [--set section.key=value]  # resumes
     calib export --combine data/train-*-of-*.h5 -o data/train.h5 # join shards (virtual datasets)
     calib export --capture DIR -o real.h5 [--reference auto|gray|cloud|ladder|none]
     calib export --capture DIR --reference ladder --orientation v [--region left] -o cap_v.h5
@@ -33,13 +33,15 @@ def add_arguments(parser):
                         help="ladder reference: largest distance of every step's prior from an integer (periods)")
     parser.add_argument("--reference-cloud", help="point cloud (.mat 'xyz' or .npy, H x W x 3 mm) of the same view")
     parser.add_argument("--reference-system", help="calibration of the capture (for --reference-cloud)")
+    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="override one key of CONFIG, e.g. --set export.samples=10 (repeatable)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
 
 
 def run(args) -> int:
     import json
 
-    from synth.dataset_writer import ExportError, combine, parse_shard, shard_from_environment, shard_path
+    from synth.export.writer import ExportError, combine, parse_shard, shard_from_environment, shard_path
 
     from ..outputs import claim
 
@@ -52,7 +54,7 @@ def run(args) -> int:
         print(f"combined {len(args.combine)} shard(s) into {out} (virtual datasets, no data copied)")
         return 0
     if args.capture:
-        from synth.capture_export import export_capture
+        from synth.export.capture import export_capture
 
         claim(args.output, "file", inputs=[args.capture, args.reference_cloud, args.reference_system])
 
@@ -65,9 +67,10 @@ def run(args) -> int:
         for c in s["captures"]:
             print(f"  {c['folder']} [{c['preset']}]: " + json.dumps(c["orientations"]))
         return 0
-    from synth.dataset_export import export_dataset, format_summary
+    from synth.export.dataset import export_dataset, format_summary
 
     shard = parse_shard(args.shard) if args.shard else (shard_from_environment() or (0, 1))
     claim(shard_path(args.output, *shard), "file", inputs=[args.config])
-    print(format_summary(export_dataset(args.config, args.output, shard=shard, progress=not args.quiet)))
+    print(format_summary(export_dataset(args.config, args.output, shard=shard, progress=not args.quiet,
+                                        overrides=args.set)))
     return 0

@@ -23,10 +23,10 @@ def run(args) -> int:
     from dataclasses import replace
     from pathlib import Path
 
-    from synth.board_session import scene_capture_toml
-    from synth.output import write_pngs, write_truth_h5
-    from synth.render import render
-    from synth.scene import load_scene
+    from synth.scenes.board_session import scene_capture_toml
+    from synth.renderer.output import write_pngs, write_truth_h5
+    from synth.renderer.render import render
+    from synth.scenes.scene import load_scene
     from unwrap.safe_output import write_text
 
     import logging

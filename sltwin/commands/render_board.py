@@ -35,9 +35,9 @@ def add_arguments(parser):
 
 def run(args) -> int:
     from calib.io import load_system
-    from synth.board_session import render_board_session, session_patterns
-    from synth.effects import Noise
-    from synth.render import check_render_memory
+    from synth.effects.spec import Noise
+    from synth.renderer.render import check_render_memory
+    from synth.scenes.board_session import render_board_session, session_patterns
 
     from ..inputs import calibration_paths
 

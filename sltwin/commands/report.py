@@ -34,7 +34,7 @@ def add_arguments(p) -> None:
                    help="real capture dataset(s) with reference orders (calib export --capture): adds the learned "
                         "unwrapping's twin-vs-real section")
     p.add_argument("--learned-twin", nargs="+", default=[], metavar="FILE",
-                   help="twin renders of the same system with matched noise (reports.learned_parity)")
+                   help="twin renders of the same system with matched noise (experiments.learned_parity)")
     p.add_argument("--learned-model", default="learned", metavar="learned|PATH",
                    help="model of that section (default: the shipped one)")
     p.add_argument("-o", "--output", default="report", help="output folder (default: %(default)s)")
@@ -75,6 +75,7 @@ def print_summary(summary: dict) -> None:
 
 
 def run(args) -> int:
+    from experiments.twin_ball import twin_ball_for_report
     from reports.twin_report import write_twin_report
 
     claim(args.output, "dir", inputs=[*args.real, *args.twin, args.phase_real, args.phase_twin, *args.learned_real,
@@ -84,6 +85,7 @@ def run(args) -> int:
     if args.learned_real or args.learned_twin:
         if not (args.learned_real and args.learned_twin):
             raise CommandError("--learned-real and --learned-twin go together")
+        from experiments.learned_parity import parity as learned_parity
         from reports.learned_parity import section
 
         from ..inputs import dataset_files, model_of_kind
@@ -94,12 +96,13 @@ def run(args) -> int:
                       needs="twin renders of the same system: calib export CONFIG -o twin.h5")
         model_of_kind(args.learned_model, "physics", "--learned-model")
 
-        sec, parity = section(args.learned_real, args.learned_twin, args.learned_model)
+        sec, parity = section(learned_parity(args.learned_real, args.learned_twin, args.learned_model))
         extra.append(sec)
-    summary = write_twin_report(args.real, args.twin, args.output, extra_sections=extra, phases={
-        k: v for k, v in (("real", args.phase_real), ("twin", args.phase_twin)) if v}, frequency=args.frequency,
-        render_twin_ball=args.twin_ball_render, twin_ball_options=opts,
-        twin_render_system="real" if args.twin_ball_system == "real" else None)
+    phases = {k: v for k, v in (("real", args.phase_real), ("twin", args.phase_twin)) if v}
+    ball = twin_ball_for_report(args.real, phases, args.output, frequency=args.frequency, render=args.twin_ball_render,
+                                render_system="real" if args.twin_ball_system == "real" else None, options=opts)
+    summary = write_twin_report(args.real, args.twin, args.output, extra_sections=extra, phases=phases,
+                                frequency=args.frequency, twin_ball=ball)
     print_summary(summary)
     if parity is not None:
         print(parity["verdict"])

@@ -80,7 +80,7 @@ def add_arguments(p):
     p.add_argument("--skew-tol", type=positive_float, default=0.01, help="px; see calib.io.mrcal_model")
     p.add_argument("--no-skew-check", action="store_true",
                    help="skip the refit with skew free that tells whether a zero-skew model fits the data "
-                        "(calib.skew_check; run when skew is not estimated; a needed skew is a warning)")
+                        "(calib.uncertainty.skew_check; run when skew is not estimated; a needed skew is a warning)")
     p.add_argument("--figures", choices=("auto", "all", "summary", "none"), default="auto",
                    help="auto (default): every figure up to 12 views, above only the summary residuals.png; "
                         "all: the per-pose panels at any number of views; summary; none")
@@ -107,8 +107,8 @@ def parse_fix(items) -> tuple[dict, dict]:
 
 
 def ba_config(args):
-    """The adjustment settings the options ask for (a ``calib.bundle_adjustment.BAConfig``)."""
-    from calib.bundle_adjustment import BAConfig, DeviceConfig
+    """The adjustment settings the options ask for (a ``calib.adjustment.problem.BAConfig``)."""
+    from calib.adjustment.problem import BAConfig, DeviceConfig
     from calib.errors import BundleAdjustmentError
 
     fixed, values = parse_fix(args.fix)
@@ -142,9 +142,9 @@ def load_observations(paths):
 
 
 def run(args) -> int:
-    from calib.calibration_report import summary_table
+    from calib.io.outputs import summary_table
     from calib.pipeline import calibrate_captures, calibrate_observations
-    from calib.uncertainty import uncertainty_table
+    from calib.uncertainty.assess import uncertainty_table
 
     if (args.captures is None) == (args.observations is None):
         raise CommandError("give either a CAPTURES folder or --observations FILE(S)")

@@ -98,10 +98,11 @@ def decoder(args):
     model = None
     if args.model is not None:
         from unwrap.learned.runtime import load_predictor
+        from unwrap.methods import PAIR_METHODS
 
         from ..inputs import KIND_NAMES
 
-        if args.method not in (None, "mf", "mw", "nt"):
+        if args.method not in (None, *PAIR_METHODS):
             raise CommandError(f"--model works with --method mf, mw or nt, not {args.method}")
         if args.spatial is None and (args.max_error_rate is not None or args.noise_sigma is not None):
             raise CommandError("--max-error-rate / --noise-sigma set the threshold from the traditional decoders' "
@@ -112,9 +113,10 @@ def decoder(args):
             raise CommandError(f"--model {args.model}: a {KIND_NAMES.get(kind, kind)} model; --model takes a "
                                "physics-aware one")
     if args.spatial is not None:
+        from unwrap.methods import PAIR_METHODS
         from unwrap.spatial_capture import unwrap_capture_spatial
 
-        if args.method not in (None, "mf", "mw", "nt"):
+        if args.method not in (None, *PAIR_METHODS):
             raise CommandError(f"--spatial works with --method mf, mw or nt, not {args.method}")
         if args.max_error_rate is not None:
             raise CommandError("--max-error-rate sets the traditional decoders' threshold; with --spatial give "

@@ -39,6 +39,7 @@ import math
 
 import numpy as np
 from .._xp import round_order
+from ..methods import PAIR_METHODS, check_method
 from .errors import ModelError
 
 
@@ -53,8 +54,7 @@ def filtered_order(method: str, phase_low, phase_high, frequencies, valid, *, wi
     """
     from .fast_features import smoothed_priors
 
-    if method not in ("mf", "mw", "nt"):
-        raise ModelError(f"method {method!r}: expected 'mf', 'mw' or 'nt'")
+    check_method(method, PAIR_METHODS, ModelError)
     f_lo, f_hi = (float(f) for f in frequencies)
     if method != "mf" and f_hi - f_lo > 1 + 1e-9:
         raise ModelError(f"{method} pair ({f_lo:g}, {f_hi:g}): the filtered baseline needs a beat of at most "

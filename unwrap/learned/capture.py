@@ -24,25 +24,15 @@ import numpy as np
 from .._xp import TWO_PI
 from ..capture import FrameReader, load_capture
 from ..consistency import check_priors, prior_check
+from ..methods import pair_indices
 from ..phase_shift import wrapped_phase
-from ..pipeline import OrientationResult, check_min_modulation
+from ..pipeline import OrientationResult, check_min_modulation, each_orientation
 from ..temporal import Unwrapped, constrain_to_pattern
 from .errors import ModelError
 from .infer import unwrap_learned
 from .runtime import load_predictor
 
 log = logging.getLogger("unwrap.learned")
-
-
-def _pair(method: str, freqs: list) -> tuple[int, int]:
-    """Indices (low, high) into the sorted frequencies for a method."""
-    if len(freqs) < 2:
-        raise ModelError(f"the learned unwrapping needs two fringe frequencies, the capture has {freqs}")
-    if method == "mf":
-        return 0, len(freqs) - 1
-    if method in ("mw", "nt"):
-        return len(freqs) - 2, len(freqs) - 1
-    raise ModelError(f"method {method!r}: the learned unwrapping supports 'mf', 'mw' and 'nt'")
 
 
 def learned_orientation(oc, method: str, model, *, min_modulation=None, on_outside: str = "raise",
@@ -52,7 +42,7 @@ def learned_orientation(oc, method: str, model, *, min_modulation=None, on_outsi
     reader = FrameReader(camera_size)
     sets = sorted(oc.sets, key=lambda s: s.frequency)
     freqs = [float(s.frequency) for s in sets]
-    i_lo, i_hi = _pair(method, freqs)
+    i_lo, i_hi = pair_indices(method, len(freqs), ModelError)
     w = {}
     for i in (i_lo, i_hi):
         stack = reader.phase_stack(sets[i].files)
@@ -93,10 +83,6 @@ def unwrap_capture_learned(folder, method: str = "mf", model="learned", *, prese
     """Every orientation of a capture folder by the network: {"v": OrientationResult, ...}."""
     cap = load_capture(folder, preset, pose)
     net = load_predictor(model)          # loaded once (cached per process), shared by the orientations
-    out = {}
-    for o, oc in cap.orientations.items():
-        log.log(logging.INFO if progress else logging.DEBUG, "unwrap %s [%s] orientation %s, method %s + learned",
-                cap.folder, cap.preset, o, method)
-        out[o] = learned_orientation(oc, method, net, min_modulation=min_modulation, on_outside=on_outside,
-                                     check_prior=check_prior, camera_size=cap.camera_size, progress=progress)
-    return out
+    return each_orientation(cap, f"{method} + learned", lambda oc: learned_orientation(
+        oc, method, net, min_modulation=min_modulation, on_outside=on_outside, check_prior=check_prior,
+        camera_size=cap.camera_size, progress=progress), progress)

@@ -29,12 +29,12 @@ FORMAT_VERSION = 1
 ARCH_KEYS = ("kind", "width", "depth", "max_width", "max_correction", "in_channels", "out_channels")
 
 
-def arch_from_config(model_cfg: dict) -> dict:
-    """The ``arch`` dict of a model config section (``[model]``)."""
-    kind = model_cfg["kind"]
-    K = int(model_cfg["max_correction"])
-    return {"kind": kind, "width": int(model_cfg["width"]), "depth": int(model_cfg["depth"]),
-            "max_width": int(model_cfg["max_width"]), "max_correction": K,
+def arch_from_config(model_cfg) -> dict:
+    """The ``arch`` dict of a model config section (``[model]``, a ``config.ModelConfig``)."""
+    kind = model_cfg.kind
+    K = int(model_cfg.max_correction)
+    return {"kind": kind, "width": int(model_cfg.width), "depth": int(model_cfg.depth),
+            "max_width": int(model_cfg.max_width), "max_correction": K,
             "in_channels": input_channels(kind), "out_channels": output_channels(kind, K)}
 
 

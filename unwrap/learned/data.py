@@ -49,15 +49,15 @@ class EpochDataset(ConcatDataset):
                 d.set_epoch(epoch)
 
 
-def _scene_count(cfg: dict) -> int:
-    d = cfg["data"]
-    if d["train"]:
+def _scene_count(cfg) -> int:
+    d = cfg.data
+    if d.train:
         from ..dataset import FringeOrderDataset   # the HDF5 reader (unwrap/dataset.py)
-        m = d["methods"][0]
-        ds = FringeOrderDataset(d["train"], method=m, frequencies=tuple(d[f"{m}_frequencies"]),
-                                orientation=d["orientations"][0], crop=None, seed=0)
+        m = d.methods[0]
+        ds = FringeOrderDataset(list(d.train), method=m, frequencies=d.frequencies(m),
+                                orientation=d.orientations[0], crop=None, seed=0)
         return len(ds)
-    return int(d["synthetic_samples"])
+    return int(d.synthetic_samples)
 
 
 def split_scenes(n: int, val_fraction: float, val_max: int, seed: int):
@@ -69,18 +69,18 @@ def split_scenes(n: int, val_fraction: float, val_max: int, seed: int):
     return np.sort(perm[n_val:]), np.sort(perm[:n_val])
 
 
-def _one(cfg: dict, method: str, orientation: str, samples, train: bool):
-    d = cfg["data"]
-    freqs = tuple(float(f) for f in d[f"{method}_frequencies"])
-    seed = int(cfg["run"]["seed"])
-    if d["train"]:
+def _one(cfg, method: str, orientation: str, samples, train: bool):
+    d = cfg.data
+    freqs = d.frequencies(method)
+    seed = int(cfg.run.seed)
+    if d.train:
         from ..dataset import FringeOrderDataset
-        crop = tuple(d["crop"]) if (train and d["crop"]) else None
-        ds = FringeOrderDataset(d["train"], method=method, frequencies=freqs, orientation=orientation,
-                                crop=crop, flip=bool(d["flip"]) and train, samples=samples, seed=seed)
+        crop = tuple(d.crop) if (train and d.crop) else None
+        ds = FringeOrderDataset(list(d.train), method=method, frequencies=freqs, orientation=orientation,
+                                crop=crop, flip=bool(d.flip) and train, samples=samples, seed=seed)
     else:
         from .synthetic import SyntheticFringeDataset
-        ds = SyntheticFringeDataset(int(d["synthetic_samples"]), size=tuple(d["synthetic_size"]), method=method,
+        ds = SyntheticFringeDataset(int(d.synthetic_samples), size=tuple(d.synthetic_size), method=method,
                                     frequencies=freqs, orientation=orientation, seed=seed, samples=samples)
     return MethodTagged(ds, method)
 
@@ -95,55 +95,55 @@ def _file_orientations(path, wanted) -> list:
     return [o for o in wanted if o in have]
 
 
-def _by_file(cfg: dict, files, train: bool):
+def _by_file(cfg, files, train: bool):
     """One dataset per (file, method, orientation the file holds): whole files, no sample split."""
     from ..dataset import FringeOrderDataset
-    d, seed = cfg["data"], int(cfg["run"]["seed"])
+    d, seed = cfg.data, int(cfg.run.seed)
     parts = []
     for p in files:
-        orients = _file_orientations(p, d["orientations"])
+        orients = _file_orientations(p, d.orientations)
         if not orients:
-            raise DatasetTooSmallError(f"{p}: holds none of the orientations {d['orientations']} (data.orientations)")
-        for m in d["methods"]:
+            raise DatasetTooSmallError(f"{p}: holds none of the orientations {list(d.orientations)} (data.orientations)")
+        for m in d.methods:
             for o in orients:
-                crop = tuple(d["crop"]) if (train and d["crop"]) else None
-                ds = FringeOrderDataset(p, method=m, frequencies=tuple(d[f"{m}_frequencies"]), orientation=o,
-                                        crop=crop, flip=bool(d["flip"]) and train, seed=seed)
+                crop = tuple(d.crop) if (train and d.crop) else None
+                ds = FringeOrderDataset(p, method=m, frequencies=d.frequencies(m), orientation=o,
+                                        crop=crop, flip=bool(d.flip) and train, seed=seed)
                 parts.append(MethodTagged(ds, m))
     return parts
 
 
-def build_by_capture(cfg: dict):
+def build_by_capture(cfg):
     """Fine-tuning split (``data.val_files`` given): every file of ``data.train`` trains, every file
     of ``data.val_files`` validates; a file is one capture (or a disjoint half of one), so no pixel
     of a validation capture is ever trained on. Each file serves the orientations it holds."""
-    d = cfg["data"]
-    train = EpochDataset(_by_file(cfg, d["train"], True))
-    val = EpochDataset(_by_file(cfg, d["val_files"], False))
-    info = {"scenes": len(d["train"]) + len(d["val_files"]), "train_scenes": [str(p) for p in d["train"]],
-            "val_scenes": [str(p) for p in d["val_files"]], "train_items": len(train), "val_items": len(val),
+    d = cfg.data
+    train = EpochDataset(_by_file(cfg, d.train, True))
+    val = EpochDataset(_by_file(cfg, d.val_files, False))
+    info = {"scenes": len(d.train) + len(d.val_files), "train_scenes": [str(p) for p in d.train],
+            "val_scenes": [str(p) for p in d.val_files], "train_items": len(train), "val_items": len(val),
             "split": "by file (capture)"}
     return train, val, info
 
 
-def build_datasets(cfg: dict):
+def build_datasets(cfg):
     """(train dataset, val dataset or None, info dict) of a resolved config (:func:`build_by_capture`
     when ``data.val_files`` is given).
 
     Raises :class:`DatasetTooSmallError` when fewer than :data:`MIN_TRAIN_SCENES` training scenes
     remain after the split.
     """
-    d = cfg["data"]
-    if d["val_files"]:
+    d = cfg.data
+    if d.val_files:
         return build_by_capture(cfg)
     n = _scene_count(cfg)
-    tr, va = split_scenes(n, d["val_fraction"], d["val_samples"], cfg["run"]["seed"])
+    tr, va = split_scenes(n, d.val_fraction, d.val_samples, cfg.run.seed)
     if tr.size < MIN_TRAIN_SCENES:
         raise DatasetTooSmallError(
             f"training set too small: {n} scene(s), {tr.size} left for training after holding out {va.size} for "
-            f"validation; need at least {MIN_TRAIN_SCENES} (source: {d['train'] or 'synthetic'})")
-    train = EpochDataset([_one(cfg, m, o, tr, True) for m in d["methods"] for o in d["orientations"]])
-    val = EpochDataset([_one(cfg, m, o, va, False) for m in d["methods"] for o in d["orientations"]]) \
+            f"validation; need at least {MIN_TRAIN_SCENES} (source: {list(d.train) or 'synthetic'})")
+    train = EpochDataset([_one(cfg, m, o, tr, True) for m in d.methods for o in d.orientations])
+    val = EpochDataset([_one(cfg, m, o, va, False) for m in d.methods for o in d.orientations]) \
         if va.size else None
     info = {"scenes": int(n), "train_scenes": tr.tolist(), "val_scenes": va.tolist(),
             "train_items": len(train), "val_items": 0 if val is None else len(val)}

@@ -57,10 +57,11 @@ import math
 import torch
 
 from .._xp import TIE_BAND
+from ..methods import PAIR_METHODS
 from .errors import ModelError
 
 KINDS = ("physics", "prior_free")
-METHOD_INDEX = {"mf": 0, "mw": 1, "nt": 2}
+METHOD_INDEX = {m: i for i, m in enumerate(PAIR_METHODS)}   # the network's method channel
 MODULATION_GAIN = 4.0
 ORDER_SCALE = 64.0
 #: Order classes of the prior-free model: 0 ... ORDER_SCALE.

@@ -32,7 +32,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import _xp
-from ..pair_decode import traditional
+from ..methods import coarse_ratio
+from ..temporal import decode_pair
 from . import fast_features as FF
 from .errors import FrequencyRangeWarning, ModelError
 from .runtime import load_predictor, shipped_model_path  # noqa: F401  (shipped_model_path: public here)
@@ -51,11 +52,6 @@ def resolve_model(model, device="cpu"):
     if pred.backend != "torch":
         raise ModelError(f"{model}: an {pred.backend} model; this needs a torch checkpoint (.pt)")
     return pred.net, pred.ck
-
-
-def coarse_ratio(method: str, f_lo: float, f_hi: float) -> float:
-    """Noise gain of the prior: f_hi over the coarse (unit or beat) frequency."""
-    return f_hi / f_lo if method == "mf" else f_hi / (f_hi - f_lo)
 
 
 def fringe_period_px(phase_high, valid) -> float:
@@ -155,7 +151,7 @@ def unwrap_learned(method: str, phase_low, phase_high, modulation_low, modulatio
     if phi_lo.shape != phi_hi.shape or valid.shape != phi_hi.shape or phi_hi.ndim != 2:
         raise ModelError(f"phases {phi_lo.shape}, {phi_hi.shape} and valid {valid.shape}: expected one (H, W) shape")
     check = check_frequency_range(pred.meta, method, (f_lo, f_hi), phi_hi, valid, on_outside=on_outside)
-    prior, order_trad, valid = traditional(method, np.nan_to_num(phi_lo), np.nan_to_num(phi_hi), f_lo, f_hi,
+    prior, order_trad, valid = decode_pair(method, np.nan_to_num(phi_lo), np.nan_to_num(phi_hi), f_lo, f_hi,
                                            float(width), valid)
     x, ok = FF.make_inputs(kind, method, prior, phi_lo, phi_hi, modulation_low, modulation_high, order_trad, valid,
                            (f_lo, f_hi))

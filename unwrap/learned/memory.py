@@ -72,27 +72,28 @@ def available_bytes() -> int:
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
-def check_training_memory(cfg: dict, arch: dict, crop, available: int | None = None) -> int:
+def check_training_memory(cfg, arch: dict, crop, available: int | None = None) -> int:
     """Refuse (:class:`ConfigError`) a run whose estimate exceeds :data:`SHARE` of ``available``
     (default :func:`available_bytes`), naming the estimate and the key that makes it large (the
     one whose default would shrink it most). Returns the estimate (bytes)."""
-    from .config import DEFAULTS
+    from .config import TrainConfig
 
-    batch = int(cfg["optim"]["batch_size"])
+    defaults = TrainConfig()
+    batch = int(cfg.optim.batch_size)
     need = training_bytes(arch, batch, crop)
     available = available_bytes() if available is None else int(available)
     if need <= SHARE * available:
         return need
     smaller = {}
     for key in ("width", "depth", "max_width", "max_correction"):
-        default = DEFAULTS["model"][key]
+        default = getattr(defaults.model, key)
         if arch[key] > default:
             trial = dict(arch, **{key: default})
             if key == "max_correction":
                 trial["out_channels"] = 2 * default + 1 if arch["kind"] == "physics" else arch["out_channels"]
             smaller[f"model.{key} = {arch[key]}"] = training_bytes(trial, batch, crop)
-    if batch > DEFAULTS["optim"]["batch_size"]:
-        smaller[f"optim.batch_size = {batch}"] = training_bytes(arch, DEFAULTS["optim"]["batch_size"], crop)
+    if batch > defaults.optim.batch_size:
+        smaller[f"optim.batch_size = {batch}"] = training_bytes(arch, defaults.optim.batch_size, crop)
     culprit = min(smaller, key=smaller.get) if smaller else f"data.crop = {list(crop)}"
     raise ConfigError(f"{culprit}: training would need about {need / 1e9:.3g} GB (weights, optimiser state and one "
                       f"batch of {batch} x {crop[0]}x{crop[1]} px), this machine has {available / 1e9:.3g} GB "
@@ -100,18 +101,18 @@ def check_training_memory(cfg: dict, arch: dict, crop, available: int | None = N
                       f"{arch['max_correction']} = width/depth/max_width/max_correction)")
 
 
-def training_crop(cfg: dict) -> tuple:
+def training_crop(cfg) -> tuple:
     """(H, W) px of one training input: ``data.crop``, else the synthetic size, else the camera
     size of the first training file (full frames)."""
-    d = cfg["data"]
-    if d["crop"]:
-        return tuple(int(v) for v in d["crop"])
-    if not d["train"]:
-        return tuple(int(v) for v in d["synthetic_size"])
+    d = cfg.data
+    if d.crop:
+        return tuple(int(v) for v in d.crop)
+    if not d.train:
+        return tuple(int(v) for v in d.synthetic_size)
     import h5py
 
     try:
-        with h5py.File(d["train"][0], "r") as h5:
+        with h5py.File(d.train[0], "r") as h5:
             W, H = (int(v) for v in h5.attrs["camera_size"])
     except (OSError, KeyError, TypeError, ValueError):
         return (128, 128)   # the reader names an unreadable file itself

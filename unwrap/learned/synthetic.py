@@ -17,7 +17,7 @@ HDF5 file, in seconds. Each sample is drawn from ``(seed, index)`` alone:
   narrow blur inside the object) and camera defocus lower the contrast of fine fringes;
 - Gaussian sensor noise (``noise`` = sigma range in full-scale units) and 8-bit quantisation,
   then the N-step wrapped phase (:func:`unwrap.wrapped_phase`) and the method's prior and order
-  (:func:`unwrap.dataset.traditional`, the reader's own: ``mf_unwrap`` / ``mw_unwrap`` / ``nt_unwrap``).
+  (:func:`unwrap.temporal.decode_pair`, the reader's own: ``mf_unwrap`` / ``mw_unwrap`` / ``nt_unwrap``).
 
 Each effect has a range argument (``noise``, ``indirect``, ``subsurface``, ``defocus``); zero ranges
 give the ideal stack, on which the traditional order is exact (tested).
@@ -40,11 +40,11 @@ from scipy import ndimage
 from torch.utils.data import Dataset
 
 from .._xp import TWO_PI, round_order
-from ..dataset import traditional
+from ..methods import check_pair as _check_pair
 from ..phase_shift import wrapped_phase
+from ..temporal import decode_pair
 from .errors import ModelError
 
-METHODS = ("mf", "mw", "nt")
 #: Projector pixels across the fringes per orientation (the built-in DLP4500: 912 x 1140).
 PATTERN_WIDTH = {"v": 912.0, "h": 1140.0}
 #: Valid pixels: modulation above this fraction of full scale (the export's default).
@@ -52,17 +52,9 @@ MIN_MODULATION = 0.02
 
 
 def check_pair(method: str, f_lo: float, f_hi: float) -> None:
-    """Refuse a (method, (low, high)) pair the decoders cannot use (:class:`ModelError`)."""
-    if method not in METHODS:
-        raise ModelError(f"method {method!r}: expected one of {METHODS}")
-    if not f_hi > f_lo > 0:
-        raise ModelError(f"frequencies ({f_lo:g}, {f_hi:g}): expected (low, high) with high > low > 0")
-    if method == "mf" and f_lo > 1 + 1e-12:
-        raise ModelError(f"mf needs a unit frequency (<= 1 period) as the low one, got {f_lo:g}")
-    if method == "mw" and f_hi - f_lo > 1 + 1e-9:
-        raise ModelError(f"mw pair ({f_lo:g}, {f_hi:g}): the beat {f_hi - f_lo:g} periods exceeds 1")
-    if method == "nt" and (f_lo != int(f_lo) or f_hi != int(f_hi) or math.gcd(int(f_lo), int(f_hi)) != 1):
-        raise ModelError(f"nt pair ({f_lo:g}, {f_hi:g}): expected coprime whole numbers")
+    """Refuse a (method, (low, high)) pair the decoders cannot use (:class:`ModelError`; the rule:
+    :func:`unwrap.methods.check_pair`)."""
+    _check_pair(method, f_lo, f_hi, ModelError)
 
 
 def _smooth_field(rng, shape, corr_px: float) -> np.ndarray:
@@ -137,7 +129,7 @@ def synthetic_sample(index: int, *, size=(96, 128), method: str = "mf", frequenc
         mods[f] = w.B / 255.0
         flags[f] = w.valid
     valid = lit & flags[f_lo] & flags[f_hi]
-    prior, order_trad, valid = traditional(method, phases[f_lo], phases[f_hi], f_lo, f_hi, width, valid)
+    prior, order_trad, valid = decode_pair(method, phases[f_lo], phases[f_hi], f_lo, f_hi, width, valid)
     Phi_true = TWO_PI * f_hi * u / width
     order_true = np.where(valid, round_order((Phi_true - phases[f_hi]) / TWO_PI), -1).astype(np.int64)
     zero = lambda x: np.where(valid, x, 0.0)  # noqa: E731

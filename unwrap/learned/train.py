@@ -23,38 +23,33 @@ CUDA; each rank a disjoint share of every epoch; only rank 0 writes) and uses mi
 """
 from __future__ import annotations
 
-import csv
+import dataclasses
 import json
 import logging
 import math
-import os
-import random
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from . import features as Fe
 from .checkpoint import FORMAT, FORMAT_VERSION, arch_from_config, build_model, export_model, read_checkpoint, save_atomic
-from .config import resolve_config, to_toml
+from .config import TrainConfig, to_toml
 from .data import ResumableSampler, build_datasets
+from .distributed import device_for, dist_env, rng_state, seed_everything, set_deterministic, set_rng_state
 from .errors import ConfigError, DatasetTooSmallError
 from .losses import LossWeights, composite_loss
 from .memory import check_training_memory, training_crop
 from .metrics import ErrorCount
-from .progress import StepBar
-from ..safe_output import save_figure, write_text
+from .run_folder import (TRAIN_FIELDS, VAL_FIELDS, RunFiles, attach_file_log, cpu_seconds, open_run,
+                         plot_metrics)
+from ..safe_output import write_text
 
 log = logging.getLogger("unwrap.learned")
-
-#: What may change when a run is resumed (everything else must match the saved config).
-RESUMABLE_OVERRIDES = ("optim.steps", "run.log_every", "run.val_every", "run.checkpoint_every", "run.threads",
-                       "data.workers")
-TRAIN_FIELDS = ("step", "epoch", "loss", "mse", "fourier", "ce", "lr", "samples_per_s", "time_s", "cpu_s")
-VAL_FIELDS = ("step", "loss", "error_traditional", "error_model", "pixels")
-
 
 @dataclass
 class TrainResult:
@@ -66,75 +61,15 @@ class TrainResult:
     samples_per_s: float
 
 
-# ---------------------------------------------------------------- setup helpers
-def seed_everything(seed: int):
-    random.seed(seed)
-    np.random.seed(seed % 2 ** 32)
-    torch.manual_seed(seed)
-
-
-def set_deterministic(on: bool):
-    """Deterministic kernels (CPU and CUDA) or the fast defaults."""
-    if on:
-        os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
-    torch.use_deterministic_algorithms(bool(on))
-    torch.backends.cudnn.deterministic = bool(on)
-    torch.backends.cudnn.benchmark = not on
-
-
-def rng_state() -> dict:
-    st = {"torch": torch.get_rng_state(), "python": list(map(_jsonable, random.getstate())),
-          "numpy": _numpy_state()}
-    if torch.cuda.is_available():
-        st["cuda"] = torch.cuda.get_rng_state_all()
-    return st
-
-
-def _jsonable(x):
-    return list(x) if isinstance(x, tuple) else x
-
-
-def _numpy_state() -> dict:
-    name, keys, pos, has_gauss, cached = np.random.get_state()
-    return {"name": name, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos),
-            "has_gauss": int(has_gauss), "cached": float(cached)}
-
-
-def set_rng_state(st: dict):
-    torch.set_rng_state(st["torch"])
-    v, internal, gauss = st["python"]
-    random.setstate((v, tuple(internal), gauss))
-    n = st["numpy"]
-    np.random.set_state((n["name"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached"]))
-    if "cuda" in st and torch.cuda.is_available():
-        torch.cuda.set_rng_state_all(st["cuda"])
-
-
-def _dist_env():
-    """(rank, world, local_rank) from torchrun's environment (1 process without it)."""
-    world = int(os.environ.get("WORLD_SIZE", "1"))
-    return int(os.environ.get("RANK", "0")), world, int(os.environ.get("LOCAL_RANK", "0"))
-
-
-def _device(cfg, local_rank: int) -> torch.device:
-    want = cfg["run"]["device"]
-    if want == "cuda" or (want == "auto" and torch.cuda.is_available()):
-        if not torch.cuda.is_available():
-            raise ConfigError("run.device = 'cuda' but CUDA is not available")
-        torch.cuda.set_device(local_rank)
-        return torch.device("cuda", local_rank)
-    return torch.device("cpu")
-
-
-def lr_factor(step: int, cfg: dict) -> float:
+def lr_factor(step: int, cfg) -> float:
     """Learning-rate multiplier: linear warm-up, then cosine to 2 % (or constant)."""
-    o = cfg["optim"]
-    w = o["warmup_steps"]
+    o = cfg.optim
+    w = o.warmup_steps
     if step < w:
         return (step + 1) / w
-    if o["schedule"] == "constant":
+    if o.schedule == "constant":
         return 1.0
-    t = min((step - w) / max(o["steps"] - w, 1), 1.0)
+    t = min((step - w) / max(o.steps - w, 1), 1.0)
     return 0.02 + 0.98 * 0.5 * (1.0 + math.cos(math.pi * t))
 
 
@@ -144,7 +79,7 @@ def _to(batch: dict, device) -> dict:
 
 def training_step_loss(model, batch, cfg, weights: LossWeights, amp_dtype=None):
     """(loss, parts) of one batch: inputs -> network -> float32 composite loss."""
-    kind, K = cfg["model"]["kind"], cfg["model"]["max_correction"]
+    kind, K = cfg.model.kind, cfg.model.max_correction
     x, _ = Fe.make_inputs(batch, kind)
     target, mask = Fe.targets(batch, kind, K)
     if amp_dtype is not None:
@@ -161,7 +96,7 @@ def training_step_loss(model, batch, cfg, weights: LossWeights, amp_dtype=None):
 def validate(model, val, cfg, weights, device) -> dict:
     """Loss and error rates (traditional and model) over the validation scenes, full frames."""
     model.eval()
-    kind, K = cfg["model"]["kind"], cfg["model"]["max_correction"]
+    kind, K = cfg.model.kind, cfg.model.max_correction
     loader = torch.utils.data.DataLoader(val, batch_size=1, shuffle=False, num_workers=0)
     trad, net, losses = ErrorCount(), ErrorCount(), []
     for batch in loader:
@@ -178,112 +113,14 @@ def validate(model, val, cfg, weights, device) -> dict:
             "error_model": net.rate, "pixels": net.counted}
 
 
-# ---------------------------------------------------------------- run-folder helpers
-class RunFiles:
-    """The run folder's logs (rank 0 only)."""
-
-    def __init__(self, run_dir: Path, resume_step: int | None):
-        self.dir = run_dir
-        for name, fields in (("train.csv", TRAIN_FIELDS), ("val.csv", VAL_FIELDS)):
-            path = run_dir / name
-            rows = []
-            if resume_step is not None and path.exists():   # drop rows written after the checkpoint
-                with open(path, newline="") as fh:
-                    rows = [r for r in csv.DictReader(fh) if int(r["step"]) <= resume_step]
-            with open(path, "w", newline="") as fh:
-                w = csv.DictWriter(fh, fieldnames=fields)
-                w.writeheader()
-                w.writerows(rows)
-
-    def append(self, name: str, fields, row: dict):
-        with open(self.dir / name, "a", newline="") as fh:
-            csv.DictWriter(fh, fieldnames=fields).writerow({k: row.get(k, "") for k in fields})
-
-    def read(self, name: str) -> list[dict]:
-        with open(self.dir / name, newline="") as fh:
-            return list(csv.DictReader(fh))
-
-
-def plot_metrics(run_dir: Path) -> Path | None:
-    """metrics.png: training loss and validation error rates vs step."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    files = RunFiles.__new__(RunFiles)
-    files.dir = run_dir
-    tr, va = files.read("train.csv"), files.read("val.csv")
-    if not tr:
-        return None
-    fig, ax = plt.subplots(1, 2, figsize=(10, 3.6))
-    ax[0].semilogy([int(r["step"]) for r in tr], [float(r["loss"]) for r in tr], lw=1)
-    ax[0].set(xlabel="step", ylabel="training loss", title="loss")
-    if va:
-        s = [int(r["step"]) for r in va]
-        ax[1].plot(s, [100 * float(r["error_traditional"]) for r in va], "k--", label="traditional")
-        ax[1].plot(s, [100 * float(r["error_model"]) for r in va], "o-", label="model")
-        ax[1].legend()
-    ax[1].set(xlabel="step", ylabel="fringe-order error rate [%]", title="validation")
-    fig.tight_layout()
-    path = run_dir / "metrics.png"
-    save_figure(fig, path, dpi=110)
-    plt.close(fig)
-    return path
-
-
-def _resume_config(run_dir: Path, overrides) -> dict:
-    saved = resolve_config(run_dir / "config.toml")
-    for text in overrides or ():
-        name = text.split("=", 1)[0].strip()
-        if name not in RESUMABLE_OVERRIDES:
-            raise ConfigError(f"--resume: {name!r} cannot change in a resumed run (allowed: "
-                              f"{', '.join(RESUMABLE_OVERRIDES)})")
-    return resolve_config(run_dir / "config.toml", overrides) if overrides else saved
-
-
-def _attach_file_log(run_dir: Path):
-    h = logging.FileHandler(run_dir / "log.txt")
-    h.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
-    log.addHandler(h)
-    log.setLevel(logging.INFO)
-    return h
-
-
-def _cpu_seconds() -> float:
-    """CPU seconds of this process plus its finished children (the data-loading workers of the
-    epochs so far: a worker's time is counted once it has been joined, at its epoch's end)."""
-    t = os.times()
-    return time.process_time() + t.children_user + t.children_system
-
-
-def _open_run(config, overrides, out_dir, resume) -> tuple[dict, Path]:
-    """(resolved config, run folder) of a new run or of the run ``resume`` continues."""
-    if resume is not None:
-        if config is not None:
-            raise ConfigError("give either a config (new run) or --resume RUN, not both")
-        run_dir = Path(resume)
-        if not (run_dir / "last.pt").is_file():
-            raise ConfigError(f"--resume {run_dir}: no last.pt there (not a run folder, or it never saved)")
-        return _resume_config(run_dir, overrides), run_dir
-    cfg = resolve_config(config, overrides)
-    run_dir = Path(out_dir) if out_dir is not None else Path("runs") / time.strftime("%Y%m%d-%H%M%S")
-    if (run_dir / "last.pt").exists():
-        raise ConfigError(f"{run_dir} already holds a run (last.pt); use --resume {run_dir} or another -o")
-    begun = [n for n in ("config.toml", "train.csv", "val.csv", "log.txt") if (run_dir / n).exists()]
-    if begun:   # a run that never saved a checkpoint: its files would be mixed with this one's
-        raise ConfigError(f"{run_dir} holds the start of another run ({', '.join(begun)}, no checkpoint); "
-                          "remove it or choose another -o")
-    return cfg, run_dir
-
-
-def _make_optimiser(model, cfg: dict, device):
+def _make_optimiser(model, cfg: TrainConfig, device):
     """(optimiser, LR scheduler, autocast dtype or None, gradient scaler or None)."""
-    o = cfg["optim"]
-    opt = torch.optim.AdamW(model.parameters(), lr=o["lr"], weight_decay=o["weight_decay"]) if o["name"] == "adamw" \
-        else torch.optim.SGD(model.parameters(), lr=o["lr"], momentum=0.9, weight_decay=o["weight_decay"])
+    o = cfg.optim
+    opt = torch.optim.AdamW(model.parameters(), lr=o.lr, weight_decay=o.weight_decay) if o.name == "adamw" \
+        else torch.optim.SGD(model.parameters(), lr=o.lr, momentum=0.9, weight_decay=o.weight_decay)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: lr_factor(s, cfg))
     amp_dtype, scaler = None, None
-    if device.type == "cuda" and cfg["run"]["amp"]:
+    if device.type == "cuda" and cfg.run.amp:
         amp_dtype = torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16
         if amp_dtype == torch.float16:
             scaler = torch.amp.GradScaler("cuda")
@@ -319,27 +156,27 @@ class _Session:
     """One training session (new or resumed): model, optimiser, counters, timing and, on rank 0,
     the run folder's files. :func:`train` drives it batch by batch."""
 
-    def __init__(self, cfg: dict, run_dir: Path, resume, rank: int, world: int, local_rank: int, device, info: dict):
+    def __init__(self, cfg: TrainConfig, run_dir: Path, resume, rank: int, world: int, local_rank: int, device, info: dict):
         self.cfg, self.run_dir, self.world, self.device, self.info = cfg, run_dir, world, device, info
         self.writer = rank == 0
-        self.arch = arch_from_config(cfg["model"])
+        self.arch = arch_from_config(cfg.model)
         self.model = build_model(self.arch).to(device)
         self.opt, self.sched, self.amp_dtype, self.scaler = _make_optimiser(self.model, cfg, device)
         self.step, self.epoch, self.batch_in_epoch, self.best, self.cpu_before = 0, 0, 0, float("inf"), 0.0
         if resume is not None:
             self._restore(read_checkpoint(run_dir / "last.pt"))
-        elif cfg["model"]["init"]:
-            self.model.load_state_dict(init_weights(cfg["model"]["init"], self.arch))
+        elif cfg.model.init:
+            self.model.load_state_dict(init_weights(cfg.model.init, self.arch))
         self.net = torch.nn.parallel.DistributedDataParallel(
             self.model, device_ids=[local_rank] if device.type == "cuda" else None) if world > 1 else self.model
-        self.weights = LossWeights(**cfg["loss"])
-        d = cfg["data"]
-        self.meta = {"methods": d["methods"], "orientations": d["orientations"],
-                     "frequencies": {m: d[f"{m}_frequencies"] for m in d["methods"]},
-                     "data": d["train"] or f"synthetic:{d['synthetic_samples']}",
-                     "val_scenes": info["val_scenes"], "loss": cfg["loss"]}
+        self.weights = cfg.loss
+        d = cfg.data
+        self.meta = {"methods": list(d.methods), "orientations": list(d.orientations),
+                     "frequencies": {m: list(d.frequencies(m)) for m in d.methods},
+                     "data": list(d.train) or f"synthetic:{d.synthetic_samples}",
+                     "val_scenes": info["val_scenes"], "loss": dataclasses.asdict(cfg.loss)}
         self.files = self.handler = None
-        self.total = int(cfg["optim"]["steps"])
+        self.total = int(cfg.optim.steps)
         if resume is not None and self.step >= self.total:
             raise ConfigError(f"--resume {run_dir}: the run is at step {self.step} and optim.steps is {self.total}; "
                               f"nothing to train (give optim.steps=N with N > {self.step} to train further)")
@@ -361,15 +198,15 @@ class _Session:
             self.run_dir.mkdir(parents=True, exist_ok=True)
             write_text(self.run_dir / "config.toml", to_toml(self.cfg))
             self.files = RunFiles(self.run_dir, self.step if resumed else None)
-            self.handler = _attach_file_log(self.run_dir)
+            self.handler = attach_file_log(self.run_dir)
             log.info("%s run %s: %d training items (%d scenes), %d validation items, %d step(s)/epoch, world %d, "
                      "device %s%s", "resumed" if resumed else "new", self.run_dir, self.info["train_items"],
                      len(self.info["train_scenes"]), self.info["val_items"], steps_per_epoch, self.world,
                      self.device, f", step {self.step}" if resumed else "")
-        self.t_start, self.cpu_start = time.perf_counter(), _cpu_seconds()
+        self.t_start, self.cpu_start = time.perf_counter(), cpu_seconds()
 
     def cpu_s(self) -> float:
-        return self.cpu_before + _cpu_seconds() - self.cpu_start
+        return self.cpu_before + cpu_seconds() - self.cpu_start
 
     def state(self) -> dict:
         return {"format": FORMAT, "format_version": FORMAT_VERSION, "arch": self.arch,
@@ -393,8 +230,8 @@ class _Session:
             self.scaler.unscale_(self.opt)
         else:
             loss.backward()
-        if self.cfg["optim"]["grad_clip"] > 0:
-            torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg["optim"]["grad_clip"])
+        if self.cfg.optim.grad_clip > 0:
+            torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.optim.grad_clip)
         if self.scaler is not None:
             self.scaler.step(self.opt)
             self.scaler.update()
@@ -413,15 +250,16 @@ class _Session:
 
     def record(self, parts: dict, bar, val_ds):
         """Rank 0 after a step: CSV row, progress bar, validation + best.pt, last.pt."""
-        run, step, last = self.cfg["run"], self.step, self.step == self.total
-        if step % run["log_every"] == 0 or last:
+        run, step, last = self.cfg.run, self.step, self.step == self.total
+        if step % run.log_every == 0 or last:
             self.files.append("train.csv", TRAIN_FIELDS, {
                 "step": step, "epoch": self.epoch, "loss": f"{self.last_loss:.6g}",
                 **{k: f"{v:.6g}" for k, v in parts.items()}, "lr": f"{self.sched.get_last_lr()[0]:.6g}",
                 "samples_per_s": f"{self.samples_per_s():.4g}", "time_s": f"{time.perf_counter() - self.t_start:.1f}",
                 "cpu_s": f"{self.cpu_s():.1f}"})
-        bar.update(step, loss=self.last_loss, samples_per_s=self.samples_per_s())
-        if val_ds is not None and (step % run["val_every"] == 0 or last):
+        bar.update(step - bar.n)
+        bar.set_postfix(loss=f"{self.last_loss:.4g}", samples_per_s=f"{self.samples_per_s():.4g}", refresh=False)
+        if val_ds is not None and (step % run.val_every == 0 or last):
             self.val_row = validate(self.model, val_ds, self.cfg, self.weights, self.device)
             self.files.append("val.csv", VAL_FIELDS, {"step": step, **self.val_row})
             log.info("step %d: val loss %.4g, error traditional %.4f %%, model %.4f %%", step, self.val_row["loss"],
@@ -430,14 +268,15 @@ class _Session:
             if score == score and score < self.best:
                 self.best = score
                 save_atomic(self.state(), self.run_dir / "best.pt")
-        if step % run["checkpoint_every"] == 0 or last:
+        if step % run.checkpoint_every == 0 or last:
             save_atomic(self.state(), self.run_dir / "last.pt")
 
     def finish(self, bar):
         """Rank 0 at the end: last.pt, model.pt (when complete), metrics.json, metrics.png."""
         run_dir = self.run_dir
         save_atomic(self.state(), run_dir / "last.pt")
-        bar.update(self.step, force=True, loss=self.last_loss)
+        bar.update(self.step - bar.n)
+        bar.set_postfix(loss=f"{self.last_loss:.4g}")
         bar.close()
         if self.step >= self.total:
             src = run_dir / "best.pt" if (run_dir / "best.pt").exists() else run_dir / "last.pt"
@@ -468,22 +307,22 @@ def train(config=None, overrides=(), out_dir=None, *, resume=None, deterministic
       sessions; on_step: optional ``callback(step, loss)`` after every step (rank 0).
     RETURNED VALUE: :class:`TrainResult`.
     """
-    rank, world, local_rank = _dist_env()
-    cfg, run_dir = _open_run(config, overrides, out_dir, resume)
-    check_training_memory(cfg, arch_from_config(cfg["model"]), training_crop(cfg))   # before any allocation
+    rank, world, local_rank = dist_env()
+    cfg, run_dir = open_run(config, overrides, out_dir, resume)
+    check_training_memory(cfg, arch_from_config(cfg.model), training_crop(cfg))   # before any allocation
     if deterministic is not None:
-        cfg["run"]["deterministic"] = bool(deterministic)
-    set_deterministic(cfg["run"]["deterministic"])
-    if cfg["run"]["threads"]:
-        torch.set_num_threads(int(cfg["run"]["threads"]))
-    device = _device(cfg, local_rank)
+        cfg = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, deterministic=bool(deterministic)))
+    set_deterministic(cfg.run.deterministic)
+    if cfg.run.threads:
+        torch.set_num_threads(int(cfg.run.threads))
+    device = device_for(cfg, local_rank)
     if world > 1 and not torch.distributed.is_initialized():
         torch.distributed.init_process_group("nccl" if device.type == "cuda" else "gloo")
-    seed = int(cfg["run"]["seed"])
+    seed = int(cfg.run.seed)
     seed_everything(seed)
 
     train_ds, val_ds, info = build_datasets(cfg)
-    bs = int(cfg["optim"]["batch_size"])
+    bs = int(cfg.optim.batch_size)
     sampler = ResumableSampler(len(train_ds), seed=seed, rank=rank, world=world)
     if sampler.per_rank() < bs:
         raise DatasetTooSmallError(f"training set too small: {len(train_ds)} items for {world} process(es) x "
@@ -491,14 +330,15 @@ def train(config=None, overrides=(), out_dir=None, *, resume=None, deterministic
     steps_per_epoch = sampler.per_rank() // bs
     s = _Session(cfg, run_dir, resume, rank, world, local_rank, device, info)
     s.open_files(resume is not None, steps_per_epoch)
-    bar = StepBar(s.total, start=s.step, enabled=progress and s.writer)
+    bar = tqdm(total=s.total, initial=s.step, desc="train", unit="step", file=sys.stderr,
+               disable=not (progress and s.writer), dynamic_ncols=True)
     s.model.train()
     stop = s.total if stop_after is None else min(s.total, stop_after)
     while s.step < stop:
         sampler.set_epoch(s.epoch, s.batch_in_epoch * bs)
         train_ds.set_epoch(s.epoch)
         loader = torch.utils.data.DataLoader(train_ds, batch_size=bs, sampler=sampler, drop_last=True,
-                                             num_workers=int(cfg["data"]["workers"]), persistent_workers=False)
+                                             num_workers=int(cfg.data.workers), persistent_workers=False)
         for batch in loader:
             parts = s.optimise(batch, bs)
             if s.writer:

@@ -1,0 +1,1 @@
+"""The uncertainty a calibration reports and the evidence beside it: per-pose error fields, the few-pose level inflation, pose resampling, the nested leave-one-pose-out check, residual diagnostics, the skew check."""
