@@ -47,7 +47,8 @@ def dataset_files(paths, option: str, *, need_reference: bool = False, needs: st
                     raise CommandError(f"{option} {p}: is {_what_hdf5(h5)}, not a fringe-order dataset; {option} "
                                        f"needs {needs}")
                 check_schema(h5, str(path))
-                refs = [o for o in ("v", "h") if f"{o}/reference_order" in h5]
+                # a capture's reference orders, or a twin file's geometric orders (exact by construction)
+                refs = [o for o in ("v", "h") if f"{o}/reference_order" in h5 or f"{o}/order" in h5]
         except OSError as exc:
             raise CommandError(f"{option} {p}: not a readable HDF5 file (truncated, or not HDF5: "
                                f"{str(exc).split('(')[0].strip()}); {option} needs {needs}") from None

@@ -6,6 +6,7 @@ session is replaced wholly or not at all; and the newcomer's frictions (``-q``, 
 import errno
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -350,7 +351,14 @@ def test_the_second_of_two_concurrent_exports_is_told_the_pid_of_the_first(tmp_p
     while not lock.exists() and first.poll() is None and time.time() < deadline:
         time.sleep(0.05)
     assert lock.exists(), "the first export never took its lock"
-    second = subprocess.run(cli, env=env, capture_output=True, text=True, timeout=300)
+    # the first is paused while it holds the lock, so the second meets it however fast this machine
+    # renders (it takes the lock before any work, then has all 12 samples to go)
+    os.kill(first.pid, signal.SIGSTOP)
+    try:
+        assert first.poll() is None and lock.exists(), "the first export ended before it could be paused"
+        second = subprocess.run(cli, env=env, capture_output=True, text=True, timeout=300)
+    finally:
+        os.kill(first.pid, signal.SIGCONT)
     assert first.wait(timeout=600) == 0, first.stderr.read()
     assert second.returncode == 2 and f"another process is writing it (pid {first.pid}" in second.stderr, \
         second.stderr
@@ -381,4 +389,4 @@ def test_memory_is_estimated_before_allocating_and_refused_naming_the_key():
     assert 3.0 < training_bytes(arch, 32, (128, 128)) / base < 4.5
     deep = resolve_config(None, ["data.synthetic_samples=8", "model.depth=10"])
     with pytest.raises(ConfigError, match=r"model.depth = 10: training would need about .* GB .* 16 GB available"):
-        check_training_memory(deep, arch_from_config(deep["model"]), (128, 128), available=16e9)
+        check_training_memory(deep, arch_from_config(deep.model), (128, 128), available=16e9)
