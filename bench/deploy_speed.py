@@ -21,7 +21,7 @@ Rows (times are minima over ``repeats``; the machine is shared, so read the rati
 
 ``--baseline DIR``: an older checkout (``git archive REV | tar -x -C DIR``) run on the same inputs
 in the same run for the command-line rows and the learned rows its code has (its
-``experiments.learned_evaluation.speed_table``): the before / after columns.
+``unwrap.learned.evaluate.speed_table``, its module before the floor plan): the before / after columns.
 """
 from __future__ import annotations
 
