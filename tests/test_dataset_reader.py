@@ -177,6 +177,10 @@ def test_real_slmaster_capture_gray_reference_equals_unwraps_gray_decode(tmp_pat
         ref = h5["v/reference_order"][0, 0]
         assert list(h5["v"].attrs["frequencies"]) == [32.0]
     assert (ref >= 0).sum() > 200_000
-    np.testing.assert_array_equal(ref[ref >= 0], r.order[ref >= 0])
+    # the export's reference is computed from the phase as stored (int16 steps), unwrap's decode from
+    # float64: a pixel within a storage step of a fringe boundary may round the other way (1 of
+    # 205,584 under OPENBLAS_CORETYPE=SkylakeX, 0 under the default kernel) - by one order at most
+    diff = ref[ref >= 0].astype(np.int64) - r.order[ref >= 0]
+    assert np.count_nonzero(diff) <= 5 and np.abs(diff).max() <= 1, (np.count_nonzero(diff), np.abs(diff).max())
     with pytest.raises(UnwrapError, match="not in the file"):
         FringeOrderDataset(tmp_path / "slm.h5", method="mf", frequencies=(1, 32))
