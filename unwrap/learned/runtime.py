@@ -149,7 +149,7 @@ def export_onnx(model, out, *, opset: int = 18) -> Path:
     """Write ``model`` (a checkpoint path, "learned", or a (net, checkpoint) pair) as ONNX with
     dynamic height and width and the checkpoint's arch / meta in its metadata; atomically
     (temporary file, fsync, rename). Returns the path."""
-    import tempfile
+    from ..safe_output import atomic_path
 
     import onnx
     import torch
@@ -172,17 +172,7 @@ def export_onnx(model, out, *, opset: int = 18) -> Path:
                  ("sltwin_meta", json.dumps(ck["meta"], default=str))):
         entry = proto.metadata_props.add()
         entry.key, entry.value = k, v
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(proto.SerializeToString())
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o644)
-        onnx.checker.check_model(tmp)
-        os.replace(tmp, out)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_path(out) as tmp:                # the previous file stays until the checked model replaces it
+        tmp.write_bytes(proto.SerializeToString())
+        onnx.checker.check_model(str(tmp))
     return out
