@@ -78,7 +78,7 @@ def _file_items(path, label, max_items=None):
     """Items of a dataset file (twin export or exported capture), MF with its lowest and highest frequency."""
     import h5py
 
-    from reports.learned_parity import capture_noise
+    from experiments.learned_parity import capture_noise
     from unwrap.dataset import FringeOrderDataset
     from unwrap.dataset_schema import read_attrs
 
@@ -161,7 +161,10 @@ def decode_item(it, params, *, learned=True, filtered=True):
     gc = graphcut_orders("mf", it["phase_low"], it["phase_high"], it["freqs"], ok, s_lo, s_hi, width=it["width"],
                          smoothness=params["smoothness"], outlier=params["outlier"], sigma_floor=params["sigma_floor"])
     out["Graph cut"], t["Graph cut"] = gc.order, 1e3 * gc.seconds
-    extra = {"p_wrong": gc.p_wrong_traditional, "valid": ok, "order_traditional": n}
+    from unwrap.decision_error import error_probability
+    extra = {"p_wrong": gc.p_wrong_traditional, "valid": ok, "order_traditional": n,
+             "p_wrong_bias": error_probability(gc.p_wrong_traditional, gc.prior, ok, it["m_low"], it["m_high"],
+                                               model=params.get("decision_error"))}
     if learned:
         from unwrap.learned.infer import unwrap_learned
         if "_learned" not in it:          # the network once per item (calibration decodes items many times)
@@ -189,7 +192,7 @@ def gated(out, extra, gate_params):
         if row not in out:
             continue
         p = gate_params[row]
-        g[f"{row}, gated"] = gate(out[row], extra["order_traditional"], extra["valid"], extra["p_wrong"],
+        g[f"{row}, gated"] = gate(out[row], extra["order_traditional"], extra["valid"], extra["p_wrong_bias"],
                                   confidence=extra.get(conf_key) if conf_key else None,
                                   min_confidence=p["min_confidence"], min_p_wrong=p["min_p_wrong"])
     return g
@@ -204,8 +207,9 @@ def _curve(score, wrong, drops=DROPS):
 SMOOTHNESS_GRID = (1.0, 2.0, 4.0, 8.0, 16.0)
 OUTLIER_GRID = (0.05, 0.2, 0.5)
 LEARNED_SMOOTHNESS_GRID = (2.0, 4.0, 8.0, 16.0, 32.0, 64.0)
-#: min_p_wrong starts above 0: a gate must leave every order the reliability model is sure of
-P_WRONG_GRID = (1e-4, 1e-3, 1e-2, 0.05, 0.1, 0.2, 0.3, 0.5, 1.01)
+#: min_p_wrong (of the decision error model, unwrap.decision_error) starts above 0: a gate must
+#: leave every order the model is sure of
+P_WRONG_GRID = (1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 0.03, 0.05, 0.1, 0.2, 0.3, 0.5, 1.01)
 CONF_GRID = (0.0, 0.5, 0.7, 0.9, 0.97, 0.99)
 
 
@@ -214,13 +218,21 @@ CONF_GRID = (0.0, 0.5, 0.7, 0.9, 0.97, 0.99)
 BREAK_RATIO = 0.05
 
 
-def calibrate(items):
-    """Smoothness / outlier, then the gate thresholds that minimise the validation error subject to
+def calibrate(items, *, gate_only: bool = False):
+    """Smoothness / outlier (unless ``gate_only``: the shipped :data:`unwrap.spatial_orders.DEFAULTS`),
+    the traditional decision's error model (:func:`bench.decision_error_fit.fit_items`), then the
+    gate thresholds on that model's probability that minimise the validation error subject to
     :data:`BREAK_RATIO` on every validation scene (so never worse than traditional there, with a
     margin for the step from the twin to real captures)."""
+    from bench.decision_error_fit import fit_items
     from unwrap.spatial_orders import DEFAULTS, graphcut_orders
     from unwrap.temporal import decode_pair as traditional
 
+    model = fit_items(items)
+    print("  decision error model: " + json.dumps(model), file=sys.stderr, flush=True)
+    if gate_only:
+        params = dict(DEFAULTS, decision_error=model)
+        return params, _calibrate_gate(items, params)
     best = None
     wrong = counted = 0
     for it in items:
@@ -242,7 +254,7 @@ def calibrate(items):
             print(f"  graph cut smoothness {lam:g} outlier {eps:g}: {100 * wrong / counted:.3f} %", file=sys.stderr)
             if best is None or wrong < best[0]:
                 best = (wrong, lam, eps)
-    params = dict(DEFAULTS, smoothness=best[1], outlier=best[2])
+    params = dict(DEFAULTS, smoothness=best[1], outlier=best[2], decision_error=model)
     lam_l = None
     for lam in LEARNED_SMOOTHNESS_GRID:
         params["smoothness_learned"] = lam
@@ -255,6 +267,11 @@ def calibrate(items):
         if lam_l is None or wrong < lam_l[0]:
             lam_l = (wrong, lam)
     params["smoothness_learned"] = lam_l[1]
+    return params, _calibrate_gate(items, params)
+
+
+def _calibrate_gate(items, params):
+    """The gate thresholds of each row (see :func:`calibrate`)."""
     decoded = [decode_item(it, params, filtered=False) for it in items]
     gates = {}
     from unwrap.spatial_orders import gate
@@ -265,7 +282,7 @@ def calibrate(items):
                 total, ok_all, worst = 0, True, 0.0
                 for it, (out, _, extra) in zip(items, decoded):
                     m = extra["valid"] & (it["ref"] >= 0)
-                    k = gate(out[row], extra["order_traditional"], extra["valid"], extra["p_wrong"],
+                    k = gate(out[row], extra["order_traditional"], extra["valid"], extra["p_wrong_bias"],
                              confidence=extra.get(conf_key) if conf_key else None, min_confidence=cmin, min_p_wrong=pw)
                     right_t = extra["order_traditional"] == it["ref"]
                     fixed = int((~right_t & (k == it["ref"]))[m].sum())
@@ -281,7 +298,7 @@ def calibrate(items):
             best_g = (None, P_WRONG_GRID[-1], 0.0)      # nothing passes: the gate keeps every traditional order
         gates[row] = {"min_p_wrong": best_g[1], "min_confidence": best_g[2]}
         print(f"  gate {row}: {gates[row]} ({best_g[0]} wrong)", file=sys.stderr)
-    return params, gates
+    return gates
 
 
 # ---------------------------------------------------------------- tables
@@ -304,7 +321,8 @@ def score(items, params, gates, *, learned=True):
         for row, ms in t.items():
             R["ms"].setdefault(row, []).append(ms)
         sc = R["scores"]
-        scores = {"modulation": np.minimum(it["m_low"], it["m_high"])[m], "reliability model": -extra["p_wrong"][m]}
+        scores = {"modulation": np.minimum(it["m_low"], it["m_high"])[m], "reliability model": -extra["p_wrong"][m],
+                  "decision error model": -extra["p_wrong_bias"][m]}
         if learned:
             scores["network confidence"] = extra["confidence"][m]
         for dec in ("Traditional", "Learned") if learned else ("Traditional",):
@@ -347,6 +365,8 @@ def main(argv=None) -> int:
     ap.add_argument("--work", default="/tmp/sltwin_bench_spatial", help="cache of exported captures / twin renders")
     ap.add_argument("--json", default=None)
     ap.add_argument("--calibrate", action="store_true", help="redo the calibration on the twin validation scenes")
+    ap.add_argument("--calibrate-gate", action="store_true",
+                    help="refit only the decision error model and the gate (shipped smoothness / outlier)")
     ap.add_argument("--no-twin", action="store_true", help="skip the twin scenes (rendering takes minutes)")
     args = ap.parse_args(argv)
     from unwrap.spatial_orders import DEFAULTS, GATE
@@ -354,8 +374,9 @@ def main(argv=None) -> int:
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     params, gates = dict(DEFAULTS), {k: dict(v) for k, v in GATE.items()}
-    if args.calibrate:
-        params, gates = calibrate(_twin_items(work, "val"))
+    if args.calibrate or args.calibrate_gate:
+        from bench.decision_error_fit import validation_items
+        params, gates = calibrate(validation_items(work), gate_only=not args.calibrate)
         print("calibrated (validation twin scenes):", json.dumps({"params": params, "gate": gates}), flush=True)
     sources = [("pyramid", lambda: _pyramid_items(("v",) if args.quick else ("v", "h")))]
     if not args.quick:

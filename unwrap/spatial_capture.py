@@ -27,6 +27,7 @@ from .errors import UnwrapError
 from .phase_shift import wrapped_phase
 from .reliability import fit_noise_sigma
 from .pipeline import OrientationResult, check_min_modulation
+from .decision_error import error_probability
 from .spatial_orders import DEFAULTS, GATE, gate, graphcut_orders, phase_noise
 from .temporal import Unwrapped, constrain_to_pattern
 
@@ -96,10 +97,10 @@ def spatial_orientation(oc, method: str = "mf", *, model=None, use_gate: bool = 
         sigma, how = noise_from_phase(np.where(ok0, phi_hi + TWO_PI * n0, np.nan), ok0, hi.B, steps[1]), "phase residual"
     s_lo, s_hi = phase_noise(lo.B, steps[0], sigma), phase_noise(hi.B, steps[1], sigma)
     extras, cost, conf, label = {}, None, None, f"{method}+graphcut"
+    full = [float(np.iinfo(stacks[i].dtype).max) if np.issubdtype(stacks[i].dtype, np.integer) else 1.0
+            for i in (i_lo, i_hi)]
     if model is not None:
         from .learned.infer import unwrap_learned
-        full = [float(np.iinfo(stacks[i].dtype).max) if np.issubdtype(stacks[i].dtype, np.integer) else 1.0
-                for i in (i_lo, i_hi)]
         r = unwrap_learned(method, phi_lo, phi_hi, lo.B / full[0], hi.B / full[1], valid, pair, width=oc.width,
                            model=model, on_outside=on_outside, log_probs=True)
         cost, label = -r.log_probs, f"{method}+learned+graphcut"
@@ -111,9 +112,11 @@ def spatial_orientation(oc, method: str = "mf", *, model=None, use_gate: bool = 
         c = np.clip(res.correction + 2, 0, 4)
         conf = np.where(res.valid, np.exp(np.take_along_axis(r.log_probs, c[None], 0)[0]), 0.0)
         extras["confidence"] = conf.astype(np.float32)
+    # the traditional decision's error probability, bias included (unwrap.decision_error)
+    p_wrong = error_probability(res.p_wrong_traditional, res.prior, res.valid, lo.B / full[0], hi.B / full[1])
     if use_gate:
         g = GATE["Learned + graph cut" if model is not None else "Graph cut"]
-        order = gate(order, res.order_traditional, res.valid, res.p_wrong_traditional, confidence=conf,
+        order = gate(order, res.order_traditional, res.valid, p_wrong, confidence=conf,
                      min_confidence=g["min_confidence"], min_p_wrong=g["min_p_wrong"])
         label += "+gate"
     ok = order >= 0
@@ -127,6 +130,7 @@ def spatial_orientation(oc, method: str = "mf", *, model=None, use_gate: bool = 
         check_priors(checks, f"orientation {oc.orientation}, method {method} (spatial; the traditional prior)")
     extras["order_traditional"] = res.order_traditional.astype(np.int32)
     extras["p_wrong_traditional"] = res.p_wrong_traditional.astype(np.float32)
+    extras["p_wrong_decision"] = p_wrong.astype(np.float32)
     changed = int(((order != res.order_traditional) & ok).sum())
     log.log(logging.INFO if progress else logging.DEBUG,
             "  [%s] %s: noise %.3g per frame (%s), %d of %d valid orders changed, graph cut %.2f s", oc.orientation,

@@ -60,10 +60,12 @@ _INF = 1e12
 #: --calibrate`` (never on real captures).
 DEFAULTS = {"smoothness": 4.0, "outlier": 0.2, "sigma_floor": 0.01, "smoothness_learned": 32.0}
 #: Never-worse gate thresholds per path (:func:`gate`), calibrated the same way: a correction is
-#: applied where the traditional decision's predicted error probability is at least
-#: ``min_p_wrong`` and the network's probability of the new label at least ``min_confidence``;
-#: chosen as the least error on the validation scenes with every scene's broken orders (right ->
-#: wrong) at most 5 % of its fixed ones (``bench.spatial_unwrap.BREAK_RATIO``).
+#: applied where the traditional decision's error probability - bias included, the model of
+#: :mod:`unwrap.decision_error` - is at least ``min_p_wrong`` and the network's probability of the
+#: new label at least ``min_confidence``; chosen as the least error on the validation scenes
+#: (``bench.spatial_unwrap --calibrate-gate``: spatial_val.toml and the interreflection scenes of
+#: decision_error_val.toml) with every scene's broken orders (right -> wrong) at most 5 % of its
+#: fixed ones (``bench.spatial_unwrap.BREAK_RATIO``).
 GATE = {"Graph cut": {"min_p_wrong": 1e-4, "min_confidence": 0.0},
         "Learned": {"min_p_wrong": 1e-4, "min_confidence": 0.9},
         "Learned + graph cut": {"min_p_wrong": 1e-4, "min_confidence": 0.5}}
@@ -416,8 +418,10 @@ def gate(order, order_traditional, valid, p_wrong_traditional, *, confidence=Non
          min_p_wrong: float = 0.0) -> np.ndarray:
     """Never-worse gate: keep ``order`` (a learned or spatial decision) only where it differs from
     the traditional order, the traditional decision is unreliable (``p_wrong_traditional >=
-    min_p_wrong``) and the decision is sure (``confidence >= min_confidence``, when given);
-    elsewhere the traditional order. (H, W) int64, -1 invalid."""
+    min_p_wrong``; the shipped :data:`GATE` thresholds are for
+    :func:`unwrap.decision_error.error_probability`, which knows bias) and the decision is sure
+    (``confidence >= min_confidence``, when given); elsewhere the traditional order. (H, W) int64,
+    -1 invalid."""
     _check_maps({"order": order, "order_traditional": order_traditional, "valid": valid,
                  "p_wrong_traditional": p_wrong_traditional})
     apply = np.asarray(p_wrong_traditional, dtype=np.float64) >= min_p_wrong
