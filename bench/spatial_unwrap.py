@@ -8,10 +8,13 @@ rows on the same pixels; % dropped where a row drops pixels):
 - Traditional (the prior rounded), Filtered 15x15 (:mod:`unwrap.learned.baselines`),
 - Graph cut (:func:`unwrap.spatial_orders.graphcut_orders`, the prior's likelihood as data term),
 - Learned (the shipped model), Learned + graph cut (the network's log-probabilities as data term),
-- each of the three gated (:func:`unwrap.spatial_orders.gate`, thresholds calibrated on the twin
-  validation scenes ``bench/data/spatial_val.toml``, never on the captures),
-- drop curves at 2 % / 10 % dropped: the learned decode ranked by the network's confidence, the
-  traditional decode ranked by modulation and by the reliability model's error probability.
+- each of the three gated (:func:`unwrap.spatial_orders.gate` on the traditional decision's error
+  probability of :mod:`unwrap.decision_error`; model and thresholds calibrated on the twin
+  validation scenes ``bench/data/spatial_val.toml`` and ``decision_error_val.toml``, never on the
+  captures),
+- drop curves at 2 % / 10 % dropped, the learned and the traditional decode each ranked by the
+  network's confidence, modulation, the reliability model's (noise) error probability and the
+  decision error model's.
 
 Sources (read in place; absent ones are skipped): ``../shared/data/thomriiii-pyramid-mf-1-4-16``
 (MF 1/4/16, 8 steps: reference = the full ladder, tested pair 1 -> 16), SLStudio's skull (MF 1 ->
@@ -19,8 +22,9 @@ Sources (read in place; absent ones are skipped): ``../shared/data/thomriiii-pyr
 scenes rendered by ``calib export`` from ``bench/data/spatial_{val,test}.toml`` (validation:
 training meshes; test: the held-out nefertiti / cheburashka / suzanne). kamino410, SLMaster and
 dp-tpu carry no two-frequency pair the MF / MW paths decode (listed with the reason).
-``--calibrate`` redoes the gate / smoothness calibration on the validation scenes and prints the
-constants to put in ``unwrap/spatial_orders.py``. ``--quick``: the pyramid's vertical
+``--calibrate`` redoes the smoothness, decision error model and gate calibration on the
+validation scenes (``--calibrate-gate``: the model and the gate only) and prints the constants to
+put in ``unwrap/spatial_orders.py`` and ``unwrap/decision_error.py``. ``--quick``: the pyramid's vertical
 orientation only, shipped constants.
 """
 from __future__ import annotations
@@ -218,12 +222,13 @@ CONF_GRID = (0.0, 0.5, 0.7, 0.9, 0.97, 0.99)
 BREAK_RATIO = 0.05
 
 
-def calibrate(items, *, gate_only: bool = False):
+def calibrate(items, *, gate_only: bool = False, gate_items=None):
     """Smoothness / outlier (unless ``gate_only``: the shipped :data:`unwrap.spatial_orders.DEFAULTS`),
     the traditional decision's error model (:func:`bench.decision_error_fit.fit_items`), then the
     gate thresholds on that model's probability that minimise the validation error subject to
     :data:`BREAK_RATIO` on every validation scene (so never worse than traditional there, with a
-    margin for the step from the twin to real captures)."""
+    margin for the step from the twin to real captures). ``gate_items``: the scenes the gate is
+    calibrated on (default: ``items``)."""
     from bench.decision_error_fit import fit_items
     from unwrap.spatial_orders import DEFAULTS, graphcut_orders
     from unwrap.temporal import decode_pair as traditional
@@ -232,7 +237,7 @@ def calibrate(items, *, gate_only: bool = False):
     print("  decision error model: " + json.dumps(model), file=sys.stderr, flush=True)
     if gate_only:
         params = dict(DEFAULTS, decision_error=model)
-        return params, _calibrate_gate(items, params)
+        return params, _calibrate_gate(items if gate_items is None else gate_items, params)
     best = None
     wrong = counted = 0
     for it in items:
@@ -267,7 +272,7 @@ def calibrate(items, *, gate_only: bool = False):
         if lam_l is None or wrong < lam_l[0]:
             lam_l = (wrong, lam)
     params["smoothness_learned"] = lam_l[1]
-    return params, _calibrate_gate(items, params)
+    return params, _calibrate_gate(items if gate_items is None else gate_items, params)
 
 
 def _calibrate_gate(items, params):
@@ -367,6 +372,9 @@ def main(argv=None) -> int:
     ap.add_argument("--calibrate", action="store_true", help="redo the calibration on the twin validation scenes")
     ap.add_argument("--calibrate-gate", action="store_true",
                     help="refit only the decision error model and the gate (shipped smoothness / outlier)")
+    ap.add_argument("--gate-set", choices=("all", "noise"), default="all",
+                    help="scenes the gate is calibrated on: every validation scene (default) or spatial_val.toml "
+                         "only (no interreflection scenes); the error model is fitted on all of them either way")
     ap.add_argument("--no-twin", action="store_true", help="skip the twin scenes (rendering takes minutes)")
     args = ap.parse_args(argv)
     from unwrap.spatial_orders import DEFAULTS, GATE
@@ -376,7 +384,10 @@ def main(argv=None) -> int:
     params, gates = dict(DEFAULTS), {k: dict(v) for k, v in GATE.items()}
     if args.calibrate or args.calibrate_gate:
         from bench.decision_error_fit import validation_items
-        params, gates = calibrate(validation_items(work), gate_only=not args.calibrate)
+        val = validation_items(work)
+        params, gates = calibrate(val, gate_only=not args.calibrate,
+                                  gate_items=None if args.gate_set == "all" else [it for it in val
+                                                                                   if "bias-val" not in it["name"]])
         print("calibrated (validation twin scenes):", json.dumps({"params": params, "gate": gates}), flush=True)
     sources = [("pyramid", lambda: _pyramid_items(("v",) if args.quick else ("v", "h")))]
     if not args.quick:

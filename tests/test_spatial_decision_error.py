@@ -44,15 +44,17 @@ def test_more_distance_from_invalid_pixels_never_raises_the_error_probability():
 def test_more_modulation_never_raises_the_error_probability():
     rng = np.random.default_rng(0)
     X = np.column_stack([rng.uniform(0, 0.1, 200), rng.uniform(-6, 0, 200), rng.uniform(-6, 0, 200),
-                         rng.uniform(0, math.log1p(MAX_DISTANCE), 200), rng.uniform(0, 0.5, 200)])
+                         rng.uniform(0, math.log1p(MAX_DISTANCE), 200), rng.uniform(0, 0.5, 200),
+                         rng.uniform(0, 0.5, 200)])
     base = probability_from_features(X)
     for col, name in ((1, "log_mod_low"), (2, "log_mod_high"), (3, "log_edge_distance")):
         Y = X.copy()
         Y[:, col] += 0.5                          # more modulation / farther from an edge
         assert np.all(probability_from_features(Y) <= base + 1e-15), name
-    Y = X.copy()
-    Y[:, 4] = np.minimum(Y[:, 4] + 0.1, 0.5)      # a larger coherent offset of the prior
-    assert np.all(probability_from_features(Y) >= base - 1e-15)
+    for col in (4, 5):
+        Y = X.copy()
+        Y[:, col] = np.minimum(Y[:, col] + 0.1, 0.5)  # a larger coherent offset of the prior
+        assert np.all(probability_from_features(Y) >= base - 1e-15)
     assert np.all(base >= X[:, 0] - 1e-15)        # never more sure than the noise model
 
 
@@ -89,9 +91,10 @@ def test_the_fit_recovers_planted_coefficients_and_keeps_its_signs():
     n = 200_000
     X = np.column_stack([rng.uniform(0, 0.05, n) * (rng.uniform(size=n) < 0.3), rng.uniform(-5, -0.5, n),
                          rng.uniform(-5, -0.5, n), rng.uniform(0, math.log1p(MAX_DISTANCE), n),
-                         rng.uniform(0, 0.5, n)])
+                         rng.uniform(0, 0.5, n), rng.uniform(0, 0.5, n)])
     true = {"version": 1, "intercept": -4.0,
-            "coef": {"log_mod_low": -0.8, "log_mod_high": -0.3, "log_edge_distance": -1.2, "local_bias": 6.0}}
+            "coef": {"log_mod_low": -0.8, "log_mod_high": -0.3, "log_edge_distance": -1.2, "local_bias": 6.0,
+                     "local_bias_wide": 2.0}}
     y = rng.uniform(size=n) < probability_from_features(X, true)
     m = fit(X, y, l2=0.0)
     for k, c in true["coef"].items():

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from unwrap._xp import wrap
+from unwrap.decision_error import error_probability
 from unwrap.errors import UnwrapError
 from unwrap.spatial_orders import (GATE, edge_weights, gate, graphcut_orders, prior_data_cost, solve_corrections,
                                    traditional_error_probability)
@@ -132,7 +133,8 @@ def test_the_gate_never_raises_the_error_where_traditional_is_right():
     wrong = np.where(patch, r.order_traditional + 1, r.order_traditional)
     for name, g in GATE.items():
         assert g["min_p_wrong"] > 0, name           # a gate leaves the orders the reliability model is sure of
-        out = gate(wrong, r.order_traditional, valid, r.p_wrong_traditional, confidence=np.ones(lo.shape),
+        p = error_probability(r.p_wrong_traditional, r.prior, r.valid, np.full(lo.shape, 0.4), np.full(lo.shape, 0.4))
+        out = gate(wrong, r.order_traditional, valid, p, confidence=np.ones(lo.shape),
                    min_confidence=g["min_confidence"], min_p_wrong=g["min_p_wrong"])
         assert np.all(out == k_true), name
     # and where the traditional decision is unreliable and the proposal sure, it is applied
@@ -210,7 +212,7 @@ def test_calib_unwrap_spatial_on_a_clean_capture_keeps_every_traditional_order(t
             # which the fused kernel and the reference resolve differently: docs/unwrap.md)
             assert np.abs(a[o]["phase"][()][ok] - b[o]["phase"][()][ok]).max() < 1e-6
             assert np.array_equal(b[o]["order"][()], b[o]["order_traditional"][()])
-            assert "p_wrong_traditional" in b[o]
+            assert "p_wrong_traditional" in b[o] and "p_wrong_decision" in b[o]
 
 
 def test_mw_pair_one_period_apart_noise_free_is_left_exact():
@@ -235,7 +237,7 @@ def test_calib_unwrap_learned_spatial_gated_keeps_the_sure_orders(tmp_path):
         for o in ("v", "h"):
             g = b[o]
             assert g.attrs["method"] == "mf+learned+graphcut+gate"
-            sure = g["valid"][()] & (g["p_wrong_traditional"][()] < GATE["Learned + graph cut"]["min_p_wrong"])
+            sure = g["valid"][()] & (g["p_wrong_decision"][()] < GATE["Learned + graph cut"]["min_p_wrong"])
             assert sure.mean() > 0.9
             assert np.array_equal(g["order"][()][sure], g["order_traditional"][()][sure])
             assert "confidence" in g

@@ -22,7 +22,9 @@ with the features (per valid pixel; :func:`features`):
 - ``local_bias``: |arg(mean exp(2 pi i r))| / 2 pi over the valid pixels of a
   :data:`WINDOW` x :data:`WINDOW` window, r the prior (fringes of the high frequency): the
   neighbourhood's coherent offset of the prior from an integer, in [0, 1/2] fringe. Noise averages
-  out of it; a bias of the coarse phase does not, and near 1/2 half the pixels round the wrong way.
+  out of it; a bias of the coarse phase does not, and near 1/2 half the pixels round the wrong way;
+- ``local_bias_wide``: the same over :data:`WIDE_WINDOW` x :data:`WIDE_WINDOW` (a band of bias
+  wider than the small window, whose centre has already flipped).
 
 The first term, ``p_noise`` (the noise model's probability, the first feature column), enters
 as it is, so where no bias cue speaks (a flat lit plane far from edges, high modulation, the prior
@@ -56,18 +58,19 @@ import numpy as np
 from .errors import UnwrapError
 
 #: Feature names, in the order of :func:`features`' columns after ``p_noise``.
-FEATURES = ("log_mod_low", "log_mod_high", "log_edge_distance", "local_bias")
+FEATURES = ("log_mod_low", "log_mod_high", "log_edge_distance", "local_bias", "local_bias_wide")
 #: Sign constraints of the coefficients (monotonicity): -1 <= 0, +1 >= 0.
-SIGNS = {"log_mod_low": -1, "log_mod_high": -1, "log_edge_distance": -1, "local_bias": +1}
-#: Window (px) of the local bias; cap (px) of the distance to an invalid pixel; modulation floor.
+SIGNS = {"log_mod_low": -1, "log_mod_high": -1, "log_edge_distance": -1, "local_bias": +1, "local_bias_wide": +1}
+#: Windows (px) of the local bias; cap (px) of the distance to an invalid pixel; modulation floor.
 WINDOW = 7
+WIDE_WINDOW = 15
 MAX_DISTANCE = 64.0
 MIN_MODULATION = 1e-4
 
 #: Fitted coefficients (``python -m bench.decision_error_fit``; validation scenes only, see the
 #: module docstring). version: bumped whenever the features change.
 MODEL = {"version": 1, "intercept": -9.0,
-         "coef": {"log_mod_low": -1.0, "log_mod_high": 0.0, "log_edge_distance": -1.5, "local_bias": 10.0},
+         "coef": {"log_mod_low": -1.0, "log_mod_high": 0.0, "log_edge_distance": -1.5, "local_bias": 10.0, "local_bias_wide": 0.0},
          "fitted_on": "placeholder until the first fit"}
 
 
@@ -116,7 +119,8 @@ def features(p_noise, prior, valid, modulation_low, modulation_high) -> np.ndarr
             np.log(np.maximum(np.nan_to_num(m_lo.astype(np.float64)), MIN_MODULATION)),
             np.log(np.maximum(np.nan_to_num(m_hi.astype(np.float64)), MIN_MODULATION)),
             np.log1p(edge_distance(v)),
-            local_bias(prior, v)]
+            local_bias(prior, v),
+            local_bias(prior, v, WIDE_WINDOW)]
     return np.stack(cols, axis=-1)
 
 
@@ -188,5 +192,5 @@ def fit(X, wrong, *, note: str = "", l2: float = 1e-3) -> dict:
             "fitted_on": note, "log_loss": float(r.fun), "pixels": int(n)}
 
 
-__all__ = ["FEATURES", "MAX_DISTANCE", "MODEL", "SIGNS", "WINDOW", "edge_distance", "error_probability", "features",
+__all__ = ["FEATURES", "MAX_DISTANCE", "MODEL", "SIGNS", "WIDE_WINDOW", "WINDOW", "edge_distance", "error_probability", "features",
            "fit", "local_bias", "probability_from_features"]

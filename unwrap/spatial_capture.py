@@ -9,8 +9,9 @@ the learned network's class log-probabilities (``model``) - and by default the n
 (:func:`unwrap.spatial_orders.gate`, thresholds :data:`unwrap.spatial_orders.GATE`). The result
 is an :class:`unwrap.pipeline.OrientationResult` like the other paths' (``write_results`` writes
 the same ``unwrap.h5``) with the extra maps ``order_traditional``, ``p_wrong_traditional`` (the
-reliability model's error probability of the traditional order) and, with a model,
-``confidence``. The checks of the other paths hold: one :class:`unwrap.capture.FrameReader`,
+reliability model's error probability of the traditional order, noise only), ``p_wrong_decision``
+(:func:`unwrap.decision_error.error_probability`, bias included: what the gate thresholds) and,
+with a model, ``confidence``. The checks of the other paths hold: one :class:`unwrap.capture.FrameReader`,
 the traditional prior near integers (:mod:`unwrap.consistency`), the pattern range.
 """
 from __future__ import annotations
