@@ -211,9 +211,11 @@ def _curve(score, wrong, drops=DROPS):
 SMOOTHNESS_GRID = (1.0, 2.0, 4.0, 8.0, 16.0)
 OUTLIER_GRID = (0.05, 0.2, 0.5)
 LEARNED_SMOOTHNESS_GRID = (2.0, 4.0, 8.0, 16.0, 32.0, 64.0)
-#: min_p_wrong (of the decision error model, unwrap.decision_error) starts above 0: a gate must
-#: leave every order the model is sure of
-P_WRONG_GRID = (1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 0.03, 0.05, 0.1, 0.2, 0.3, 0.5, 1.01)
+#: min_p_wrong (of the decision error model, unwrap.decision_error) starts at twice the model's
+#: probability where no bias cue speaks (1.5e-3: far from edges, modulation 0.4, the prior on
+#: integers, a sure noise model), so a gate leaves every order the model is sure of and that set
+#: is not empty
+P_WRONG_GRID = (3e-3, 1e-2, 0.03, 0.05, 0.1, 0.2, 0.3, 0.5, 1.01)
 CONF_GRID = (0.0, 0.5, 0.7, 0.9, 0.97, 0.99)
 
 
@@ -372,9 +374,10 @@ def main(argv=None) -> int:
     ap.add_argument("--calibrate", action="store_true", help="redo the calibration on the twin validation scenes")
     ap.add_argument("--calibrate-gate", action="store_true",
                     help="refit only the decision error model and the gate (shipped smoothness / outlier)")
-    ap.add_argument("--gate-set", choices=("all", "noise"), default="all",
-                    help="scenes the gate is calibrated on: every validation scene (default) or spatial_val.toml "
-                         "only (no interreflection scenes); the error model is fitted on all of them either way")
+    ap.add_argument("--gate-set", choices=("all", "noise"), default="noise",
+                    help="scenes the gate is calibrated on: spatial_val.toml only (default, the shipped gate) or "
+                         "every validation scene, the interreflection ones included; the error model is fitted on "
+                         "all of them either way")
     ap.add_argument("--no-twin", action="store_true", help="skip the twin scenes (rendering takes minutes)")
     args = ap.parse_args(argv)
     from unwrap.spatial_orders import DEFAULTS, GATE

@@ -59,11 +59,17 @@ def test_more_modulation_never_raises_the_error_probability():
 
 
 def test_a_flat_lit_plane_far_from_edges_reproduces_the_noise_model():
-    for pn in (1e-9, 1e-3, 0.2):
+    """No bias cue (no edge, the prior on integers, modulation 0.4): the noise model's probability
+    plus a floor of at most 3e-3 (the fitted model's rate of errors the validation scenes show far
+    from any cue: 1.5e-3), in the noise model's order."""
+    last = None
+    for pn in (1e-9, 1e-3, 0.02, 0.2, 0.6):
         p_noise, prior, valid, m_lo, m_hi = _plane(p_noise=pn)
         p = error_probability(p_noise, prior, valid, m_lo, m_hi)
         assert np.all(p >= pn - 1e-15)
-        assert np.abs(p - pn).max() < 1e-3, pn
+        assert np.abs(p - pn).max() < 3e-3, pn
+        assert last is None or p.min() > last
+        last = p.max()
 
 
 def test_local_bias_sees_a_coherent_offset_and_averages_noise_out():
@@ -147,7 +153,7 @@ def test_the_gate_never_changes_an_order_the_model_is_sure_of(row):
     out = gate(wrong, r.order_traditional, r.valid, p, confidence=np.ones(lo.shape),
                min_confidence=g["min_confidence"], min_p_wrong=g["min_p_wrong"])
     sure = r.valid & (p < g["min_p_wrong"])
-    assert sure.sum() > 0.5 * r.valid.sum()
+    assert sure.sum() > 0.5 * r.valid.sum()        # the threshold lies above the model's no-cue floor
     assert np.array_equal(out[sure], k_true[sure])
     assert np.array_equal(out[r.valid & ~sure], wrong[r.valid & ~sure])
 

@@ -69,9 +69,11 @@ MIN_MODULATION = 1e-4
 
 #: Fitted coefficients (``python -m bench.decision_error_fit``; validation scenes only, see the
 #: module docstring). version: bumped whenever the features change.
-MODEL = {"version": 1, "intercept": -9.0,
-         "coef": {"log_mod_low": -1.0, "log_mod_high": 0.0, "log_edge_distance": -1.5, "local_bias": 10.0, "local_bias_wide": 0.0},
-         "fitted_on": "placeholder until the first fit"}
+MODEL = {"version": 1, "intercept": -4.23902,
+         "coef": {"log_mod_low": 0.0, "log_mod_high": -0.289728, "log_edge_distance": -0.606452,
+                  "local_bias": 6.157083, "local_bias_wide": 6.367719},
+         "fitted_on": "bench.decision_error_fit: 12 validation scenes (spatial_val.toml + decision_error_val.toml "
+                      "with interreflection), 3373676 pixels, 76769 traditional errors; log loss 0.0694 per pixel"}
 
 
 def _check(p_noise, prior, valid, modulation_low, modulation_high):
