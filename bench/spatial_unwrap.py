@@ -237,8 +237,9 @@ def fit_items(items) -> dict:
     X, y = np.concatenate(Xs), np.concatenate(ys)
     print(f"  decision error model: {len(y):,} pixels, {int(y.sum()):,} traditional errors "
           f"({100 * y.mean():.3f} %)", file=sys.stderr)
-    return fit(X, y, note=f"bench.decision_error_fit: {len(items)} validation scenes "
-                          f"(spatial_val.toml + decision_error_val.toml with interreflection), {len(y)} pixels")
+    n_bias = sum("bias-val" in it["name"] for it in items)
+    return fit(X, y, note=f"bench.decision_error_fit: {len(items)} validation scenes ({len(items) - n_bias} of "
+                          f"spatial_val.toml, {n_bias} of decision_error_val.toml with interreflection), {len(y)} pixels")
 
 
 def validation_items(work: Path) -> list:

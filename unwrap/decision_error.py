@@ -29,9 +29,10 @@ with the features (per valid pixel; :func:`features`):
 The first term, ``p_noise`` (the noise model's probability, the first feature column), enters
 as it is, so where no bias cue speaks (a flat lit plane far from edges, high modulation, the prior
 centred on integers) ``p`` equals the noise model's up to ``s``, which the fit drives to the
-order of the validation error rate there (1.5e-3 with the shipped coefficients, modulation 0.4). The coefficients are bounded so that the model is
-monotone where physics says it must be: more modulation or more distance from an invalid pixel
-never raises ``p`` (``c <= 0``), a larger local bias never lowers it (``c >= 0``).
+order of the validation error rate there (1.5e-3 with the shipped coefficients, modulation 0.4).
+The coefficients are bounded so that the model is monotone where physics says it must be: more
+modulation or more distance from an invalid pixel never raises ``p`` (``c <= 0``), a larger local
+bias never lowers it (``c >= 0``).
 
 :data:`MODEL` holds the coefficients fitted by ``python -m bench.decision_error_fit`` (or
 ``python -m bench.spatial_unwrap --calibrate``) on twin **validation** scenes only: the gate's
@@ -194,5 +195,5 @@ def fit(X, wrong, *, note: str = "", l2: float = 1e-3) -> dict:
             "fitted_on": note, "log_loss": float(r.fun), "pixels": int(n)}
 
 
-__all__ = ["FEATURES", "MAX_DISTANCE", "MODEL", "SIGNS", "WIDE_WINDOW", "WINDOW", "edge_distance", "error_probability", "features",
-           "fit", "local_bias", "probability_from_features"]
+__all__ = ["FEATURES", "MAX_DISTANCE", "MODEL", "SIGNS", "WIDE_WINDOW", "WINDOW", "edge_distance", "error_probability",
+           "features", "fit", "local_bias", "probability_from_features"]
