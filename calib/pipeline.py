@@ -35,16 +35,18 @@ import resource
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from .adjustment.problem import BAConfig
 from .calibrate import Calibration, reweight_views, run_calibration, with_view_noise
 from .io.outputs import write_outputs
-from .io.capture_outputs import write_capture_outputs
-from .detect.captures import CaptureObservations, observations_from_captures
 from .errors import OutputError
 from .observations import Observations
 from .uncertainty.diagnostics import plot_residual_diagnostics
 from .uncertainty.assess import assess_uncertainty, warp_allowed
+
+if TYPE_CHECKING:    # the capture pipeline (unwrapping, detection: cv2, scipy) is imported where it is used
+    from .detect.captures import CaptureObservations
 
 log = logging.getLogger(__name__)
 
@@ -177,6 +179,8 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
             written.update(plot_residual_diagnostics(cal, fitted, cal.uncertainty.diagnostics, out))
             lap("per-pose figures")
         if captured is not None:
+            from .io.capture_outputs import write_capture_outputs
+
             written.update(write_capture_outputs(captured, out))
             lap("capture outputs")
     except OSError as exc:
@@ -207,6 +211,8 @@ def calibrate_captures(folder, out, config: BAConfig | None = None, *, capture_t
     - view_noise, skew_check, board_warp, resample, draws, figures: see :func:`calibrate_observations`.
     RETURNED VALUE: :class:`CalibrationRun`.
     """
+    from .detect.captures import observations_from_captures
+
     captured = observations_from_captures(folder, capture_toml=capture_toml, method=method, strict=strict,
                                           degree=degree, keep_images=True)
     return calibrate_observations(captured.observations, Path(out), config, skew_tol_px=skew_tol_px,

@@ -52,6 +52,7 @@ import numpy as np
 
 from ..errors import UncertaintyError
 from .level_uncertainty import level_uncertainty
+from .nnls import nnls
 
 SIGNIFICANCE = 3.5
 """A field is kept when its statistic exceeds what the rest explains by this many standard deviations."""
@@ -172,8 +173,6 @@ def _solve_components(M, T) -> tuple[np.ndarray, float]:
     standard deviations (``Var T_k = 2 s0^2 |A_k^T (I - H) A_k|_F^2`` under Gaussian errors). With
     one free variance per field and no selection the equations would fit the statistics' own
     scatter (a 6-pose statistic scatters by ~60 %) and inflate every sigma."""
-    import scipy.optimize
-
     n = len(T) - 1
     active = np.zeros(n, bool)
     # each equation weighted by its statistic's scatter under independent errors (per unit s0):
@@ -181,7 +180,7 @@ def _solve_components(M, T) -> tuple[np.ndarray, float]:
     weight = 1.0 / np.sqrt(2.0 * np.maximum(np.r_[np.diag(M)[:n], M[n, n]], 1e-300))
     while True:
         cols = np.r_[np.flatnonzero(active), n]
-        sol, _ = scipy.optimize.nnls(M[:, cols] * weight[:, None], T * weight)
+        sol, _ = nnls(M[:, cols] * weight[:, None], T * weight)
         S = np.zeros(n)
         S[cols[:-1]] = sol[:-1]
         s0 = sol[-1]
