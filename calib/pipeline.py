@@ -14,8 +14,9 @@ and ``calib demo`` do, one function each.
    (``board_warp="auto"``: 4 or more views);
 5. the outputs in ``out``: ``calibration.json`` (DESIGN.md keys plus uncertainties, residuals,
    board poses, solver facts, the skew check and, for captures, the capture summary),
-   ``camera.cameramodel``, ``projector.cameramodel``, ``residuals.png``, ``residuals_per_pose.png``
-   and ``residuals_on_board.png`` (:mod:`calib.uncertainty.diagnostics`); for captures also
+   ``camera.cameramodel``, ``projector.cameramodel``, ``residuals.png`` and, with
+   ``figures="all"``, ``residuals_per_pose.png`` and ``residuals_on_board.png``
+   (:mod:`calib.uncertainty.diagnostics`); for captures also
    ``observations.json`` and ``detections.png`` (:mod:`calib.io.capture_outputs`).
 
 Progress goes to the ``calib`` logger. Errors are ``calib`` errors (``ValueError`` subclasses):
@@ -73,7 +74,10 @@ class CalibrationRun:
 #: ``figures="auto"``: the per-pose figures are drawn up to this many views (above: the summary
 #: figure ``residuals.png`` only; ``figures="all"`` draws them at any size).
 FEW_VIEWS = 12
-FIGURES = ("auto", "all", "summary", "none")
+FIGURES = ("summary", "all", "auto", "none")
+#: What ``calib run`` draws unless asked: the summary figure (the per-pose panels cost 1-3x the
+#: whole calibration at 9 views, 30x at 100; ``figures="all"`` draws them).
+DEFAULT_FIGURES = "summary"
 
 
 def peak_memory_mb() -> float:
@@ -117,7 +121,7 @@ def skew_check_outputs(obs: Observations, cal: Calibration, config: BAConfig) ->
 def calibrate_observations(obs: Observations, out, config: BAConfig | None = None, *,
                            skew_tol_px: float = 0.01, captured: CaptureObservations | None = None,
                            view_noise: bool = True, skew_check: bool = True, board_warp="auto",
-                           resample: str = "none", draws: int = 30, figures: str = "auto") -> CalibrationRun:
+                           resample: str = "none", draws: int = 30, figures: str = DEFAULT_FIGURES) -> CalibrationRun:
     """Calibrate from point observations and write the outputs into ``out`` (module docstring).
 
     A joint ``config`` with only one device observed falls back to single-device mode (logged).
@@ -129,9 +133,9 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
     (:func:`skew_check_outputs`; the result goes into ``calibration.json``).
     ``board_warp``: see :func:`resolve_board_warp`; ``resample``: "none", "jackknife" or
     "bootstrap" (``draws`` runs) beside the reported uncertainty (:mod:`calib.uncertainty.assess`).
-    ``figures``: "auto" (every figure up to :data:`FEW_VIEWS` views, above only the summary
-    ``residuals.png``: the per-pose panels of 100 views cost more than the whole calibration),
-    "all", "summary" or "none". The result carries the wall seconds per stage and the peak memory
+    ``figures``: "summary" (default: ``residuals.png`` only), "all" (also the per-pose panels
+    ``residuals_per_pose.png`` and ``residuals_on_board.png``, whose drawing costs more than the
+    whole calibration), "auto" (all up to :data:`FEW_VIEWS` views, above the summary) or "none". The result carries the wall seconds per stage and the peak memory
     (also in ``calibration.json`` under ``run``).
     """
     if figures not in FIGURES:
@@ -196,7 +200,7 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
 def calibrate_captures(folder, out, config: BAConfig | None = None, *, capture_toml=None, method=None,
                        strict: bool = False, degree: int = 2, skew_tol_px: float = 0.01,
                        view_noise: bool = True, skew_check: bool = True, board_warp="auto",
-                       resample: str = "none", draws: int = 30, figures: str = "auto") -> CalibrationRun:
+                       resample: str = "none", draws: int = 30, figures: str = DEFAULT_FIGURES) -> CalibrationRun:
     """Calibrate from the board captures in ``folder`` and write the outputs into ``out``.
 
     ARGUMENTS
