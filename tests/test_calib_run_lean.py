@@ -15,7 +15,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 #: What an observation-only run must not import (cv2 is imported by the seeds: cv2.solvePnP).
 NOT_NEEDED = ("calib.detect", "unwrap.pipeline", "scipy.spatial", "scipy.ndimage", "scipy.optimize", "scipy.special",
-              "torch", "matplotlib.pyplot")
+              "torch", "matplotlib.pyplot", "mrcal")
 
 _PROBE = """
 import json, sys
