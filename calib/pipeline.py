@@ -40,7 +40,7 @@ from typing import TYPE_CHECKING
 
 from .adjustment.problem import BAConfig
 from .calibrate import Calibration, reweight_views, run_calibration, with_view_noise
-from .io.outputs import write_outputs
+from .io.outputs import plot_residuals, write_outputs
 from .errors import OutputError
 from .observations import Observations
 from .uncertainty.diagnostics import plot_residual_diagnostics
@@ -174,19 +174,25 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
     per_pose = figures == "all" or (figures == "auto" and len(obs.views) <= FEW_VIEWS)
     if figures == "auto" and not per_pose:
         log.info(f"{len(obs.views)} views: the per-pose figures are not drawn (--figures all draws them)")
-    extra["run"] = {"stages_s": dict(stages), "peak_memory_mb": peak_memory_mb(), "figures": figures}
     try:
-        written = write_outputs(cal, fitted, out, skew_tol_px=skew_tol_px, extra=extra,
-                                figures=figures != "none")
-        lap("calibration.json + summary figure")
+        # figures first, calibration.json last: its "run" block then holds every stage but its own
+        figs = {}
+        if figures != "none":
+            Path(out).mkdir(parents=True, exist_ok=True)
+            figs["residuals.png"] = plot_residuals(cal, fitted, Path(out) / "residuals.png")
+            lap("summary figure")
         if per_pose:
-            written.update(plot_residual_diagnostics(cal, fitted, cal.uncertainty.diagnostics, out))
+            figs.update(plot_residual_diagnostics(cal, fitted, cal.uncertainty.diagnostics, out))
             lap("per-pose figures")
         if captured is not None:
             from .io.capture_outputs import write_capture_outputs
 
-            written.update(write_capture_outputs(captured, out))
+            figs.update(write_capture_outputs(captured, out))
             lap("capture outputs")
+        extra["run"] = {"stages_s": dict(stages), "peak_memory_mb": peak_memory_mb(), "figures": figures}
+        written = write_outputs(cal, fitted, out, skew_tol_px=skew_tol_px, extra=extra, figures=False)
+        written.update(figs)
+        lap("calibration.json + camera models")
     except OSError as exc:
         raise OutputError(f"cannot write outputs to {out}: {exc}") from None
     for name, path in written.items():
