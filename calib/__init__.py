@@ -26,7 +26,12 @@ Progress goes to the `calib` logger.
 """
 import sys
 
-# The public names, by submodule. PEP 562: a name's submodule is imported at its first use, so
+# ``triangulate`` names both a submodule and its function: the module is loaded at once (numpy only),
+# so that the package attribute stays the function, as it always was.
+from .triangulate import (fit_sphere, points_from_phase, sphere_from_phase, triangulate, triangulate_both,
+                          triangulate_linear)
+
+# The other public names, by submodule. PEP 562: a name's submodule is imported at its first use, so
 # ``import calib.pipeline`` (an observation-only ``calib run``) loads neither the board detection
 # (cv2, scipy.spatial, scipy.ndimage) nor the capture pipeline (unwrapping) it does not use.
 _HOME = {
@@ -44,8 +49,6 @@ _HOME = {
     "observations": ("Observations", "ViewObservations"),
     "pipeline": ("calibrate_captures", "calibrate_observations"),
     "system": ("SystemModel", "default_system"),
-    "triangulate": ("fit_sphere", "points_from_phase", "sphere_from_phase", "triangulate", "triangulate_both",
-                    "triangulate_linear"),
     "uncertainty.assess": ("assess_uncertainty",),
 }
 
@@ -79,8 +82,6 @@ def __getattr__(name):
         from . import pipeline as module
     elif home == "system":
         from . import system as module
-    elif home == "triangulate":
-        from . import triangulate as module
     else:
         from .uncertainty import assess as module
     value = getattr(module, name)

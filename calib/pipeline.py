@@ -118,6 +118,34 @@ def skew_check_outputs(obs: Observations, cal: Calibration, config: BAConfig) ->
     return {"skew_check": check.to_dict()}
 
 
+def _write_outputs(cal, fitted, out: Path, figures: str, per_pose: bool, captured, extra: dict,
+                   skew_tol_px: float, stages: dict, lap) -> dict:
+    """The figures, the capture outputs, then calibration.json and the camera models (last: the
+    json's ``run`` block then holds every stage but its own, and the peak memory); ``lap(name)``
+    records each stage's wall time in ``stages``. Returns {file name: path or note}."""
+    try:
+        figs = {}
+        if figures != "none":
+            out.mkdir(parents=True, exist_ok=True)
+            figs["residuals.png"] = plot_residuals(cal, fitted, out / "residuals.png")
+            lap("summary figure")
+        if per_pose:
+            figs.update(plot_residual_diagnostics(cal, fitted, cal.uncertainty.diagnostics, out))
+            lap("per-pose figures")
+        if captured is not None:
+            from .io.capture_outputs import write_capture_outputs
+
+            figs.update(write_capture_outputs(captured, out))
+            lap("capture outputs")
+        extra["run"] = {"stages_s": dict(stages), "peak_memory_mb": peak_memory_mb(), "figures": figures}
+        written = write_outputs(cal, fitted, out, skew_tol_px=skew_tol_px, extra=extra, figures=False)
+        lap("calibration.json + camera models")
+    except OSError as exc:
+        raise OutputError(f"cannot write outputs to {out}: {exc}") from None
+    written.update(figs)
+    return written
+
+
 def calibrate_observations(obs: Observations, out, config: BAConfig | None = None, *,
                            skew_tol_px: float = 0.01, captured: CaptureObservations | None = None,
                            view_noise: bool = True, skew_check: bool = True, board_warp="auto",
@@ -174,27 +202,7 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
     per_pose = figures == "all" or (figures == "auto" and len(obs.views) <= FEW_VIEWS)
     if figures == "auto" and not per_pose:
         log.info(f"{len(obs.views)} views: the per-pose figures are not drawn (--figures all draws them)")
-    try:
-        # figures first, calibration.json last: its "run" block then holds every stage but its own
-        figs = {}
-        if figures != "none":
-            Path(out).mkdir(parents=True, exist_ok=True)
-            figs["residuals.png"] = plot_residuals(cal, fitted, Path(out) / "residuals.png")
-            lap("summary figure")
-        if per_pose:
-            figs.update(plot_residual_diagnostics(cal, fitted, cal.uncertainty.diagnostics, out))
-            lap("per-pose figures")
-        if captured is not None:
-            from .io.capture_outputs import write_capture_outputs
-
-            figs.update(write_capture_outputs(captured, out))
-            lap("capture outputs")
-        extra["run"] = {"stages_s": dict(stages), "peak_memory_mb": peak_memory_mb(), "figures": figures}
-        written = write_outputs(cal, fitted, out, skew_tol_px=skew_tol_px, extra=extra, figures=False)
-        written.update(figs)
-        lap("calibration.json + camera models")
-    except OSError as exc:
-        raise OutputError(f"cannot write outputs to {out}: {exc}") from None
+    written = _write_outputs(cal, fitted, Path(out), figures, per_pose, captured, extra, skew_tol_px, stages, lap)
     for name, path in written.items():
         if isinstance(path, str) and path.startswith("not written: "):
             log.warning(f"{name} not written: {path[len('not written: '):]}")
