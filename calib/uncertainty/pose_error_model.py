@@ -154,11 +154,12 @@ def fit_pose_error_model(aj, obs) -> PoseErrorModel:
     M[-1, :-1] = trace                                             # |(I - H) A_l|_F^2
     M[-1, -1] = m - n
     S, s0 = _solve_components(M, T)
-    cov = s0 * B + sum(s * Q @ Q.T for s, Q in zip(S, lever) if s > 0)    # fields not kept add 0
     g = aj.global_index
+    # the covariance of the global parameters only (the poses' is not reported); fields not kept add 0
+    cov = s0 * B[np.ix_(g, g)] + sum(s * Q[g] @ Q[g].T for s, Q in zip(S, lever) if s > 0)
     names = [aj.names[k] for k in g]
     levels = level_uncertainty(S, s0, cross, lever, B, g, labels)
-    cov_g = cov[np.ix_(g, g)] * np.outer(levels.inflation, levels.inflation)
+    cov_g = cov * np.outer(levels.inflation, levels.inflation)
     cov_ind = aj.sigma2 * B[np.ix_(g, g)]          # outliers' rows of J are 0: J^T J over the inliers is J's
     px = _whitening_px(aj)
     fields = {lab: float(np.sqrt(s)) * px[lab.split(".")[0]] for lab, s in zip(labels, S)}
