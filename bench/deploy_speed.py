@@ -8,8 +8,9 @@ Rows (times are minima over ``repeats``; the machine is shared, so read the rati
 - ``calib run --observations`` on the paper's 9 real views (../shared/data/dp-tpu) and on a
   simulated ``--views``-view joint session (bench.ba_scale's): wall time of the whole command
   (a fresh process: start-up, imports, figures included), its peak resident memory, and the solve
-  time it reports; anchor: mrcal's ``optimize`` on the same number of simulated views (single
-  camera, bench.ba_scale's comparison) and our solve in the same process.
+  time it reports, and its own stage profile (``calibration.json`` ``run``; ``bench.calib_speed``
+  has the calib rows alone, with more repeats); anchor: mrcal's ``optimize`` on the same number of
+  simulated views (single camera, bench.ba_scale's comparison) and our solve in the same process.
 - the learned path on one 640 x 480 orientation, MF (1, 48), 12 steps: input features, network
   forward (torch under inference mode, and onnxruntime on the exported model), the whole path
   (traditional prior + features + network + decode) on each runtime, and the filtered 15 x 15
