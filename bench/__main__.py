@@ -9,8 +9,9 @@ from __future__ import annotations
 import sys
 import time
 
-from . import (ba_scale, calib_accuracy, calib_captures, decision_error_fit, deploy_speed, detect_accuracy,
-               export_speed, finetune_real, gi_bias, learned_speed, outlier_rule, spatial_unwrap, synth_speed, unwrap_speed)
+from . import (ba_scale, calib_accuracy, calib_captures, calib_speed, decision_error_fit, deploy_speed,
+               detect_accuracy, export_speed, finetune_real, gi_bias, learned_speed, outlier_rule,
+               spatial_unwrap, synth_speed, unwrap_speed)
 
 #: (name, main(argv) of the benchmark, arguments of its quick mode)
 BENCHMARKS = [
@@ -27,6 +28,7 @@ BENCHMARKS = [
     ("learned_speed", learned_speed.main, ["--quick"]),
     ("spatial_unwrap", spatial_unwrap.main, ["--quick"]),
     ("deploy_speed", deploy_speed.main, ["--quick"]),
+    ("calib_speed", calib_speed.main, ["--quick"]),
     ("finetune_real", finetune_real.main, ["--quick"]),
 ]
 

@@ -8,8 +8,9 @@ Rows (times are minima over ``repeats``; the machine is shared, so read the rati
 - ``calib run --observations`` on the paper's 9 real views (../shared/data/dp-tpu) and on a
   simulated ``--views``-view joint session (bench.ba_scale's): wall time of the whole command
   (a fresh process: start-up, imports, figures included), its peak resident memory, and the solve
-  time it reports; anchor: mrcal's ``optimize`` on the same number of simulated views (single
-  camera, bench.ba_scale's comparison) and our solve in the same process.
+  time it reports, and its own stage profile (``calibration.json`` ``run``; ``bench.calib_speed``
+  has the calib rows alone, with more repeats); anchor: mrcal's ``optimize`` on the same number of
+  simulated views (single camera, bench.ba_scale's comparison) and our solve in the same process.
 - the learned path on one 640 x 480 orientation, MF (1, 48), 12 steps: input features, network
   forward (torch under inference mode, and onnxruntime on the exported model), the whole path
   (traditional prior + features + network + decode) on each runtime, and the filtered 15 x 15
@@ -181,10 +182,11 @@ def cli_rows(args, roots, tmp: Path, obs_json: Path, cap: Path, onnx_path: Path)
         for tag, root in roots[:1] if only_after else roots:
             out = tmp / f"{out_name}_{tag}"
             r = run_cli([*argv, "-o", out], root, args.repeats)
-            solve = None
+            solve, stages = None, None
             if (out / "calibration.json").is_file():
-                solve = json.loads((out / "calibration.json").read_text())["timings_s"].get("solve_s")
-            rows.append((f"{label} [{tag}]", r["wall_s"], r["peak_mb"], solve, r["error"]))
+                cal = json.loads((out / "calibration.json").read_text())
+                solve, stages = cal["timings_s"].get("solve_s"), (cal.get("run") or {}).get("stages_s")
+            rows.append((f"{label} [{tag}]", r["wall_s"], r["peak_mb"], solve, r["error"], stages))
 
     paper = [DP_TPU / "CamCalibResult_real.mat", DP_TPU / "PrjCalibResult_real.mat"]
     if all(p.is_file() for p in paper):
@@ -201,8 +203,16 @@ def cli_rows(args, roots, tmp: Path, obs_json: Path, cap: Path, onnx_path: Path)
 def print_cli(rows, anchors) -> None:
     print("## Command line (fresh process each)\n")
     print("| command | wall s | peak MB | solve s (its own) | error |\n|---|---:|---:|---:|---|")
-    for name, w, pk, s, e in rows:
+    for name, w, pk, s, e, *_ in rows:
         print(f"| {name} | {_fmt(w)} | {_fmt(pk, '.0f')} | {_fmt(s)} | {e or ''} |")
+    staged = [(name, w, st) for name, w, _, _, _, st in rows if st]
+    if staged:         # calib run's own stage profile (calibration.json "run"; bench.calib_speed has more)
+        print("\n| calib run: stages s (last run) | " + " | ".join(f"{name}" for name, _, _ in staged) + " |")
+        print("|---|" + "---:|" * len(staged))
+        for key in dict.fromkeys(k for _, _, st in staged for k in st):
+            print(f"| {key} | " + " | ".join(_fmt(st.get(key)) for _, _, st in staged) + " |")
+        print("| rest (start-up, imports, reading, json; min wall - stages) | "
+              + " | ".join(_fmt(w - sum(st.values())) for _, w, st in staged) + " |")
     print("\n## Solve anchors (bench.ba_scale, simulated views, same run)\n")
     print("| views | ours joint solve s | ours single-camera solve s | mrcal single-camera s |\n|---:|---:|---:|---:|")
     for v, a in anchors.items():

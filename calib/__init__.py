@@ -24,23 +24,74 @@ Public surface:
 
 Progress goes to the `calib` logger.
 """
-from .board import Board, paper_board
-from .adjustment.problem import BAConfig, DeviceConfig
-from .calibrate import Calibration, reweight_views, run_calibration
-from .coordinate_choice import coordinate_conditioning
-from .detect.captures import observations_from_captures
-from .detect import detect_board
-from .device import DeviceModel
-from .errors import (BoardError, BundleAdjustmentError, CalibError, CaptureError, DetectionError, FormatError,
-                     InitError, MarkerPhaseError, ModelError, ObservationError, OutputError, TriangulationError,
-                     UncertaintyError)
-from .io import load_system, save_system
-from .observations import Observations, ViewObservations
-from .pipeline import calibrate_captures, calibrate_observations
-from .system import SystemModel, default_system
+import sys
+
+# ``triangulate`` names both a submodule and its function: the module is loaded at once (numpy only),
+# so that the package attribute stays the function, as it always was.
 from .triangulate import (fit_sphere, points_from_phase, sphere_from_phase, triangulate, triangulate_both,
                           triangulate_linear)
-from .uncertainty.assess import assess_uncertainty
+
+# The other public names, by submodule. PEP 562: a name's submodule is imported at its first use, so
+# ``import calib.pipeline`` (an observation-only ``calib run``) loads neither the board detection
+# (cv2, scipy.spatial, scipy.ndimage) nor the capture pipeline (unwrapping) it does not use.
+_HOME = {
+    "board": ("Board", "paper_board"),
+    "adjustment.problem": ("BAConfig", "DeviceConfig"),
+    "calibrate": ("Calibration", "reweight_views", "run_calibration"),
+    "coordinate_choice": ("coordinate_conditioning",),
+    "detect.captures": ("observations_from_captures",),
+    "detect": ("detect_board",),
+    "device": ("DeviceModel",),
+    "errors": ("BoardError", "BundleAdjustmentError", "CalibError", "CaptureError", "DetectionError", "FormatError",
+               "InitError", "MarkerPhaseError", "ModelError", "ObservationError", "OutputError", "TriangulationError",
+               "UncertaintyError"),
+    "io": ("load_system", "save_system"),
+    "observations": ("Observations", "ViewObservations"),
+    "pipeline": ("calibrate_captures", "calibrate_observations"),
+    "system": ("SystemModel", "default_system"),
+    "uncertainty.assess": ("assess_uncertainty",),
+}
+
+
+def __getattr__(name):
+    """The public name ``name``, imported from its submodule at first use (PEP 562)."""
+    home = next((m for m, names in _HOME.items() if name in names), None)
+    if home is None:
+        raise AttributeError(f"module 'calib' has no attribute {name!r}")
+    if home == "board":
+        from . import board as module
+    elif home == "adjustment.problem":
+        from .adjustment import problem as module
+    elif home == "calibrate":
+        from . import calibrate as module
+    elif home == "coordinate_choice":
+        from . import coordinate_choice as module
+    elif home == "detect.captures":
+        from .detect import captures as module
+    elif home == "detect":
+        from . import detect as module
+    elif home == "device":
+        from . import device as module
+    elif home == "errors":
+        from . import errors as module
+    elif home == "io":
+        from . import io as module
+    elif home == "observations":
+        from . import observations as module
+    elif home == "pipeline":
+        from . import pipeline as module
+    elif home == "system":
+        from . import system as module
+    else:
+        from .uncertainty import assess as module
+    value = getattr(module, name)
+    setattr(sys.modules[__name__], name, value)
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))
+
 
 __all__ = [
     "DeviceModel", "SystemModel", "default_system", "load_system", "save_system",

@@ -14,8 +14,9 @@ and ``calib demo`` do, one function each.
    (``board_warp="auto"``: 4 or more views);
 5. the outputs in ``out``: ``calibration.json`` (DESIGN.md keys plus uncertainties, residuals,
    board poses, solver facts, the skew check and, for captures, the capture summary),
-   ``camera.cameramodel``, ``projector.cameramodel``, ``residuals.png``, ``residuals_per_pose.png``
-   and ``residuals_on_board.png`` (:mod:`calib.uncertainty.diagnostics`); for captures also
+   ``camera.cameramodel``, ``projector.cameramodel``, ``residuals.png`` and, with
+   ``figures="all"``, ``residuals_per_pose.png`` and ``residuals_on_board.png``
+   (:mod:`calib.uncertainty.diagnostics`); for captures also
    ``observations.json`` and ``detections.png`` (:mod:`calib.io.capture_outputs`).
 
 Progress goes to the ``calib`` logger. Errors are ``calib`` errors (``ValueError`` subclasses):
@@ -35,16 +36,18 @@ import resource
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from .adjustment.problem import BAConfig
 from .calibrate import Calibration, reweight_views, run_calibration, with_view_noise
-from .io.outputs import write_outputs
-from .io.capture_outputs import write_capture_outputs
-from .detect.captures import CaptureObservations, observations_from_captures
+from .io.outputs import plot_residuals, write_outputs
 from .errors import OutputError
 from .observations import Observations
 from .uncertainty.diagnostics import plot_residual_diagnostics
 from .uncertainty.assess import assess_uncertainty, warp_allowed
+
+if TYPE_CHECKING:    # the capture pipeline (unwrapping, detection: cv2, scipy) is imported where it is used
+    from .detect.captures import CaptureObservations
 
 log = logging.getLogger(__name__)
 
@@ -71,7 +74,10 @@ class CalibrationRun:
 #: ``figures="auto"``: the per-pose figures are drawn up to this many views (above: the summary
 #: figure ``residuals.png`` only; ``figures="all"`` draws them at any size).
 FEW_VIEWS = 12
-FIGURES = ("auto", "all", "summary", "none")
+FIGURES = ("summary", "all", "auto", "none")
+#: What ``calib run`` draws unless asked: the summary figure (the per-pose panels cost 1-3x the
+#: whole calibration at 9 views, 30x at 100; ``figures="all"`` draws them).
+DEFAULT_FIGURES = "summary"
 
 
 def peak_memory_mb() -> float:
@@ -112,10 +118,38 @@ def skew_check_outputs(obs: Observations, cal: Calibration, config: BAConfig) ->
     return {"skew_check": check.to_dict()}
 
 
+def _write_outputs(cal, fitted, out: Path, figures: str, per_pose: bool, captured, extra: dict,
+                   skew_tol_px: float, stages: dict, lap) -> dict:
+    """The figures, the capture outputs, then calibration.json and the camera models (last: the
+    json's ``run`` block then holds every stage but its own, and the peak memory); ``lap(name)``
+    records each stage's wall time in ``stages``. Returns {file name: path or note}."""
+    try:
+        figs = {}
+        if figures != "none":
+            out.mkdir(parents=True, exist_ok=True)
+            figs["residuals.png"] = plot_residuals(cal, fitted, out / "residuals.png")
+            lap("summary figure")
+        if per_pose:
+            figs.update(plot_residual_diagnostics(cal, fitted, cal.uncertainty.diagnostics, out))
+            lap("per-pose figures")
+        if captured is not None:
+            from .io.capture_outputs import write_capture_outputs
+
+            figs.update(write_capture_outputs(captured, out))
+            lap("capture outputs")
+        extra["run"] = {"stages_s": dict(stages), "peak_memory_mb": peak_memory_mb(), "figures": figures}
+        written = write_outputs(cal, fitted, out, skew_tol_px=skew_tol_px, extra=extra, figures=False)
+        lap("calibration.json + camera models")
+    except OSError as exc:
+        raise OutputError(f"cannot write outputs to {out}: {exc}") from None
+    written.update(figs)
+    return written
+
+
 def calibrate_observations(obs: Observations, out, config: BAConfig | None = None, *,
                            skew_tol_px: float = 0.01, captured: CaptureObservations | None = None,
                            view_noise: bool = True, skew_check: bool = True, board_warp="auto",
-                           resample: str = "none", draws: int = 30, figures: str = "auto") -> CalibrationRun:
+                           resample: str = "none", draws: int = 30, figures: str = DEFAULT_FIGURES) -> CalibrationRun:
     """Calibrate from point observations and write the outputs into ``out`` (module docstring).
 
     A joint ``config`` with only one device observed falls back to single-device mode (logged).
@@ -127,9 +161,9 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
     (:func:`skew_check_outputs`; the result goes into ``calibration.json``).
     ``board_warp``: see :func:`resolve_board_warp`; ``resample``: "none", "jackknife" or
     "bootstrap" (``draws`` runs) beside the reported uncertainty (:mod:`calib.uncertainty.assess`).
-    ``figures``: "auto" (every figure up to :data:`FEW_VIEWS` views, above only the summary
-    ``residuals.png``: the per-pose panels of 100 views cost more than the whole calibration),
-    "all", "summary" or "none". The result carries the wall seconds per stage and the peak memory
+    ``figures``: "summary" (default: ``residuals.png`` only), "all" (also the per-pose panels
+    ``residuals_per_pose.png`` and ``residuals_on_board.png``, whose drawing costs more than the
+    whole calibration), "auto" (all up to :data:`FEW_VIEWS` views, above the summary) or "none". The result carries the wall seconds per stage and the peak memory
     (also in ``calibration.json`` under ``run``).
     """
     if figures not in FIGURES:
@@ -168,19 +202,7 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
     per_pose = figures == "all" or (figures == "auto" and len(obs.views) <= FEW_VIEWS)
     if figures == "auto" and not per_pose:
         log.info(f"{len(obs.views)} views: the per-pose figures are not drawn (--figures all draws them)")
-    extra["run"] = {"stages_s": dict(stages), "peak_memory_mb": peak_memory_mb(), "figures": figures}
-    try:
-        written = write_outputs(cal, fitted, out, skew_tol_px=skew_tol_px, extra=extra,
-                                figures=figures != "none")
-        lap("calibration.json + summary figure")
-        if per_pose:
-            written.update(plot_residual_diagnostics(cal, fitted, cal.uncertainty.diagnostics, out))
-            lap("per-pose figures")
-        if captured is not None:
-            written.update(write_capture_outputs(captured, out))
-            lap("capture outputs")
-    except OSError as exc:
-        raise OutputError(f"cannot write outputs to {out}: {exc}") from None
+    written = _write_outputs(cal, fitted, Path(out), figures, per_pose, captured, extra, skew_tol_px, stages, lap)
     for name, path in written.items():
         if isinstance(path, str) and path.startswith("not written: "):
             log.warning(f"{name} not written: {path[len('not written: '):]}")
@@ -192,7 +214,7 @@ def calibrate_observations(obs: Observations, out, config: BAConfig | None = Non
 def calibrate_captures(folder, out, config: BAConfig | None = None, *, capture_toml=None, method=None,
                        strict: bool = False, degree: int = 2, skew_tol_px: float = 0.01,
                        view_noise: bool = True, skew_check: bool = True, board_warp="auto",
-                       resample: str = "none", draws: int = 30, figures: str = "auto") -> CalibrationRun:
+                       resample: str = "none", draws: int = 30, figures: str = DEFAULT_FIGURES) -> CalibrationRun:
     """Calibrate from the board captures in ``folder`` and write the outputs into ``out``.
 
     ARGUMENTS
@@ -207,6 +229,8 @@ def calibrate_captures(folder, out, config: BAConfig | None = None, *, capture_t
     - view_noise, skew_check, board_warp, resample, draws, figures: see :func:`calibrate_observations`.
     RETURNED VALUE: :class:`CalibrationRun`.
     """
+    from .detect.captures import observations_from_captures
+
     captured = observations_from_captures(folder, capture_toml=capture_toml, method=method, strict=strict,
                                           degree=degree, keep_images=True)
     return calibrate_observations(captured.observations, Path(out), config, skew_tol_px=skew_tol_px,

@@ -77,10 +77,23 @@ def _add_debug(parser, default) -> None:
                         help="debug messages of every package, and the traceback of an error (for bug reports)")
 
 
+class _VersionAction(argparse.Action):
+    """``--version``: the installed version, looked up only when asked (``importlib.metadata``
+    costs every command 0.05-0.2 s of start-up)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS,
+                 help="show the program's version number and exit"):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"calib (sltwin) {version()}")
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="calib", description="sltwin: structured-light calibration, digital "
                                      "twin, renderer and phase unwrapping")
-    parser.add_argument("--version", action="version", version=f"calib (sltwin) {version()}")
+    parser.add_argument("--version", action=_VersionAction)
     _add_debug(parser, False)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True

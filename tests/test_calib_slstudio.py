@@ -92,7 +92,7 @@ def test_reported_uncertainty_matches_a_bootstrap_over_the_real_poses(run, tmp_p
     _, out = run
     cal_dir = tmp_path / "default"
     assert main(["run", "--observations", str(out / "observations.json"), "-o", str(cal_dir), "-q",
-                 "--uncertainty", "bootstrap", "--draws", "60"]) == 0
+                 "--uncertainty", "bootstrap", "--draws", "60", "--figures", "all"]) == 0
     u = json.loads((cal_dir / "calibration.json").read_text())["uncertainty"]
     assert u["reported"] == "pose error model" and u["resampled"]["runs"] >= 55
     ratio = np.array(list(u["resampled"]["ratio_to_reported"].values()))

@@ -61,6 +61,22 @@ def test_mrcal_cameramodel_round_trip(tmp_path, kind):
     np.testing.assert_allclose(q_mrcal, dev.project(X), atol=1e-8)
 
 
+@pytest.mark.parametrize("n_distortion", [0, 4, 5, 8, 12])
+def test_cameramodel_written_without_mrcal_is_byte_for_byte_mrcals(tmp_path, n_distortion):
+    """write_cameramodel writes mrcal's text itself (no mrcal import in calib run): the same bytes
+    as mrcal.cameramodel.write, for every lens model, a dropped skew's note included."""
+    import mrcal
+
+    dev = getattr(default_system(), "projector")          # skew -0.95 px: dropped at a 0.2 px tolerance
+    dist = np.resize(np.asarray(dev.distortion, float) * 0.5 + 1e-3, n_distortion)
+    dev = dev.with_(distortion=dist)
+    report = write_cameramodel(dev, tmp_path / "ours.cameramodel", skew_tol_px=0.2)
+    model, report_mrcal = to_cameramodel(dev, skew_tol_px=0.2)
+    model.write(str(tmp_path / "mrcal.cameramodel"), note=f"sltwin {dev.kind}; {'; '.join(report)}")
+    assert report == report_mrcal and "dropped" in report[0]
+    assert (tmp_path / "ours.cameramodel").read_bytes() == (tmp_path / "mrcal.cameramodel").read_bytes()
+
+
 def test_mrcal_refuses_skew_it_cannot_hold_and_names_the_pixel_effect():
     prj = default_system().projector  # skew -0.95 px: 0.16 px at the corners
     with pytest.raises(FormatError, match=r"skew s = -0.951.*0\.16\d\d px"):

@@ -106,7 +106,7 @@ def test_calib_run_reports_uncertainty_warp_resampling_and_residual_figures(tmp_
     path = write_observations_json(session(7, shift_cam_px=0.1, shift_prj_px=0.3), tmp_path / "obs.json")
     out = tmp_path / "out"
     assert main(["run", "--observations", str(path), "-o", str(out), "--distortion", "0",
-                 "--uncertainty", "jackknife"]) == 0
+                 "--uncertainty", "jackknife", "--figures", "all"]) == 0
     text = capsys.readouterr()
     assert "uncertainty (1 sigma): reported = pose error model" in text.out and "jackknife" in text.out
     assert "board_warp.cx (mm)" in text.out                    # 6 views: the warp is estimated by default

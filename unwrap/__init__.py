@@ -24,19 +24,62 @@ Public surface:
 
 Progress goes to the `unwrap` logger.
 """
-from .consistency import prior_check
+import sys
+
+# Light modules (numpy only) at once. ``phase_shift`` names both a submodule and patterns'
+# function: the submodule is loaded first, so that the package attribute stays the function.
 from .errors import UnreliableFringesWarning, UnwrapError
-from .fused_mf import mf_unwrap_stacks
-from .graycode import (binarize, complementary_gray_unwrap, gray_coarse_unwrap, gray_code_bits, gray_code_unwrap,
-                       gray_to_index, gray_unwrap)
-from .monte_carlo import monte_carlo_error_rate
-from .patterns import absolute_phase, fringe_intensity, fringe_pattern, phase_shift, projector_coordinate
-from .phase_io import read_phase, write_phase_file
 from .phase_shift import WrappedPhase, equal_shifts, least_squares_weights, phase_noise_gain, wrapped_phase
-from .pipeline import unwrap_capture, write_results
-from .plan import plan_fringes
-from .reliability import error_rate, fit_noise_sigma, modulation_threshold, phase_error_pdf, phase_sigma
-from .temporal import Unwrapped, base_phase, mf_unwrap, mw_unwrap, nt_lookup_table, nt_unwrap, refine
+from .patterns import absolute_phase, fringe_intensity, fringe_pattern, phase_shift, projector_coordinate
+
+# The other public names, by submodule. PEP 562: a name's submodule is imported at its first use,
+# so ``import unwrap.safe_output`` (calib's atomic writes) loads neither scipy.special nor the
+# capture pipeline.
+_HOME = {
+    "consistency": ("prior_check",),
+    "fused_mf": ("mf_unwrap_stacks",),
+    "graycode": ("binarize", "complementary_gray_unwrap", "gray_coarse_unwrap", "gray_code_bits",
+                 "gray_code_unwrap", "gray_to_index", "gray_unwrap"),
+    "monte_carlo": ("monte_carlo_error_rate",),
+    "phase_io": ("read_phase", "write_phase_file"),
+    "pipeline": ("unwrap_capture", "write_results"),
+    "plan": ("plan_fringes",),
+    "reliability": ("error_rate", "fit_noise_sigma", "modulation_threshold", "phase_error_pdf", "phase_sigma"),
+    "temporal": ("Unwrapped", "base_phase", "mf_unwrap", "mw_unwrap", "nt_lookup_table", "nt_unwrap", "refine"),
+}
+
+
+def __getattr__(name):
+    """The public name ``name``, imported from its submodule at first use (PEP 562)."""
+    home = next((m for m, names in _HOME.items() if name in names), None)
+    if home is None:
+        raise AttributeError(f"module 'unwrap' has no attribute {name!r}")
+    if home == "consistency":
+        from . import consistency as module
+    elif home == "fused_mf":
+        from . import fused_mf as module
+    elif home == "graycode":
+        from . import graycode as module
+    elif home == "monte_carlo":
+        from . import monte_carlo as module
+    elif home == "phase_io":
+        from . import phase_io as module
+    elif home == "pipeline":
+        from . import pipeline as module
+    elif home == "plan":
+        from . import plan as module
+    elif home == "reliability":
+        from . import reliability as module
+    else:
+        from . import temporal as module
+    value = getattr(module, name)
+    setattr(sys.modules[__name__], name, value)
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))
+
 
 __all__ = [
     "fringe_pattern", "fringe_intensity", "phase_shift", "absolute_phase", "projector_coordinate",

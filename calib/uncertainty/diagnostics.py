@@ -51,9 +51,13 @@ class ResidualDiagnostics:
 def _points(ba, obs, device):
     """(view (P,), board xy (P, 2) mm, residual (P, 2) px, inlier (P,)) of one device."""
     m = ba.point_device == device
-    views = ba.point_view[m]
-    xy = np.array([obs.views[v].points_board[np.flatnonzero(obs.views[v].ids == i)[0], :2]
-                   for v, i in zip(views, ba.point_id[m])]).reshape(-1, 2)
+    views, ids = ba.point_view[m], ba.point_id[m]
+    xy = np.empty((len(views), 2))
+    for v in np.unique(views):                # each point's board position: the first board point with its id
+        at = views == v
+        board = obs.views[v]
+        order = np.argsort(board.ids, kind="stable")
+        xy[at] = board.points_board[order[np.searchsorted(board.ids, ids[at], sorter=order)], :2]
     return views, xy, ba.residuals_px[m], ba.inlier[m]
 
 
@@ -78,9 +82,9 @@ def _correlogram(views, xy, res, ok, step):
         prod = 0.5 * (np.outer(r[m, 0], r[m, 0]) + np.outer(r[m, 1], r[m, 1]))[iu]
         b = np.digitize(d, edges) - 1
         keep = (b >= 0) & (b < len(num))
-        np.add.at(num, b[keep], prod[keep])
-        np.add.at(cnt, b[keep], 1)
-        np.add.at(dist, b[keep], d[keep])
+        num += np.bincount(b[keep], prod[keep], len(num))
+        cnt += np.bincount(b[keep], minlength=len(num))
+        dist += np.bincount(b[keep], d[keep], len(num))
     return [(float(dist[k] / cnt[k]), float(num[k] / cnt[k]), int(cnt[k])) for k in range(len(num)) if cnt[k]]
 
 

@@ -49,9 +49,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse
 
 from ..errors import UncertaintyError
 from .level_uncertainty import level_uncertainty
+from .nnls import nnls
 
 SIGNIFICANCE = 3.5
 """A field is kept when its statistic exceeds what the rest explains by this many standard deviations."""
@@ -93,8 +95,6 @@ class PoseErrorModel:
 def _field_matrices(aj, obs) -> tuple[list, list, np.ndarray]:
     """Per-pose field bases over the inlier rows: ([A_l (m_in, n_poses) sparse CSC], [label], inlier
     rows). Each row of an A_l has one non-zero at most (its pose's column)."""
-    import scipy.sparse
-
     rows = np.flatnonzero(np.repeat(aj.inlier, 2))
     pos = np.full(2 * len(aj.inlier), -1)
     pos[rows] = np.arange(len(rows))
@@ -134,29 +134,32 @@ def fit_pose_error_model(aj, obs) -> PoseErrorModel:
     if m - n < 2 * len(mats) or len(obs.views) < 3:
         raise UncertaintyError(f"{m} residuals for {n} parameters and {len(obs.views)} pose(s): too few to "
                                "estimate per-pose error fields")
-    dense = lambda X: X.toarray() if hasattr(X, "toarray") else np.asarray(X)  # noqa: E731
-    B = np.linalg.inv(dense(J.T @ J))
-    JT = J.T.tocsr()
-    P = [dense(JT @ A) for A in mats]                              # J^T A_l (n, n_poses)
-    lever = [B @ Pl for Pl in P]                                   # (J^T J)^-1 J^T A_l
-    trace = [float(A.multiply(A).sum()) - float(np.sum(Pl * Ql)) for A, Pl, Ql in zip(mats, P, lever)]
-    M = np.zeros((len(mats) + 1, len(mats) + 1))
-    T = np.zeros(len(mats) + 1)
-    cross = []                                                     # A_k^T (I - H) A_l (n_poses, n_poses)
-    for k, A in enumerate(mats):
-        T[k] = np.sum((A.T @ r) ** 2)
-        cross.append([dense(A.T @ Al) - P[k].T @ lever[l] for l, Al in enumerate(mats)])
-        M[k, :-1] = [np.sum(X ** 2) for X in cross[k]]
-        M[k, -1] = trace[k]                                        # trace(A^T (I - H) A)
+    B = aj.normal_inverse                 # outliers' rows of J are 0: J^T J over the inliers is J's
+    L, V = len(mats), len(obs.views)
+    # every field side by side: one sparse and two dense products instead of L^2 small ones
+    A = scipy.sparse.hstack(mats).tocsc()                         # (m, L n_poses)
+    P_all = (J.T.tocsr() @ A).toarray()                            # J^T A_l (n, n_poses) side by side
+    lever_all = B @ P_all                                          # (J^T J)^-1 J^T A_l
+    cross_all = (A.T @ A).toarray() - P_all.T @ lever_all          # A_k^T (I - H) A_l, (n_poses, n_poses) blocks
+    block = [slice(l * V, (l + 1) * V) for l in range(L)]
+    lever = [lever_all[:, b] for b in block]
+    cross = [[cross_all[bk, bl] for bl in block] for bk in block]
+    trace = [float(Al.multiply(Al).sum()) - float(np.sum(P_all[:, b] * lever_all[:, b])) for Al, b in zip(mats, block)]
+    M = np.zeros((L + 1, L + 1))
+    T = np.zeros(L + 1)
+    T[:-1] = ((A.T @ r) ** 2).reshape(L, V).sum(axis=1)
+    M[:-1, :-1] = (cross_all ** 2).reshape(L, V, L, V).sum(axis=(1, 3))
+    M[:-1, -1] = trace                                             # trace(A^T (I - H) A)
     T[-1] = r @ r
     M[-1, :-1] = trace                                             # |(I - H) A_l|_F^2
     M[-1, -1] = m - n
     S, s0 = _solve_components(M, T)
-    cov = s0 * B + sum(s * L @ L.T for s, L in zip(S, lever))
     g = aj.global_index
+    # the covariance of the global parameters only (the poses' is not reported); fields not kept add 0
+    cov = s0 * B[np.ix_(g, g)] + sum(s * Q[g] @ Q[g].T for s, Q in zip(S, lever) if s > 0)
     names = [aj.names[k] for k in g]
     levels = level_uncertainty(S, s0, cross, lever, B, g, labels)
-    cov_g = cov[np.ix_(g, g)] * np.outer(levels.inflation, levels.inflation)
+    cov_g = cov * np.outer(levels.inflation, levels.inflation)
     cov_ind = aj.sigma2 * B[np.ix_(g, g)]          # outliers' rows of J are 0: J^T J over the inliers is J's
     px = _whitening_px(aj)
     fields = {lab: float(np.sqrt(s)) * px[lab.split(".")[0]] for lab, s in zip(labels, S)}
@@ -172,8 +175,6 @@ def _solve_components(M, T) -> tuple[np.ndarray, float]:
     standard deviations (``Var T_k = 2 s0^2 |A_k^T (I - H) A_k|_F^2`` under Gaussian errors). With
     one free variance per field and no selection the equations would fit the statistics' own
     scatter (a 6-pose statistic scatters by ~60 %) and inflate every sigma."""
-    import scipy.optimize
-
     n = len(T) - 1
     active = np.zeros(n, bool)
     # each equation weighted by its statistic's scatter under independent errors (per unit s0):
@@ -181,7 +182,7 @@ def _solve_components(M, T) -> tuple[np.ndarray, float]:
     weight = 1.0 / np.sqrt(2.0 * np.maximum(np.r_[np.diag(M)[:n], M[n, n]], 1e-300))
     while True:
         cols = np.r_[np.flatnonzero(active), n]
-        sol, _ = scipy.optimize.nnls(M[:, cols] * weight[:, None], T * weight)
+        sol, _ = nnls(M[:, cols] * weight[:, None], T * weight)
         S = np.zeros(n)
         S[cols[:-1]] = sol[:-1]
         s0 = sol[-1]

@@ -81,9 +81,10 @@ def add_arguments(p):
     p.add_argument("--no-skew-check", action="store_true",
                    help="skip the refit with skew free that tells whether a zero-skew model fits the data "
                         "(calib.uncertainty.skew_check; run when skew is not estimated; a needed skew is a warning)")
-    p.add_argument("--figures", choices=("auto", "all", "summary", "none"), default="auto",
-                   help="auto (default): every figure up to 12 views, above only the summary residuals.png; "
-                        "all: the per-pose panels at any number of views; summary; none")
+    p.add_argument("--figures", choices=("summary", "all", "auto", "none"), default="summary",
+                   help="summary (default): residuals.png; all: also the per-pose panels (residuals_per_pose.png, "
+                        "residuals_on_board.png; they cost more than the calibration); auto: all up to 12 views; "
+                        "none")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
 
 
