@@ -1,7 +1,7 @@
 """The learned path at deployment speed (issue 22, part 2): before / after in the same run, and the
 forward pass of candidate architectures a retrain could choose.
 
-    python -m bench.learned_deploy [--repeats 5] [--baseline DIR] [--arch] [--no-cli]
+    python -m bench.learned_deploy [--repeats 5] [--baseline DIR] [--arch] [--no-cli] [--quick]
 
 Tables (times are minima over ``repeats`` calls; the machine is shared, so read each row against
 the anchor measured in the same process):
@@ -94,7 +94,10 @@ def main(argv=None) -> int:
     ap.add_argument("--baseline", help="an older checkout run beside (before columns)")
     ap.add_argument("--arch", action="store_true", help="also time the candidate architectures")
     ap.add_argument("--no-cli", action="store_true", help="skip the calib unwrap rows")
+    ap.add_argument("--quick", action="store_true", help="1 repeat, no calib unwrap rows, no architectures")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.repeats, args.no_cli, args.arch = 1, True, False
     from bench.deploy_speed import run_cli, write_capture
     from unwrap.learned.runtime import export_onnx
 
