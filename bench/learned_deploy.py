@@ -9,7 +9,7 @@ the anchor measured in the same process):
 1. one 640 x 480 orientation, MF (1, 48), 12 steps: the rows of
    :func:`bench.deploy_speed.learned_rows` (traditional decode from the frames = the anchor,
    filtered 15 x 15 baseline, input features, network forward on torch and onnxruntime, the whole
-   learned path on each), for this checkout and, with ``--baseline DIR`` (an older checkout:
+   learned path on each and without its forward), for this checkout and, with ``--baseline DIR`` (an older checkout:
    ``git archive REV | tar -x -C DIR``), for that one in a subprocess of the same run;
 2. ``calib unwrap`` on a 900 x 700 capture (:func:`bench.deploy_speed.write_capture`), fresh
    process each: traditional (the anchor), ``--model model.onnx`` and ``--model learned`` (torch):
@@ -81,7 +81,8 @@ _LABELS = (("traditional_from_frames_ms", "traditional TPU from frames (anchor)"
            ("forward_torch_ms", "network forward, torch"),
            ("forward_ort_ms", "network forward, onnxruntime"),
            ("whole_torch_ms", "whole learned path, torch"),
-           ("whole_ort_ms", "whole learned path, onnxruntime"))
+           ("whole_ort_ms", "whole learned path, onnxruntime"),
+           ("whole_minus_forward_ms", "whole learned path without the forward (stored logits)"))
 
 
 def _f(v, spec=".1f"):
