@@ -10,8 +10,8 @@ import sys
 import time
 
 from . import (ba_scale, calib_accuracy, calib_captures, calib_speed, decision_error_fit, deploy_speed,
-               detect_accuracy, export_speed, finetune_real, gi_bias, learned_speed, outlier_rule,
-               spatial_unwrap, synth_speed, unwrap_speed)
+               detect_accuracy, export_speed, finetune_real, gi_bias, learned_deploy, learned_speed,
+               outlier_rule, spatial_unwrap, synth_speed, unwrap_speed)
 
 #: (name, main(argv) of the benchmark, arguments of its quick mode)
 BENCHMARKS = [
@@ -29,6 +29,7 @@ BENCHMARKS = [
     ("spatial_unwrap", spatial_unwrap.main, ["--quick"]),
     ("deploy_speed", deploy_speed.main, ["--quick"]),
     ("calib_speed", calib_speed.main, ["--quick"]),
+    ("learned_deploy", learned_deploy.main, ["--quick"]),
     ("finetune_real", finetune_real.main, ["--quick"]),
 ]
 

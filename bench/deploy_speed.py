@@ -13,8 +13,8 @@ Rows (times are minima over ``repeats``; the machine is shared, so read the rati
   simulated views (single camera, bench.ba_scale's comparison) and our solve in the same process.
 - the learned path on one 640 x 480 orientation, MF (1, 48), 12 steps: input features, network
   forward (torch under inference mode, and onnxruntime on the exported model), the whole path
-  (traditional prior + features + network + decode) on each runtime, and the filtered 15 x 15
-  baseline; anchor: the traditional decode from the frames and from the wrapped phases.
+  (traditional prior + features + network + decode) on each runtime and without the forward (its
+  logits stored: robust to the forward's noise), and the filtered 15 x 15 baseline; anchor: the traditional decode from the frames and from the wrapped phases.
 - ``calib unwrap --model`` on a 900 x 700 capture (:func:`write_capture`; both orientations,
   1/8/48 periods, 12 steps, previews written): wall time and peak memory of the command with the
   shipped torch model and with its ONNX export; anchor: the traditional ``calib unwrap`` on it.
@@ -145,7 +145,24 @@ def learned_rows(onnx_path: Path, repeats: int) -> dict:
         out[f"whole_{name}_ms"] = _best(lambda m=model: unwrap_learned("mf", phi[0], phi[1], mods[0], mods[1], valid,
                                                                        (1, 48), width=912, model=m,
                                                                        on_outside="ignore"), repeats)
+    # everything but the forward (its logits stored): what the whole path adds, without the
+    # forward's own noise on a shared machine
+    stored = _StoredLogits(ort_pred, ort_pred.logits(x))
+    out["whole_minus_forward_ms"] = _best(lambda: unwrap_learned("mf", phi[0], phi[1], mods[0], mods[1], valid, (1, 48),
+                                                                 width=912, model=stored, on_outside="ignore"), repeats)
     return out
+
+
+class _StoredLogits:
+    """A predictor returning fixed logits (of the same frame): the learned path without its forward."""
+
+    backend = "stored"
+
+    def __init__(self, pred, logits):
+        self.arch, self.meta, self._y = pred.arch, pred.meta, logits
+
+    def logits(self, x):
+        return self._y
 
 
 # the baseline checkout (920e6f4) is older than the floor plan: its module path
@@ -239,7 +256,8 @@ _LEARNED_ROWS = (("traditional_from_frames_ms", "traditional TPU from frames (an
                  ("forward_torch_ms", "network forward, torch", "network_forward_ms"),
                  ("forward_ort_ms", "network forward, onnxruntime", None),
                  ("whole_torch_ms", "whole learned path, torch", "learned_total_ms"),
-                 ("whole_ort_ms", "whole learned path, onnxruntime", None))
+                 ("whole_ort_ms", "whole learned path, onnxruntime", None),
+                 ("whole_minus_forward_ms", "whole learned path without the forward (stored logits)", None))
 
 
 def print_learned(lr: dict, old: dict, repeats: int) -> None:
@@ -251,6 +269,8 @@ def print_learned(lr: dict, old: dict, repeats: int) -> None:
     old_anchor = old.get("traditional_from_frames_ms")
     for key, name, okey in _LEARNED_ROWS:
         o = old.get(okey) if okey else None
+        if key not in lr:
+            continue
         print(f"| {name} | {lr[key]:.1f} | {lr[key] / anchor:.1f} | {_fmt(o, '.1f')} | "
               f"{_fmt(o / old_anchor if o and old_anchor else None, '.1f')} |")
     print(f"\nwhole path / forward: torch {lr['whole_torch_ms'] / lr['forward_torch_ms']:.2f}x, onnxruntime "

@@ -244,3 +244,34 @@ def test_plane_filter_numba_kernel_and_numpy_box_sums_agree(monkeypatch):
     slow = FF.plane_filter(Phi, valid, (7, 15))
     for w in (7, 15):
         np.testing.assert_allclose(fast[w], slow[w], rtol=0, atol=1e-9)
+
+
+def test_sliding_plane_kernel_matches_direct_sums_over_many_blocks(monkeypatch):
+    """The sliding kernel (exact restart every BLOCK outputs) on a frame several blocks wide and
+    high, with holes and invalid borders, against the torch smoothing's direct box sums, and
+    independent of the block length (the restart only bounds the rounding drift)."""
+    import torch
+
+    pytest.importorskip("numba")
+    from unwrap.learned import _plane_kernel as K
+    from unwrap.learned.smoothing import smooth_phase
+
+    rng = np.random.default_rng(3)
+    H, W = 150, 333
+    y, x = np.mgrid[0:H, 0:W].astype(float)
+    Phi = 2 * np.pi * (0.002 * x + 0.001 * y) + 0.3 * np.sin(x / 11) + rng.normal(0, 0.05, (H, W))
+    valid = rng.random((H, W)) > 0.25
+    valid[40:60, 100:180] = False
+    valid[:, -2:] = False
+    valid[:4] = False
+    for r in (3, 7):
+        ref = smooth_phase(torch.from_numpy(Phi)[None, None], torch.from_numpy(valid)[None, None], 2 * r + 1,
+                           "plane")[0, 0].numpy()
+        got = K.plane_filter_kernel(Phi, valid, r)
+        # the torch reference's own cumulative sums over the frame round at ~1e-11 rad
+        np.testing.assert_allclose(got, ref, rtol=0, atol=5e-11)
+        monkeypatch.setattr(K, "BLOCK", 7)
+        np.testing.assert_allclose(K.plane_filter_kernel(Phi, valid, r), got, rtol=0, atol=1e-11)
+        monkeypatch.setattr(K, "BLOCK", 10_000)                   # one run per row / column: the most drift
+        np.testing.assert_allclose(K.plane_filter_kernel(Phi, valid, r), got, rtol=0, atol=1e-11)
+        monkeypatch.undo()

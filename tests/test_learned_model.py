@@ -178,3 +178,29 @@ def test_an_infinite_grad_clip_round_trips_so_the_run_can_resume(tmp_path):
     (tmp_path / "r.toml").write_text(to_toml(cfg))
     back = resolve_config(tmp_path / "r.toml")
     assert back == cfg and back.optim.grad_clip == float("inf")
+
+
+def test_separable_convolutions_are_an_architecture_option_the_shipped_arch_does_not_carry(tmp_path):
+    """``model.conv = "separable"``: same shapes and receptive-field layout, fewer multiply-adds;
+    only a non-default value enters ``arch``, so existing checkpoints keep their arch dict; a
+    checkpoint of the other kind is refused for fine-tuning, naming ``conv``."""
+    from unwrap.learned.network import count_macs
+    from unwrap.learned.train import init_weights
+
+    full = resolve_config(None, ["data.synthetic_samples=2", "model.width=8"])
+    sep = resolve_config(None, ["data.synthetic_samples=2", "model.width=8", "model.conv=separable"])
+    a_full, a_sep = arch_from_config(full.model), arch_from_config(sep.model)
+    assert "conv" not in a_full and a_sep["conv"] == "separable"
+    n_full, n_sep = build_model(a_full).eval(), build_model(a_sep).eval()
+    x = torch.randn(1, a_full["in_channels"], 40, 56)
+    with torch.inference_mode():
+        assert n_sep(x).shape == n_full(x).shape == (1, a_full["out_channels"], 40, 56)
+    m_full, m_sep = count_macs(n_full, a_full["in_channels"], (64, 64)), count_macs(n_sep, a_sep["in_channels"], (64, 64))
+    assert 0 < m_sep < m_full / 2
+    path = tmp_path / "sep.pt"
+    export_model({"format": FORMAT, "format_version": FORMAT_VERSION, "arch": a_sep, "model": n_sep.state_dict(),
+                  "meta": {}}, path)
+    with pytest.raises(CheckpointError, match="conv"):
+        init_weights(str(path), a_full)
+    with pytest.raises(ConfigError, match="conv"):
+        resolve_config(None, ["data.synthetic_samples=2", "model.conv=grouped"])

@@ -151,6 +151,14 @@ def write_phase_group(h5, orientation: str, phase, *, order=None, valid=None, fr
     return g
 
 
+def _codec(compression) -> dict:
+    """gzip at level 1 behind the byte shuffle: float64 phase maps are noise in their low bytes, so
+    gzip's default level 4 spends twice the time for a larger file (measured on one orientation of
+    a 900 x 700 ``unwrap.h5``: 27 MB raw, level 4 18.3 MB in 1.9 s, shuffle + level 1 15.6 MB in 1.0 s;
+    docs/speed.md). Lossless either way; any HDF5 reader decodes it."""
+    return {"compression_opts": 1, "shuffle": True} if compression == "gzip" else {}
+
+
 def write_phase_file(path, groups: dict, *, frequency: float | None = None, attrs: dict | None = None,
                      compression: str = "gzip") -> Path:
     """Write a phase file: ``groups`` {orientation: keyword arguments of :func:`write_phase_group`
@@ -170,5 +178,5 @@ def write_phase_file(path, groups: dict, *, frequency: float | None = None, attr
         for orientation, kw in groups.items():
             kw = dict(kw)
             kw.setdefault("frequency", frequency)
-            write_phase_group(f, orientation, kw.pop("phase"), compression=compression, **kw)
+            write_phase_group(f, orientation, kw.pop("phase"), compression=compression, **_codec(compression), **kw)
     return write_bytes(path, buf.getbuffer())

@@ -49,16 +49,21 @@ def learned_orientation(oc, method: str, model, *, min_modulation=None, on_outsi
         mm = check_min_modulation(min_modulation, stack.dtype)
         full = float(np.iinfo(stack.dtype).max) if np.issubdtype(stack.dtype, np.integer) else 1.0
         ph = wrapped_phase(stack, sets[i].shifts, min_modulation=mm)
-        w[i] = (ph, full)
+        del stack
+        # only what is used below: ``A`` is a view of the (3, H, W) fit coefficients, so the
+        # high frequency's is copied out (the other two planes are freed) and the low one's dropped
+        w[i] = (ph.phase, ph.valid, ph.B, ph.A.copy() if i == i_hi else None, full)
+        del ph
         used_mm = mm
         log.log(logging.INFO if progress else logging.DEBUG, "  [%s] f = %g: %d frames", oc.orientation,
                 freqs[i], len(sets[i].files))
-    (lo, full_lo), (hi, full_hi) = w[i_lo], w[i_hi]
-    valid = lo.valid & hi.valid
-    r = unwrap_learned(method, lo.phase, hi.phase, lo.B / full_lo, hi.B / full_hi, valid, (freqs[i_lo], freqs[i_hi]),
+    (lo_phase, lo_valid, lo_B, _, full_lo), (hi_phase, hi_valid, hi_B, hi_A, full_hi) = w.pop(i_lo), w.pop(i_hi)
+    valid = lo_valid & hi_valid
+    r = unwrap_learned(method, lo_phase, hi_phase, lo_B / full_lo, hi_B / full_hi, valid, (freqs[i_lo], freqs[i_hi]),
                        width=oc.width, model=model, on_outside=on_outside)
+    del lo_phase, lo_B, lo_valid
     ok = r.order >= 0
-    phase = np.where(ok, np.nan_to_num(hi.phase) + TWO_PI * r.order, math.nan)
+    phase = np.where(ok, np.nan_to_num(hi_phase) + TWO_PI * r.order, math.nan)
     phase, order, ok = constrain_to_pattern(np, phase, r.order, ok, freqs[i_hi], oc.width)
     phase = np.where(ok, phase, math.nan)
     res = Unwrapped(phase, np.where(ok, order, -1).astype(np.int32), ok, np.where(r.valid, r.prior, math.nan),
@@ -73,7 +78,7 @@ def learned_orientation(oc, method: str, model, *, min_modulation=None, on_outsi
     log.log(logging.INFO if progress else logging.DEBUG, "  [%s] learned: %d of %d valid pixels changed from the "
             "traditional order; frequency check %s", oc.orientation, int((r.order != r.order_traditional)[ok].sum()),
             int(ok.sum()), r.frequency_check.get("status"))
-    return OrientationResult(oc.orientation, oc.width, res, hi.B, hi.A, min_modulation=used_mm, prior_check=checks,
+    return OrientationResult(oc.orientation, oc.width, res, hi_B, hi_A, min_modulation=used_mm, prior_check=checks,
                              extras=extras)
 
 

@@ -5,7 +5,8 @@ A checkpoint is a ``torch.save`` dict of plain types and tensors (loaded with
 
 - ``format`` (:data:`FORMAT`), ``format_version``;
 - ``arch``: the network's constructor arguments and model kind (``kind``, ``width``, ``depth``,
-  ``max_width``, ``max_correction``, ``in_channels``, ``out_channels``);
+  ``max_width``, ``max_correction``, ``in_channels``, ``out_channels``; ``conv`` only where not
+  "full");
 - ``model``: the state dict; ``meta``: what it was trained on (methods, frequency pairs, ...);
 - training checkpoints add ``optimizer``, ``scheduler``, ``step``, ``epoch``, ``batch_in_epoch``,
   ``rng`` (torch, numpy, python, CUDA states), ``config`` and ``best``.
@@ -33,9 +34,12 @@ def arch_from_config(model_cfg) -> dict:
     """The ``arch`` dict of a model config section (``[model]``, a ``config.ModelConfig``)."""
     kind = model_cfg.kind
     K = int(model_cfg.max_correction)
-    return {"kind": kind, "width": int(model_cfg.width), "depth": int(model_cfg.depth),
+    arch = {"kind": kind, "width": int(model_cfg.width), "depth": int(model_cfg.depth),
             "max_width": int(model_cfg.max_width), "max_correction": K,
             "in_channels": input_channels(kind), "out_channels": output_channels(kind, K)}
+    if getattr(model_cfg, "conv", "full") != "full":     # only when set: older checkpoints' arch stays as it was
+        arch["conv"] = model_cfg.conv
+    return arch
 
 
 def build_model(arch: dict) -> FringeUNet:
@@ -52,7 +56,11 @@ def build_model(arch: dict) -> FringeUNet:
         raise CheckpointError(
             f"model architecture: a {kind!r} model has {want_in} inputs and {want_out} outputs in this "
             f"version, the checkpoint says {arch['in_channels']} and {arch['out_channels']}")
-    net = FringeUNet(want_in, want_out, width=arch["width"], depth=arch["depth"], max_width=arch["max_width"])
+    try:
+        net = FringeUNet(want_in, want_out, width=arch["width"], depth=arch["depth"], max_width=arch["max_width"],
+                         conv=arch.get("conv", "full"))
+    except ValueError as exc:
+        raise CheckpointError(f"model architecture: {exc}") from None
     if kind == "physics":
         # start from "keep the traditional order" (correction 0 at ~95 %): most pixels are right, and
         # the network then spends its training on the ones that are not

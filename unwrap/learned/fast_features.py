@@ -154,43 +154,63 @@ def make_inputs(kind: str, method: str, prior, phase_low, phase_high, modulation
     order_traditional (H, W) int; valid (H, W) bool; frequencies (low, high).
     ``ok``: ``valid`` and every input finite."""
     valid = np.asarray(valid, dtype=bool)
+    if kind not in KINDS:
+        raise ValueError(f"model kind {kind!r}: expected one of {KINDS}")
 
     def f32(a):
-        return np.where(valid, np.nan_to_num(np.asarray(a, dtype=np.float64)), 0.0).astype(_F32)
+        # the torch batch's map: NaN -> 0 and every value outside ``valid`` 0, rounded to float32
+        # (+-inf stays infinite, so ``ok`` drops it, as nan_to_num's +-1.8e308 did once rounded)
+        a = np.asarray(a)
+        return np.where(valid & (a == a), a, 0.0).astype(_F32)
 
     pr, pl, ph, ml, mh = (f32(a) for a in (prior, phase_low, phase_high, modulation_low, modulation_high))
     ok = valid & np.isfinite(pr) & np.isfinite(pl) & np.isfinite(ph) & np.isfinite(ml) & np.isfinite(mh)
     zero = _F32(0.0)
     v = ok.astype(_F32)
-    clean = lambda a: np.where(ok, a, zero)  # noqa: E731
-    phi_h = clean(ph)
-    m_lo = np.clip(clean(ml) * _F32(MODULATION_GAIN), zero, _F32(2.0))
-    m_hi = np.clip(clean(mh) * _F32(MODULATION_GAIN), zero, _F32(2.0))
-    sin_h, cos_h = np.sin(phi_h) * v, np.cos(phi_h) * v
+    for a in (pr, pl, ph, ml, mh):               # clean: 0 where not ok, in place (the maps are ours)
+        a[~ok] = zero
+    C = 11 if kind == "physics" else 12
+    x = np.empty((1, C, *ok.shape), dtype=_F32)   # channels written in place, no stacking copy
+    X = x[0]
+    phi_h = ph
+    n_tail = 0
     if kind == "physics":
-        p = clean(pr)
-        r = p - _round_order32(p)
+        p = pr
+        np.subtract(p, _round_order32(p), out=X[0])
+        X[0] *= _F32(2.0)
         trad = np.asarray(order_traditional).astype(_F32)
         f_l, f_h = (float(f) for f in frequencies)
-        pl64 = np.where(ok, pl, zero).astype(np.float64)
-        ph64 = np.where(ok, ph, zero).astype(np.float64)
-        priors, usable = smoothed_priors(method, pl64, ph64, f_l, f_h, ok)
-        r_s, d = [], []
-        for w in SMOOTH_WINDOWS:
+        priors, usable = smoothed_priors(method, pl.astype(np.float64), ph.astype(np.float64), f_l, f_h, ok)
+        for i, w in enumerate(SMOOTH_WINDOWS):
             ps = (priors[w] if usable else p.astype(np.float64)).astype(_F32)
-            ps = np.where(ok, ps, zero)
+            ps[~ok] = zero
             rs = _round_order32(ps)
-            r_s.append(_F32(2.0) * (ps - rs))
-            d.append(np.where(ok & usable, np.clip((rs - trad) / _F32(2.0), _F32(-1.0), _F32(1.0)), zero))
-        chans = [_F32(2.0) * r, *r_s, *d, sin_h, cos_h, phi_h / _F32(math.pi), m_lo, m_hi, v]
-    elif kind == "prior_free":
-        phi_l = clean(pl)
-        onehot = [v * _F32(METHOD_INDEX[method] == i) for i in range(3)]
-        chans = [np.sin(phi_l) * v, np.cos(phi_l) * v, phi_l / _F32(math.pi), sin_h, cos_h,
-                 phi_h / _F32(math.pi), m_lo, m_hi, v, *onehot]
+            np.subtract(ps, rs, out=X[1 + i])
+            X[1 + i] *= _F32(2.0)
+            if usable:
+                rs -= trad
+                rs /= _F32(2.0)
+                np.clip(rs, _F32(-1.0), _F32(1.0), out=X[3 + i])
+                X[3 + i][~ok] = zero
+            else:
+                X[3 + i] = zero
+        c = 5
     else:
-        raise ValueError(f"model kind {kind!r}: expected one of {KINDS}")
-    return np.stack(chans)[None].astype(_F32, copy=False), ok
+        np.multiply(np.sin(pl), v, out=X[0])
+        np.multiply(np.cos(pl), v, out=X[1])
+        np.divide(pl, _F32(math.pi), out=X[2])
+        c = 3
+        n_tail = 3
+    np.multiply(np.sin(phi_h), v, out=X[c])
+    np.multiply(np.cos(phi_h), v, out=X[c + 1])
+    np.divide(phi_h, _F32(math.pi), out=X[c + 2])
+    for j, m in enumerate((ml, mh)):
+        m *= _F32(MODULATION_GAIN)
+        np.clip(m, zero, _F32(2.0), out=X[c + 3 + j])
+    X[c + 5] = v
+    for i in range(n_tail):                        # prior_free: the method's one-hot
+        X[c + 6 + i] = v * _F32(METHOD_INDEX[method] == i)
+    return x, ok
 
 
 def decode(logits: np.ndarray, order_traditional, ok, f_high: float, kind: str, max_correction: int = 2):

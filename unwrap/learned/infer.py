@@ -156,6 +156,7 @@ def unwrap_learned(method: str, phase_low, phase_high, modulation_low, modulatio
     x, ok = FF.make_inputs(kind, method, prior, phi_lo, phi_hi, modulation_low, modulation_high, order_trad, valid,
                            (f_lo, f_hi))
     logits = pred.logits(x)
+    del x                                                            # the input (C x H x W float32) is not needed after
     order, conf = FF.decode(logits, order_trad, ok, f_hi, kind, K)
     if not log_probs:
         return LearnedResult(order, conf, order_trad, prior, valid, check)

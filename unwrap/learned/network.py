@@ -36,15 +36,28 @@ def _groups(channels: int) -> int:
     return 1
 
 
-class ConvBlock(nn.Sequential):
-    """Two 3x3 convolutions, each followed by GroupNorm and SiLU (``dilation`` on both)."""
+#: Convolution kinds of :class:`ConvBlock` (``[model] conv``): "full" 3x3 convolutions (the
+#: shipped model), or "separable": a depthwise 3x3 then a pointwise 1x1 (same receptive field,
+#: ~c_out/9 + 1 times fewer multiply-adds per layer; docs/speed.md measures what it buys).
+CONV_KINDS = ("full", "separable")
 
-    def __init__(self, c_in: int, c_out: int, dilation: int = 1):
-        pad = dilation
+
+def _conv3(c_in: int, c_out: int, dilation: int, conv: str) -> nn.Module:
+    if conv == "separable":
+        return nn.Sequential(nn.Conv2d(c_in, c_in, 3, padding=dilation, dilation=dilation, groups=c_in, bias=False),
+                             nn.Conv2d(c_in, c_out, 1, bias=False))
+    return nn.Conv2d(c_in, c_out, 3, padding=dilation, dilation=dilation, bias=False)
+
+
+class ConvBlock(nn.Sequential):
+    """Two 3x3 convolutions, each followed by GroupNorm and SiLU (``dilation`` on both; ``conv``:
+    one of :data:`CONV_KINDS`)."""
+
+    def __init__(self, c_in: int, c_out: int, dilation: int = 1, conv: str = "full"):
         super().__init__(
-            nn.Conv2d(c_in, c_out, 3, padding=pad, dilation=dilation, bias=False),
+            _conv3(c_in, c_out, dilation, conv),
             nn.GroupNorm(_groups(c_out), c_out), nn.SiLU(inplace=True),
-            nn.Conv2d(c_out, c_out, 3, padding=pad, dilation=dilation, bias=False),
+            _conv3(c_out, c_out, dilation, conv),
             nn.GroupNorm(_groups(c_out), c_out), nn.SiLU(inplace=True))
 
 
@@ -53,19 +66,21 @@ class FringeUNet(nn.Module):
 
     ARGUMENTS: in_channels, out_channels; width = channels of the first level (doubled per level,
     at most ``max_width``); depth = number of 2x poolings after the 2x pixel-unshuffle; dilations
-    of the bottleneck blocks.
+    of the bottleneck blocks; conv: the blocks' convolutions (:data:`CONV_KINDS`).
     """
 
     def __init__(self, in_channels: int, out_channels: int, width: int = 16, depth: int = 3,
-                 max_width: int = 64, dilations=(2, 4)):
+                 max_width: int = 64, dilations=(2, 4), conv: str = "full"):
         super().__init__()
+        if conv not in CONV_KINDS:
+            raise ValueError(f"conv {conv!r}: expected one of {CONV_KINDS}")
         self.depth = int(depth)
         w = int(width)
         chans = [min(w * 2 ** i, int(max_width)) for i in range(self.depth + 1)]
-        self.enc = nn.ModuleList([ConvBlock(4 * in_channels, chans[0])] +
-                                 [ConvBlock(chans[i - 1], chans[i]) for i in range(1, self.depth + 1)])
-        self.mid = nn.Sequential(*[ConvBlock(chans[-1], chans[-1], d) for d in dilations])
-        self.dec = nn.ModuleList([ConvBlock(chans[i + 1] + chans[i], chans[i]) for i in range(self.depth)])
+        self.enc = nn.ModuleList([ConvBlock(4 * in_channels, chans[0], conv=conv)] +
+                                 [ConvBlock(chans[i - 1], chans[i], conv=conv) for i in range(1, self.depth + 1)])
+        self.mid = nn.Sequential(*[ConvBlock(chans[-1], chans[-1], d, conv) for d in dilations])
+        self.dec = nn.ModuleList([ConvBlock(chans[i + 1] + chans[i], chans[i], conv=conv) for i in range(self.depth)])
         self.head = nn.Conv2d(chans[0], 4 * w, 1)
         self.refine = nn.Sequential(nn.Conv2d(in_channels + w, w, 1), nn.SiLU(inplace=True),
                                     nn.Conv2d(w, out_channels, 1))
@@ -92,3 +107,22 @@ class FringeUNet(nn.Module):
 
 def count_parameters(model: nn.Module) -> int:
     return sum(p.numel() for p in model.parameters())
+
+
+def count_macs(model: nn.Module, in_channels: int, size) -> int:
+    """Multiply-adds of the convolutions of one forward of a (1, in_channels, H, W) input, ``size``
+    = (H, W) (GroupNorm, SiLU, pooling and resampling not counted: a few per activation)."""
+    total = []
+
+    def hook(mod, inp, out):
+        k = mod.kernel_size[0] * mod.kernel_size[1]
+        total.append(out.numel() * (mod.in_channels // mod.groups) * k)
+
+    hs = [m.register_forward_hook(hook) for m in model.modules() if isinstance(m, nn.Conv2d)]
+    try:
+        with torch.inference_mode():
+            model(torch.zeros(1, in_channels, *size))
+    finally:
+        for h in hs:
+            h.remove()
+    return int(sum(total))

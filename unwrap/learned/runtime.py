@@ -75,11 +75,16 @@ class TorchPredictor:
 
 
 class OnnxPredictor:
-    """An onnxruntime session of an exported model; ``logits(x)``."""
+    """An onnxruntime session of an exported model; ``logits(x)``.
+
+    Session: all graph optimisations, sequential execution, no memory arena (the peak stays one
+    forward's), ``threads`` intra-op threads (None: onnxruntime's default, one per core) that do
+    not spin while waiting for work: on a machine shared with other jobs a spinning pool measured
+    1.5x slower (docs/speed.md, "Learned path at deployment speed")."""
 
     backend = "onnxruntime"
 
-    def __init__(self, path, providers=None):
+    def __init__(self, path, providers=None, threads=None):
         import onnxruntime as ort
 
         path = Path(path)
@@ -91,6 +96,10 @@ class OnnxPredictor:
         opts = ort.SessionOptions()
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         opts.enable_cpu_mem_arena = False     # activations freed after each frame: the peak stays one forward's
+        opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
+        if threads:
+            opts.intra_op_num_threads = int(threads)
         try:
             self.session = ort.InferenceSession(str(path), sess_options=opts, providers=providers)
         except Exception as exc:      # onnxruntime's own error types (InvalidProtobuf, Fail, ...)

@@ -142,7 +142,7 @@ def init_weights(model: str, arch: dict) -> dict:
     if theirs.get("kind") != arch["kind"]:
         raise CheckpointError(f"model.init {path}: a {theirs.get('kind')!r} model, this run trains a "
                               f"{arch['kind']!r} model (model.kind): fine-tuning keeps the kind")
-    diff = {k: (theirs.get(k), arch[k]) for k in arch if theirs.get(k) != arch[k]}
+    diff = {k: (theirs.get(k), arch.get(k)) for k in dict.fromkeys([*arch, *theirs]) if theirs.get(k) != arch.get(k)}
     if diff:
         raise CheckpointError(f"model.init {path}: another architecture than this run's [model] ("
                               + ", ".join(f"{k}: checkpoint {a}, run {b}" for k, (a, b) in diff.items())
