@@ -27,11 +27,16 @@ class Defocus:
     ``c = aperture_mm * f_px * |1/z - 1/focus_mm|`` pixels; we use the Gaussian with the disc's
     per-axis second moment, ``sigma = c / 4`` (a uniform disc of radius r has variance r^2/4 along
     each axis), interpolated between ``levels`` blur levels. Checked against Blender's thin-lens
-    depth of field (tests/test_synth_reference.py)."""
+    depth of field (tests/test_synth_reference.py).
+
+    ``samples`` (camera only): 0 (default), the blur above applied to the finished image; >= 1,
+    the thin lens itself, as the average of pinhole renders from ``samples`` aperture points
+    (synth.effects.thin_lens: exact occlusion across outlines)."""
 
     aperture_mm: float
     focus_mm: float
     levels: int = 6
+    samples: int = 0
 
 
 @dataclass(frozen=True)
@@ -137,7 +142,14 @@ def _sub(d, cls, key):
     check_keys(d, cls.__dataclass_fields__, "scene", SynthError, prefix=f"effects.{key}.")
     kw = {}
     for k in d:
-        if k in ("levels", "seed"):
+        if k == "samples":
+            if isinstance(d[k], bool) or not isinstance(d[k], int) or not 0 <= d[k] <= 1024:
+                raise SynthError(f"effects.{key}.samples: expected an integer in [0, 1024], got {d[k]!r}")
+            if key != "camera_defocus" and d[k]:
+                raise SynthError(f"effects.{key}.samples: aperture sampling is implemented for the camera only "
+                                 "(camera_defocus.samples)")
+            kw[k] = d[k]
+        elif k in ("levels", "seed"):
             if not isinstance(d[k], int) or d[k] < (2 if k == "levels" else 0):
                 raise SynthError(f"effects.{key}.{k}: expected an integer >= {2 if k == 'levels' else 0}, got {d[k]!r}")
             kw[k] = d[k]

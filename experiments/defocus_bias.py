@@ -1,0 +1,124 @@
+"""The unit-frequency phase bias that camera defocus makes across occlusion edges, Cycles against
+the twin (issue 21 item 1: "a camera pixel integrates what its PSF sees, not a blur of the
+finished image").
+
+Scene ``ball-wall-dof``: the 25.4 mm ball of :mod:`experiments.gi_bias` at the world origin, a
+matte wall (600 x 600 mm) at z = -60 mm (34.6 mm behind the ball), albedo 0.8, on the parity twin
+(ideal system, 160x120 camera, f = 648 px), 8 steps of vertical fringes at f = 1; the camera
+focused on the ball's front (camera depth ``FOCUS_MM``), a circular aperture of ``APERTURE_MM``
+diameter: the wall (depth ~907 mm) blurs into a disc of ~6 px, the ball's outline (~848 mm) ~2 px.
+(At 160x120 a pixel is 4 of the 640x480 camera's, so the same discs there take a 4x smaller
+aperture per pixel of blur: this is a strongly defocused but not an exotic setting.)
+
+Each renderer is compared with itself, as in :mod:`experiments.gi_bias`: bias =
+``wrap(phi_defocused - phi_pinhole)``. Cycles: thin-lens depth of field (the driver's
+``camera_dof``), direct light only, ``samples`` samples and two seeds (reference = circular mean,
+noise = RMS of the difference / sqrt 2), against its 1-sample pinhole frames. Ours: the aperture
+average (:mod:`synth.effects.thin_lens`, ``camera_defocus.samples``) and, for the record, the
+old blur of the finished image (``camera_defocus`` without ``samples``).
+
+Mask: lit in our pinhole render, 4-neighbours on the same object, modulation above 5 % of the
+median in both pinhole renders (:func:`experiments.gi_bias.comparison_mask`). Cycles frames are
+cached in :func:`experiments.gi_bias.cache_dir` (``$SLTWIN_GI_CACHE``).
+"""
+from __future__ import annotations
+
+import functools
+import os
+
+import numpy as np
+
+from synth.effects.spec import Defocus, Effects
+from synth.renderer.render import render
+from synth.scenes.meshes import sphere_mesh
+from synth.scenes.objects import Plane, Sphere
+from synth.scenes.scene import DEFAULT_BALL_RADIUS_MM, Scene
+
+from .gi_bias import EXPOSURE, BiasScene, _rect, _setup, cache_dir
+
+#: camera depth (mm) of the ball's front, where the camera is focused
+FOCUS_MM = 822.2
+#: aperture diameter (mm) of the comparison
+APERTURE_MM = 80.0
+WALL_Z_MM = -60.0
+
+
+@functools.lru_cache(maxsize=4)
+def defocus_scene(name: str = "ball-wall-dof", *, albedo: float = 0.8) -> BiasScene:
+    """The scenes of the defocus comparison (module docstring); cached, treat as read-only."""
+    from .errors import ExperimentError
+
+    if name != "ball-wall-dof":
+        raise ExperimentError(f"defocus_scene: unknown scene {name!r} (ball-wall-dof)")
+    r = DEFAULT_BALL_RADIUS_MM
+    V, F = sphere_mesh(r, 512, 256)
+    wall_t, size = np.array([0.0, 0.0, WALL_Z_MM]), (600.0, 600.0)
+    Vw, Fw = _rect(wall_t, np.eye(3), size, 4)
+    return BiasScene(name, [Sphere("ball", np.eye(3), [0, 0, 0], albedo, r), Plane("wall", np.eye(3), wall_t, albedo, size)],
+                     [(V, F, albedo, True), (Vw, Fw, albedo, False)], "ball r 25.4 mm, 34.6 mm before a wall")
+
+
+SCENES = ("ball-wall-dof",)
+
+
+def cycles_dof_images(name: str, *, samples: int, aperture_mm: float | None, seed: int = 0, steps: int = 8,
+                      threads: int = 2, focus_mm: float = FOCUS_MM, timeout: float = 3600) -> dict:
+    """Cycles' (K, H, W) linear images of ``name`` with thin-lens depth of field (``aperture_mm``
+    None: pinhole), direct light only; cached by scene, samples, aperture, focus, seed, steps."""
+    from synth.blender_twin import render_in_blender
+
+    ap = "pinhole" if aperture_mm is None else f"a{aperture_mm:g}_f{focus_mm:g}"
+    path = cache_dir() / f"{name}_{ap}_s{samples}_seed{seed}_n{steps}.npz"
+    if path.exists():
+        z = np.load(path)
+        return {"images": z["images"], "seconds_per_frame": z["seconds_per_frame"].tolist()}
+    system, d_ref, patterns = _setup(steps)
+    sc = defocus_scene(name)
+    proj = np.stack([p.projector_image(system.projector.size, 0.5, 0.5) for p in patterns])
+    dof = None if aperture_mm is None else {"focus_mm": float(focus_mm), "aperture_mm": float(aperture_mm)}
+    out = render_in_blender(system, sc.meshes, proj, exposure=EXPOSURE, reference_distance_mm=d_ref, threads=threads,
+                            samples=samples, seed=seed, camera_dof=dof, timeout=timeout)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez_compressed(tmp, images=out["images"], seconds_per_frame=np.asarray(out["seconds_per_frame"]))
+    os.replace(tmp, path)
+    return out
+
+
+def ours_dof_images(name: str, camera_defocus: Defocus | None, *, steps: int = 8, **effects):
+    """Our (K, H, W) float64 linear images of ``name`` with ``camera_defocus`` (None: pinhole) and
+    the render result."""
+    system, d_ref, patterns = _setup(steps)
+    sc = defocus_scene(name)
+    eff = Effects(exposure=EXPOSURE, fringe_sampling="analytic", reference_distance_mm=d_ref,
+                  camera_defocus=camera_defocus, **effects)
+    res = render(Scene(system, sc.objects, patterns, eff), quantised=False)
+    return res.images.numpy().astype(np.float64), res
+
+
+def cycles_dof_bias(name: str = "ball-wall-dof", *, samples: int = 256, seeds=(0, 1), aperture_mm: float = APERTURE_MM,
+                    focus_mm: float = FOCUS_MM, steps: int = 8) -> dict:
+    """Cycles' defocus bias map (circular mean over ``seeds``), the per-seed maps, its pinhole
+    stack and the seconds per defocused frame."""
+    from .gi_bias import bias_map, wrap
+
+    pin = cycles_dof_images(name, samples=1, aperture_mm=None, steps=steps)
+    maps, secs = [], []
+    for s in seeds:
+        out = cycles_dof_images(name, samples=samples, aperture_mm=aperture_mm, focus_mm=focus_mm, seed=s, steps=steps)
+        maps.append(bias_map(out["images"], pin["images"]))
+        secs += list(out["seconds_per_frame"])
+    mean = wrap(np.angle(np.mean(np.exp(1j * np.stack(maps)), 0)))
+    return {"bias": mean, "maps": maps, "direct": pin["images"], "seconds_per_frame": secs}
+
+
+def ours_dof_bias(name: str = "ball-wall-dof", *, aperture_mm: float = APERTURE_MM, focus_mm: float = FOCUS_MM,
+                  samples: int = 16, steps: int = 8) -> dict:
+    """Our defocus bias map with the thin lens (``samples`` >= 1) or the old image blur
+    (``samples`` 0), our pinhole stack, its geometry and the defocused render's time (s)."""
+    from .gi_bias import bias_map
+
+    pin, res0 = ours_dof_images(name, None, steps=steps)
+    dof, res = ours_dof_images(name, Defocus(aperture_mm, focus_mm, 6, samples), steps=steps)
+    return {"bias": bias_map(dof, pin), "direct": pin, "geometry": res0.geometry, "seconds": res.timings["total"],
+            "plan": res.plan}

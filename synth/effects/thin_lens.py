@@ -1,0 +1,116 @@
+"""Camera defocus as a thin lens: the average of pinhole renders from points of the aperture.
+
+A thin lens focused at camera depth ``F`` (mm) sends every ray that leaves the aperture point
+``a = (a_x, a_y, 0)`` (camera frame, mm, on a disc of diameter ``aperture_mm``) towards the
+pixel's point on the focus plane ``F (x, y, 1)`` (``(x, y)`` the pixel's undistorted normalised
+coordinates). The rays of one aperture point share an origin, so they form a pinhole camera at
+``a`` with the same orientation, whose normalised coordinates are sheared: ``x' = x - a_x / F``,
+``y' = y - a_y / F`` (points on the focus plane map to the same pixel from every aperture
+point). A pixel's value is the mean, over the aperture, of what each of these pinholes sees:
+occlusion is exact (a wall point hidden from the lens centre behind an object's outline is seen
+from part of the aperture and mixes in, and an object's blurred outline covers the wall only
+as far as the lens sees it), as in Cycles' depth of field, and unlike a blur of the finished
+image, which mixes what the centre sees across the edge.
+
+``samples`` aperture points on a Vogel spiral (golden-angle, equal areas; 1 point: the lens
+centre, i.e. the pinhole). With few points a far surface shows ``samples`` shifted copies. (A
+per-sample prefilter, blurring each pinhole image by the Gaussian of one sample's share of the
+disc, sigma ``c / (4 sqrt(samples))``, was measured against 128 samples on the ball-wall scene
+and did not help: 8 samples 0.62 / 0.58 of the bias RMS with / without, 16 samples 0.21 / 0.21;
+it is not offered.)
+
+Everything after the camera rays (projector coordinates, shadows, shading, interreflection) runs
+per aperture point through the normal renderer; noise, gain and quantisation run once on the
+average. The ground truth is the lens centre's pinhole geometry.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import replace
+
+import numpy as np
+import torch
+
+from ..scenes.objects import Rays
+
+F64 = torch.float64
+GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
+
+
+def aperture_points(n: int) -> np.ndarray:
+    """(n, 2) points of the unit disc, equal areas (Vogel spiral: radius sqrt((i + 1/2) / n),
+    angle i times the golden angle); n = 1 gives the centre. Mean (0, 0) to O(1/n)."""
+    if n < 1:
+        raise ValueError(f"aperture_points: n must be >= 1, got {n}")
+    if n == 1:
+        return np.zeros((1, 2))
+    i = np.arange(n, dtype=np.float64)
+    r = np.sqrt((i + 0.5) / n)
+    a = i * GOLDEN_ANGLE
+    return np.stack([r * np.cos(a), r * np.sin(a)], 1)
+
+
+def aperture_rays(camera, use_distortion: bool, offset_mm, focus_mm: float) -> tuple[Rays, torch.Tensor]:
+    """The camera's pixel rays leaving the aperture point ``offset_mm`` (a_x, a_y) (camera frame,
+    mm) towards each pixel's point on the focus plane (camera depth ``focus_mm``): (Rays, valid
+    (N,) bool). Offset (0, 0) returns the pinhole rays of synth.renderer.geometry.camera_rays."""
+    from ..renderer.geometry import camera_rays
+
+    rays, ok = camera_rays(camera, use_distortion)
+    ax, ay = (float(v) for v in offset_mm)
+    if ax == 0.0 and ay == 0.0:
+        return rays, ok
+    a = torch.tensor([ax, ay, 0.0], dtype=F64)
+    R, t = rays.R_dev_world, rays.t_dev_world
+    xy = rays.xy - a[:2] / float(focus_mm)
+    d = xy @ R[:2] + R[2]  # R^T (x', y', 1)
+    d = d / torch.linalg.norm(d, dim=1, keepdim=True)
+    origin = rays.origin + a @ R  # C + R^T a
+    return Rays(origin, d, xy, R, t - a, rays.cell, "camera"), ok
+
+
+def render_thin_lens(scene, render_fn, *, keep_linear: bool, quantised: bool, log=None):
+    """Render ``scene`` whose ``effects.camera_defocus.samples`` >= 1 as the aperture average (module
+    docstring). ``render_fn``: synth.renderer.render.render (passed in: it calls this module).
+    Skipped (the plan says why) when every pixel's blur sigma is below 1e-3 px (the image-blur
+    path's test): then the result is the pinhole render, bit for bit."""
+    from ..renderer.geometry import compute_geometry, defocus_sigma
+    from ..renderer.plan_log import PlanLog
+    from ..renderer.render import RenderResult, _sensor
+
+    plan = PlanLog.of(log)
+    eff = scene.effects
+    dof = eff.camera_defocus
+    cam = scene.system.camera
+    t0 = time.perf_counter()
+    pinhole = replace(scene, effects=replace(eff, camera_defocus=None))
+    centre = compute_geometry(pinhole, log=PlanLog.of(None))
+    f_px = max(cam.fx, cam.fy)
+    hit = centre.hit
+    c_max = float(4.0 * defocus_sigma(dof, f_px, centre.depth[hit]).max()) if bool(hit.any()) else 0.0
+    if c_max / 4.0 < 1e-3:  # the image-blur path's own test: it says "skipped (every pixel in focus)"
+        return render_fn(replace(scene, effects=replace(eff, camera_defocus=replace(dof, samples=0))),
+                         keep_linear=keep_linear, quantised=quantised, log=plan)
+    n = int(dof.samples)
+    pts = aperture_points(n) * (dof.aperture_mm / 2.0)
+    plan.info("camera defocus: thin lens, %d aperture sample(s), blur disc up to %.3g px", n, c_max)
+    sample_eff = replace(eff, camera_defocus=None, noise=None, gain=1.0, saturation=1.0)
+    sample_scene = replace(scene, effects=sample_eff)
+    cam_dist = eff.camera_distortion and bool(np.any(cam.distortion))
+    acc = None
+    timings: dict = {}
+    for i, a in enumerate(pts):
+        sub = plan if i == 0 else PlanLog.of(None)
+        rays = aperture_rays(cam, cam_dist, a, dof.focus_mm)
+        g = compute_geometry(sample_scene, rays=rays, log=sub)
+        res = render_fn(sample_scene, keep_linear=False, quantised=False, geometry=g, log=sub)
+        acc = res.images.to(F64) if acc is None else acc.add_(res.images.to(F64))
+        for k, v in list(g.timings.items()) + list(res.timings.items()):
+            key = f"thin lens: {k}"
+            timings[key] = timings.get(key, 0.0) + v
+    images = acc.div_(n).to(torch.float32)
+    linear = images.clone() if keep_linear else None
+    images = _sensor(images, eff, quantised, timings)
+    timings["total"] = time.perf_counter() - t0
+    return RenderResult(images, [p.name for p in scene.patterns], centre, plan.lines, timings, eff.bits, linear)
