@@ -62,19 +62,22 @@ SCENES = ("ball-wall-dof",)
 
 
 def cycles_dof_images(name: str, *, samples: int, aperture_mm: float | None, seed: int = 0, steps: int = 8,
-                      threads: int = 2, focus_mm: float = FOCUS_MM, timeout: float = 3600) -> dict:
+                      threads: int = 2, focus_mm: float = FOCUS_MM, timeout: float = 3600,
+                      projector_gamma: float = 1.0) -> dict:
     """Cycles' (K, H, W) linear images of ``name`` with thin-lens depth of field (``aperture_mm``
-    None: pinhole), direct light only; cached by scene, samples, aperture, focus, seed, steps."""
+    None: pinhole), direct light only, the projector's pattern images raised to
+    ``projector_gamma``; cached by scene, samples, aperture, focus, seed, steps, gamma."""
     from synth.blender_twin import render_in_blender
 
     ap = "pinhole" if aperture_mm is None else f"a{aperture_mm:g}_f{focus_mm:g}"
-    path = cache_dir() / f"{name}_{ap}_s{samples}_seed{seed}_n{steps}.npz"
+    g = "" if projector_gamma == 1.0 else f"_pg{projector_gamma:g}"
+    path = cache_dir() / f"{name}_{ap}_s{samples}_seed{seed}_n{steps}{g}.npz"
     if path.exists():
         z = np.load(path)
         return {"images": z["images"], "seconds_per_frame": z["seconds_per_frame"].tolist()}
     system, d_ref, patterns = _setup(steps)
     sc = defocus_scene(name)
-    proj = np.stack([p.projector_image(system.projector.size, 0.5, 0.5) for p in patterns])
+    proj = np.stack([p.projector_image(system.projector.size, 0.5, 0.5) for p in patterns]) ** projector_gamma
     dof = None if aperture_mm is None else {"focus_mm": float(focus_mm), "aperture_mm": float(aperture_mm)}
     out = render_in_blender(system, sc.meshes, proj, exposure=EXPOSURE, reference_distance_mm=d_ref, threads=threads,
                             samples=samples, seed=seed, camera_dof=dof, timeout=timeout)

@@ -93,6 +93,15 @@ class Interreflection:
 
 
 @dataclass(frozen=True)
+class PsfTail:
+    """The camera PSF's wide tail (synth.effects.response): a fraction ``fraction`` of the light
+    on the sensor plane spread by a Gaussian of ``sigma_px`` camera pixels."""
+
+    fraction: float
+    sigma_px: float
+
+
+@dataclass(frozen=True)
 class Effects:
     exposure: float = 0.8
     shading: str = "lambert"          # "lambert" | "none"
@@ -105,6 +114,8 @@ class Effects:
     projector_defocus: Defocus | None = None
     camera_defocus: Defocus | None = None
     projector_gamma: float = 1.0
+    camera_gamma: float = 1.0           # camera response: output = clip(gain v, 0, saturation)^camera_gamma
+    camera_psf_tail: PsfTail | None = None
     gain: float = 1.0
     saturation: float = 1.0
     noise: Noise | None = None
@@ -209,6 +220,22 @@ def _interreflection(d) -> Interreflection | None:
     return Interreflection(**kw)
 
 
+def _psf_tail(d) -> PsfTail | None:
+    if d is None or d is False:
+        return None
+    if not isinstance(d, dict):
+        raise SynthError(f"effects.camera_psf_tail: expected a table, got {d!r}")
+    check_keys(d, PsfTail.__dataclass_fields__, "scene", SynthError, prefix="effects.camera_psf_tail.")
+    for k in PsfTail.__dataclass_fields__:
+        if k not in d:
+            raise SynthError(f"effects.camera_psf_tail.{k}: missing (fraction in [0, 1], sigma_px > 0)")
+    out = PsfTail(_number(d, "fraction", 0.0, 1.0, "effects.camera_psf_tail"),
+                  _number(d, "sigma_px", 0.0, 1000.0, "effects.camera_psf_tail"))
+    if out.sigma_px <= 0:
+        raise SynthError(f"effects.camera_psf_tail.sigma_px: expected > 0, got {out.sigma_px}")
+    return out
+
+
 def effects_from_table(d: dict | None) -> Effects:
     """``[effects]`` table -> Effects; unknown keys and bad values raise SynthError naming them."""
     d = dict(d or {})
@@ -241,8 +268,10 @@ def effects_from_table(d: dict | None) -> Effects:
             kw[k] = v
         elif k == "reference_distance_mm":
             kw[k] = _number(d, k, 1e-6)
-        elif k == "projector_gamma":
+        elif k in ("projector_gamma", "camera_gamma"):
             kw[k] = _number(d, k, 0.05, 10)
+        elif k == "camera_psf_tail":
+            kw[k] = _psf_tail(v)
         elif k in ("ambient", "exposure", "gain", "saturation", "vignetting", "A", "B"):
             kw[k] = _number(d, k, 0.0, 1.0 if k in ("vignetting", "A", "B") else None)
     eff = Effects(**kw)

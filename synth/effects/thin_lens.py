@@ -21,7 +21,7 @@ it is not offered.)
 
 Everything after the camera rays (projector coordinates, shadows, shading, interreflection) runs
 per aperture point through the normal renderer; noise, gain and quantisation run once on the
-average. The ground truth is the lens centre's pinhole geometry.
+average (and the PSF tail and response curve, synth.effects.response). The ground truth is the lens centre's pinhole geometry.
 """
 from __future__ import annotations
 
@@ -95,7 +95,8 @@ def render_thin_lens(scene, render_fn, *, keep_linear: bool, quantised: bool, lo
     n = int(dof.samples)
     pts = aperture_points(n) * (dof.aperture_mm / 2.0)
     plan.info("camera defocus: thin lens, %d aperture sample(s), blur disc up to %.3g px", n, c_max)
-    sample_eff = replace(eff, camera_defocus=None, noise=None, gain=1.0, saturation=1.0)
+    sample_eff = replace(eff, camera_defocus=None, noise=None, gain=1.0, saturation=1.0, camera_gamma=1.0,
+                         camera_psf_tail=None)
     sample_scene = replace(scene, effects=sample_eff)
     cam_dist = eff.camera_distortion and bool(np.any(cam.distortion))
     acc = None

@@ -189,14 +189,28 @@ def _linear_images(geometry, lit, idx, C, rows, other, p_other, K, eff, cam_blur
 
 
 def _sensor(images, eff, quantised: bool, timings):
-    """Sensor noise, then gain, saturation and quantisation (or gain and clipping alone)."""
+    """The PSF's tail, sensor noise, then gain, saturation, the response curve and quantisation
+    (or all but the quantisation); synth.effects.response."""
     t = time.perf_counter()
+    if eff.camera_psf_tail is not None and eff.camera_psf_tail.fraction > 0:
+        from ..effects.response import psf_tail
+
+        images = psf_tail(images, eff.camera_psf_tail.fraction, eff.camera_psf_tail.sigma_px)
+        timings["camera PSF tail"] = time.perf_counter() - t
+        t = time.perf_counter()
     if eff.noise is not None:
         gen = torch.Generator().manual_seed(int(eff.noise.seed))
         images = add_noise(images, eff.noise, gen)
         timings["noise"] = time.perf_counter() - t
     t = time.perf_counter()
-    if quantised:
+    if eff.camera_gamma != 1.0:
+        from ..effects.response import camera_response
+
+        images = camera_response(images, eff.camera_gamma, eff.gain, eff.saturation)
+        if quantised:
+            images = quantise(images, eff.bits, 1.0, eff.saturation ** eff.camera_gamma)
+            timings["gain + response + quantisation"] = time.perf_counter() - t
+    elif quantised:
         images = quantise(images, eff.bits, eff.gain, eff.saturation)
         timings["gain + quantisation"] = time.perf_counter() - t
     elif eff.gain != 1.0 or eff.saturation != 1.0:
@@ -262,7 +276,13 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
     p_other = nonlinear_values(scene.patterns, other, u, v, psize, eff, sig, log=plan) if other else None
     if lit.numel() == 0:
         plan.info("patterns: no camera pixel is lit by the projector (empty image apart from ambient light)")
-    fused = quantised and not cam_blur and not gi_on and not ir_on and eff.noise is None and not keep_linear
+    cam_after = eff.camera_gamma != 1.0 or (eff.camera_psf_tail is not None and eff.camera_psf_tail.fraction > 0)
+    plan.info("camera PSF tail: %s", "run" if eff.camera_psf_tail is not None and eff.camera_psf_tail.fraction > 0
+              else "skipped (not asked for)" if eff.camera_psf_tail is None else "skipped (fraction 0)")
+    if eff.camera_gamma == 1.0:
+        plan.info("camera response: skipped (gamma 1.0)")
+    fused = (quantised and not cam_blur and not gi_on and not ir_on and eff.noise is None and not keep_linear
+             and not cam_after)
     if fused:
         # nothing between the patterns and the quantiser acts across pixels: compute the lit
         # pixels in cache-sized chunks and quantise them at once; unlit pixels hold ambient only

@@ -1,0 +1,218 @@
+"""Camera defocus and response curves against Blender Cycles on the unit-phase bias:
+``python -m bench.defocus_bias [--quick] [--samples 256] [--seeds 2] [--lens-samples 16 32]
+[--repeats 3] [--figures out/defocus_bias] [--write-reference PATH] [-q]``.
+
+Scene (experiments.defocus_bias): a 25.4 mm ball 34.6 mm before a matte wall, the parity twin
+(160x120), 8 steps of vertical fringes at f = 1, a thin lens of 80 mm aperture focused on the
+ball (822.2 mm: the wall blurs ~6 px) or on the wall (906.9 mm: the ball blurs ~6 px). Per
+renderer the bias is ``wrap(phi_defocused - phi_pinhole)``; Cycles: depth of field, direct light,
+``--samples`` per pixel, ``--seeds`` seeds (reference: their circular mean; noise: RMS of two
+seeds' difference / sqrt 2), against its 1-sample pinhole frames. Ours: the thin lens
+(synth.effects.thin_lens) at each ``--lens-samples`` and the old blur of the finished image.
+Two masks: all compared pixels (experiments.gi_bias.comparison_mask) and the outline band (those
+within 8 px of another object's pixel, where defocus can mix projector columns).
+
+Response curves (synth.effects.response, projector_gamma): the projector's gamma 2.2 / 0.6 at 4
+and 8 steps (Cycles: the pattern images raised to gamma; 1-sample point-sampled direct light,
+deterministic), bias ``wrap(phi_gamma - phi_linear)``; the camera's curve 1/2.2 after the lens
+(Cycles: its depth-of-field frames through the same curve, as a colour-management curve would),
+bias ``wrap(phi_lens,curve - phi_pinhole,curve)``.
+
+Times: ours, ``render()`` of the 8-frame stack, minimum over ``--repeats``; Cycles: the sum of
+its render times of one seed's 8 frames (cached from the run that rendered them).
+``--quick``: no Blender, the stored test reference (tests/data/defocus_bias_ball_wall.npz).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+REFERENCE = Path(__file__).resolve().parents[1] / "tests" / "data" / "defocus_bias_ball_wall.npz"
+FOCI = {"ball-wall-dof, focus on the ball": 822.2, "ball-wall-dof, focus on the wall": 906.9}
+CAMERA_CURVE = 1 / 2.2
+
+
+def _log(quiet, *a):
+    if not quiet:
+        print(*a, file=sys.stderr, flush=True)
+
+
+def outline_band(geometry, width: int = 8) -> np.ndarray:
+    """(H, W) bool: pixels within ``width`` px (Chebyshev) of a pixel of another object (or of no object)."""
+    W, H = geometry.size
+    obj = geometry.object_id.reshape(H, W).numpy()
+    edge = np.zeros((H, W), bool)
+    edge[:, 1:] |= obj[:, 1:] != obj[:, :-1]
+    edge[:, :-1] |= obj[:, 1:] != obj[:, :-1]
+    edge[1:] |= obj[1:] != obj[:-1]
+    edge[:-1] |= obj[1:] != obj[:-1]
+    out = edge.copy()
+    for _ in range(width):
+        grown = out.copy()
+        grown[1:] |= out[:-1]
+        grown[:-1] |= out[1:]
+        grown[:, 1:] |= out[:, :-1]
+        grown[:, :-1] |= out[:, 1:]
+        out = grown
+    return out
+
+
+def _best_time(fn, repeats):
+    best, out = float("inf"), None
+    for _ in range(repeats):
+        out = fn()
+        best = min(best, out["seconds"])
+    return best, out
+
+
+def _figure(path, title, ref, maps, mask):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = [("Cycles", ref)] + list(maps.items())[:2] + [("Cycles - " + next(iter(maps)), ref - next(iter(maps.values())))]
+    v = float(np.percentile(np.abs(ref[mask]), 99.5)) or 1e-3
+    fig, axes = plt.subplots(1, 4, figsize=(16, 3.4))
+    for ax, (t, m) in zip(axes, panels):
+        im = ax.imshow(np.where(mask, m, np.nan), cmap="RdBu", vmin=-v, vmax=v)
+        ax.set_title(t)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.colorbar(im, ax=axes, shrink=0.8, label="unit-phase bias (rad)")
+    fig.suptitle(title)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.stem + ".tmp.png")
+    fig.savefig(tmp, dpi=80)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+def _defocus_rows(a, name, focus):
+    from experiments.defocus_bias import APERTURE_MM, cycles_dof_bias, ours_dof_bias
+    from experiments.gi_bias import compare, comparison_mask
+
+    ours = {}
+    times = {}
+    for S in a.lens_samples:
+        times[f"thin lens, {S} points"], ours[f"thin lens, {S} points"] = _best_time(
+            lambda: ours_dof_bias(samples=S, focus_mm=focus), a.repeats)
+    times["old image blur"], ours["old image blur"] = _best_time(lambda: ours_dof_bias(samples=0, focus_mm=focus), a.repeats)
+    g = next(iter(ours.values()))
+    c = cycles_dof_bias(samples=a.samples, seeds=tuple(range(a.seeds)), aperture_mm=APERTURE_MM, focus_mm=focus)
+    mask = comparison_mask(g["geometry"], c["direct"], g["direct"])
+    band = mask & outline_band(g["geometry"])
+    rows = []
+    for m_name, m in (("all", mask), ("outline band", band)):
+        noise = (float(np.sqrt(np.mean((c["maps"][0] - c["maps"][1])[m] ** 2)) / np.sqrt(2))
+                 if len(c["maps"]) > 1 else float("nan"))
+        for k, o in ours.items():
+            rows.append((name, m_name, k, compare(c["bias"], o["bias"], m), noise, times[k],
+                         float(np.sum(c["seconds_per_frame"])) / len(c["maps"])))
+    if a.figures:
+        _figure(a.figures / f"{name.split(',')[0]}_{'ball' if focus < 850 else 'wall'}.png",
+                f"{name}: wrap(phi_lens - phi_pinhole) at f = 1",
+                c["bias"], {k: o["bias"] for k, o in ours.items() if k != f"thin lens, {a.lens_samples[0]} points"}, mask)
+    return rows, c, mask, ours
+
+
+def _response_rows(a):
+    from experiments.defocus_bias import APERTURE_MM, FOCUS_MM, cycles_dof_images, ours_dof_images
+    from experiments.gi_bias import bias_map, compare, comparison_mask, wrap
+    from synth.effects.spec import Defocus
+
+    rows = []
+    for n in (4, 8):
+        lin_c = cycles_dof_images("ball-wall-dof", samples=1, aperture_mm=None, steps=n)
+        lin_o, r0 = ours_dof_images("ball-wall-dof", None, steps=n)
+        mask = comparison_mask(r0.geometry, lin_c["images"], lin_o)
+        for gam in (2.2, 0.6):
+            cg = cycles_dof_images("ball-wall-dof", samples=1, aperture_mm=None, steps=n, projector_gamma=gam)
+            best = float("inf")
+            for _ in range(a.repeats):
+                og, rg = ours_dof_images("ball-wall-dof", None, steps=n, projector_gamma=gam)
+                best = min(best, rg.timings["total"])
+            rows.append(("ball-wall-dof, pinhole", f"projector gamma {gam}, {n} steps",
+                         compare(bias_map(cg["images"], lin_c["images"]), bias_map(og, lin_o), mask), 0.0, best,
+                         float(np.sum(cg["seconds_per_frame"]))))
+    # the camera's curve after the lens: Cycles' depth-of-field frames through the curve
+    pin_c = cycles_dof_images("ball-wall-dof", samples=1, aperture_mm=None, steps=8)["images"] ** CAMERA_CURVE
+    maps = []
+    secs = []
+    for s in range(a.seeds):
+        cd = cycles_dof_images("ball-wall-dof", samples=a.samples, aperture_mm=APERTURE_MM, focus_mm=FOCUS_MM, seed=s)
+        maps.append(bias_map(cd["images"] ** CAMERA_CURVE, pin_c))
+        secs.append(float(np.sum(cd["seconds_per_frame"])))
+    ref = wrap(np.angle(np.mean(np.exp(1j * np.stack(maps)), 0)))
+    pin_o, r0 = ours_dof_images("ball-wall-dof", None, camera_gamma=CAMERA_CURVE)
+    mask = comparison_mask(r0.geometry, pin_c, pin_o)
+    noise = float(np.sqrt(np.mean((maps[0] - maps[1])[mask] ** 2)) / np.sqrt(2)) if len(maps) > 1 else float("nan")
+    S = a.lens_samples[-1]
+    best = float("inf")
+    for _ in range(a.repeats):
+        lo, rl = ours_dof_images("ball-wall-dof", Defocus(APERTURE_MM, FOCUS_MM, 6, S), camera_gamma=CAMERA_CURVE)
+        best = min(best, rl.timings["total"])
+    rows.append(("ball-wall-dof, focus on the ball", f"camera curve v^(1/2.2) after a {S}-point thin lens",
+                 compare(ref, bias_map(lo, pin_o), mask), noise, best, float(np.mean(secs))))
+    return rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m bench.defocus_bias", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="no Blender: the stored test reference")
+    ap.add_argument("--samples", type=int, default=256)
+    ap.add_argument("--seeds", type=int, default=2)
+    ap.add_argument("--lens-samples", type=int, nargs="+", default=[16, 32])
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--figures", type=Path, default=Path("out/defocus_bias"))
+    ap.add_argument("--write-reference", type=Path, default=None)
+    ap.add_argument("-q", "--quiet", action="store_true")
+    a = ap.parse_args(argv)
+    from experiments.defocus_bias import FOCUS_MM, ours_dof_bias
+    from experiments.gi_bias import compare, load_reference, save_reference
+
+    if a.quick:
+        ref, mask, meta = load_reference(REFERENCE)
+        print("| scene | model | correlation | RMS diff / bias RMS | ours ms |\n|---|---|---|---|---|")
+        for S in a.lens_samples + [0]:
+            o = ours_dof_bias(samples=S, focus_mm=float(meta["focus_mm"]))
+            c = compare(ref, o["bias"], mask)
+            print(f"| ball-wall-dof, focus on the ball (stored Cycles reference) | "
+                  f"{'old image blur' if S == 0 else f'thin lens, {S} points'} | {c['correlation']:.3f} | "
+                  f"{c['diff_over_bias']:.3f} | {o['seconds'] * 1e3:.0f} |")
+        return 0
+    rows = []
+    for name, focus in FOCI.items():
+        _log(a.quiet, f"[defocus_bias] {name}")
+        r, c, mask, _ = _defocus_rows(a, name, focus)
+        rows += r
+        if a.write_reference and focus == FOCUS_MM:
+            save_reference(a.write_reference, "ball-wall-dof", c["bias"], mask,
+                           {"samples": a.samples, "seeds": a.seeds, "focus_mm": focus, "steps": 8,
+                            "noise_rms_per_seed": rows[0][4]})
+            _log(a.quiet, f"[defocus_bias] wrote {a.write_reference}")
+    print("## Camera defocus: unit-phase bias, Cycles depth of field vs ours\n")
+    print("| scene | pixels (mask) | Cycles bias RMS / p99 rad | Cycles noise / seed | model | correlation | "
+          "RMS diff / bias RMS | ours ms | Cycles s (8 frames) | speed-up |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name, m, k, c, noise, ours_s, cyc_s in rows:
+        print(f"| {name} | {c['pixels']} ({m}) | {c['bias_rms']:.4f} / {c['bias_p99']:.3f} | {noise:.4f} | {k} | "
+              f"{c['correlation']:.3f} | {c['diff_over_bias']:.3f} | {ours_s * 1e3:.0f} | {cyc_s:.1f} | "
+              f"{cyc_s / ours_s:.0f}x |")
+    _log(a.quiet, "[defocus_bias] response curves")
+    print("\n## Response curves: unit-phase bias, Cycles vs ours\n")
+    print("| scene | effect | pixels | Cycles bias RMS / p99 rad | Cycles noise / seed | correlation | "
+          "RMS diff / bias RMS | ours ms | Cycles s | speed-up |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name, k, c, noise, ours_s, cyc_s in _response_rows(a):
+        print(f"| {name} | {k} | {c['pixels']} | {c['bias_rms']:.2e} / {c['bias_p99']:.2e} | {noise:.4f} | "
+              f"{c['correlation']:.4f} | {c['diff_over_bias']:.2e} | {ours_s * 1e3:.0f} | {cyc_s:.1f} | "
+              f"{cyc_s / ours_s:.0f}x |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
