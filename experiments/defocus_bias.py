@@ -125,3 +125,63 @@ def ours_dof_bias(name: str = "ball-wall-dof", *, aperture_mm: float = APERTURE_
     dof, res = ours_dof_images(name, Defocus(aperture_mm, focus_mm, 6, samples), steps=steps)
     return {"bias": bias_map(dof, pin), "direct": pin, "geometry": res0.geometry, "seconds": res.timings["total"],
             "plan": res.plan}
+
+
+#: projector depth (mm) of the ball's front, where the projector is focused in the projector check
+PROJECTOR_FOCUS_MM = 776.4
+
+
+def projector_reference_bias(geometry, system, *, aperture_mm: float, focus_mm: float, radii: int = 24,
+                             angles: int = 48, ball_radius_mm: float = DEFAULT_BALL_RADIUS_MM) -> np.ndarray:
+    """An independent brute-force reference for the projector's thin lens on ``ball-wall-dof``:
+    (H, W) unit-phase bias ``angle(sum_b w_b E_b exp(i Phi(u_b)) / E_0 exp(i Phi(u_0)))`` at the
+    surface points of the camera's pinhole ``geometry``, the sum over a polar midpoint grid of
+    ``radii`` x ``angles`` aperture points b (area weights), each with: its own DMD coordinate
+    (the line from b through X to the focus plane; ideal projector), visibility from b (the ball
+    as an analytic sphere for wall points, the facing test for ball points), Lambert cosine and
+    inverse-square falloff from b. (The N-step phase of a sum of same-frequency sinusoids is the
+    angle of the sum of their phasors.) NaN where the pinhole point is not lit."""
+    from unwrap.patterns import absolute_phase
+
+    cam, prj = system.camera, system.projector
+    W, H = geometry.size
+    ok = geometry.hit.numpy()
+    Rc, tc = np.asarray(cam.R), np.asarray(cam.t)
+    X = (geometry.points_cam.numpy()[ok] - tc) @ Rc  # world
+    n = geometry.normals_cam.numpy()[ok] @ Rc
+    on_ball = np.abs(np.linalg.norm(X, axis=1) - ball_radius_mm) < 1e-6
+    Rp, tp = np.asarray(prj.R), np.asarray(prj.t)
+    Cp = np.asarray(prj.center_world)
+    r = (np.arange(radii) + 0.5) / radii * aperture_mm / 2
+    a = (np.arange(angles) + 0.5) / angles * 2 * np.pi
+    rr, aa = np.meshgrid(r, a, indexing="ij")
+    pts = np.stack([rr.ravel() * np.cos(aa.ravel()), rr.ravel() * np.sin(aa.ravel())], 1)
+    wts = rr.ravel() / rr.sum()
+
+    def phasor(b):
+        Cb = Cp + Rp.T @ np.array([b[0], b[1], 0.0])
+        p = X @ Rp.T + tp - np.array([b[0], b[1], 0.0])
+        x = p[:, 0] / p[:, 2] + b[0] / focus_mm
+        y = p[:, 1] / p[:, 2] + b[1] / focus_mm
+        u = prj.fx * x + prj.cx
+        v = prj.fy * y + prj.cy
+        inside = (u >= -0.5) & (u <= prj.width - 0.5) & (v >= -0.5) & (v <= prj.height - 0.5)
+        d = Cb - X
+        dist = np.linalg.norm(d, axis=1)
+        dirn = d / dist[:, None]
+        cos = (n * dirn).sum(1)
+        # segment X -> Cb against the ball (wall points): |X + s dirn|^2 = r^2 for some 0 < s < dist
+        bq = (X * dirn).sum(1)
+        cq = (X * X).sum(1) - ball_radius_mm ** 2
+        disc = bq * bq - cq
+        s1 = -bq - np.sqrt(np.maximum(disc, 0))
+        blocked = (~on_ball) & (disc > 0) & (s1 > 1e-6) & (s1 < dist)
+        vis = inside & (cos > 0) & ~blocked
+        return np.where(vis, cos / dist ** 2, 0.0) * np.exp(1j * absolute_phase(u, 1.0, prj.width))
+
+    lens = sum(w * phasor(b) for w, b in zip(wts, pts))
+    pin = phasor((0.0, 0.0))
+    out = np.full(H * W, np.nan)
+    lit = geometry.lit.numpy()[ok]
+    out[np.flatnonzero(ok)[lit]] = np.angle(lens[lit] / pin[lit])
+    return out.reshape(H, W)

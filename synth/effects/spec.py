@@ -29,9 +29,10 @@ class Defocus:
     each axis), interpolated between ``levels`` blur levels. Checked against Blender's thin-lens
     depth of field (tests/test_synth_reference.py).
 
-    ``samples`` (camera only): 0 (default), the blur above applied to the finished image; >= 1,
-    the thin lens itself, as the average of pinhole renders from ``samples`` aperture points
-    (synth.effects.thin_lens: exact occlusion across outlines)."""
+    ``samples``: 0 (default), the Gaussian blur above (camera: of the finished image; projector:
+    of the pattern); >= 1, the thin lens itself, as the average of pinhole renders from
+    ``samples`` aperture points (synth.effects.thin_lens: exact occlusion across outlines for the
+    camera, penumbrae and exact per-point focus for the projector)."""
 
     aperture_mm: float
     focus_mm: float
@@ -156,9 +157,6 @@ def _sub(d, cls, key):
         if k == "samples":
             if isinstance(d[k], bool) or not isinstance(d[k], int) or not 0 <= d[k] <= 1024:
                 raise SynthError(f"effects.{key}.samples: expected an integer in [0, 1024], got {d[k]!r}")
-            if key != "camera_defocus" and d[k]:
-                raise SynthError(f"effects.{key}.samples: aperture sampling is implemented for the camera only "
-                                 "(camera_defocus.samples)")
             kw[k] = d[k]
         elif k in ("levels", "seed"):
             if not isinstance(d[k], int) or d[k] < (2 if k == "levels" else 0):

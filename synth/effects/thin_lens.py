@@ -1,4 +1,5 @@
-"""Camera defocus as a thin lens: the average of pinhole renders from points of the aperture.
+"""Camera and projector defocus as thin lenses: the average of pinhole renders from points of
+the apertures.
 
 A thin lens focused at camera depth ``F`` (mm) sends every ray that leaves the aperture point
 ``a = (a_x, a_y, 0)`` (camera frame, mm, on a disc of diameter ``aperture_mm``) towards the
@@ -70,42 +71,77 @@ def aperture_rays(camera, use_distortion: bool, offset_mm, focus_mm: float) -> t
     return Rays(origin, d, xy, R, t - a, rays.cell, "camera"), ok
 
 
+def projector_at(projector, offset_mm, focus_mm: float):
+    """The projector as an inverse camera seen from its aperture point ``offset_mm`` (b_x, b_y)
+    (projector frame, mm), lens focused at projector depth ``focus_mm``: light from DMD pixel q
+    leaves through b towards q's point on the focus plane, so a point X (projector frame) gets
+    the pixel at normalised ``(X - b)_xy / X_z + b / F``: a pinhole at b whose principal point
+    moves by ``K (b / F)``. Exact without lens distortion; with distortion, the distortion is
+    evaluated at the pinhole-at-b coordinates instead of the sheared ones (an error of about
+    the distortion's gradient times ``|b| / F``, e.g. 1e-3 x 2.5e-3 in normalised units)."""
+    bx, by = (float(v) for v in offset_mm)
+    K = np.array(projector.K, dtype=np.float64)
+    K[0, 2] += (K[0, 0] * bx + K[0, 1] * by) / focus_mm
+    K[1, 2] += K[1, 1] * by / focus_mm
+    return projector.with_(K=K, t=np.asarray(projector.t, dtype=np.float64) - np.array([bx, by, 0.0]))
+
+
+def _active(dof, sigma) -> bool:
+    return dof is not None and dof.samples > 0 and sigma is not None and float(sigma.max()) >= 1e-3
+
+
 def render_thin_lens(scene, render_fn, *, keep_linear: bool, quantised: bool, log=None):
-    """Render ``scene`` whose ``effects.camera_defocus.samples`` >= 1 as the aperture average (module
-    docstring). ``render_fn``: synth.renderer.render.render (passed in: it calls this module).
-    Skipped (the plan says why) when every pixel's blur sigma is below 1e-3 px (the image-blur
-    path's test): then the result is the pinhole render, bit for bit."""
-    from ..renderer.geometry import compute_geometry, defocus_sigma
+    """Render ``scene`` whose ``camera_defocus.samples`` or ``projector_defocus.samples`` is >= 1 as
+    the aperture average (module docstring). ``render_fn``: synth.renderer.render.render (passed
+    in: it calls this module). A device whose blur sigma stays below 1e-3 px at every pixel (the
+    image-blur path's test) is not sampled; when neither is, the result is the render without
+    aperture sampling, bit for bit (the plan says "skipped (every pixel in focus)").
+
+    Both devices sampled: aperture point i of the camera goes with point n - 1 - i of the
+    projector (inner with outer): each device's own average is exact, their joint integral is
+    approximated by this pairing."""
+    from ..renderer.geometry import compute_geometry
     from ..renderer.plan_log import PlanLog
     from ..renderer.render import RenderResult, _sensor
 
     plan = PlanLog.of(log)
     eff = scene.effects
-    dof = eff.camera_defocus
-    cam = scene.system.camera
+    cdof, pdof = eff.camera_defocus, eff.projector_defocus
     t0 = time.perf_counter()
-    pinhole = replace(scene, effects=replace(eff, camera_defocus=None))
-    centre = compute_geometry(pinhole, log=PlanLog.of(None))
-    f_px = max(cam.fx, cam.fy)
-    hit = centre.hit
-    c_max = float(4.0 * defocus_sigma(dof, f_px, centre.depth[hit]).max()) if bool(hit.any()) else 0.0
-    if c_max / 4.0 < 1e-3:  # the image-blur path's own test: it says "skipped (every pixel in focus)"
-        return render_fn(replace(scene, effects=replace(eff, camera_defocus=replace(dof, samples=0))),
-                         keep_linear=keep_linear, quantised=quantised, log=plan)
-    n = int(dof.samples)
-    pts = aperture_points(n) * (dof.aperture_mm / 2.0)
-    plan.info("camera defocus: thin lens, %d aperture sample(s), blur disc up to %.3g px", n, c_max)
-    sample_eff = replace(eff, camera_defocus=None, noise=None, gain=1.0, saturation=1.0, camera_gamma=1.0,
-                         camera_psf_tail=None)
-    sample_scene = replace(scene, effects=sample_eff)
+    plain_eff = replace(eff, camera_defocus=None if cdof is None else replace(cdof, samples=0),
+                        projector_defocus=None if pdof is None else replace(pdof, samples=0))
+    centre = compute_geometry(replace(scene, effects=plain_eff), log=PlanLog.of(None))
+    lit = centre.lit
+    cam_on = _active(cdof, None if centre.sigma_cam is None else centre.sigma_cam[centre.hit])
+    prj_on = _active(pdof, None if centre.sigma_prj is None else centre.sigma_prj[lit])
+    if not cam_on and not prj_on:  # the image-blur path skips with "every pixel in focus" itself
+        return render_fn(replace(scene, effects=plain_eff), keep_linear=keep_linear, quantised=quantised, log=plan)
+    cam, prj = scene.system.camera, scene.system.projector
+    n = max(cdof.samples if cam_on else 0, pdof.samples if prj_on else 0)
+    unit = aperture_points(n)
+    if cam_on:
+        plan.info("camera defocus: thin lens, %d aperture sample(s), blur disc up to %.3g px", n,
+                  4 * float(centre.sigma_cam[centre.hit].max()))
+    if prj_on:
+        plan.info("projector defocus: thin lens, %d aperture sample(s), blur disc up to %.3g px", n,
+                  4 * float(centre.sigma_prj[lit].max()))
+    d_ref = eff.reference_distance_mm or float(np.linalg.norm(prj.center_world))
+    sample_eff = replace(eff, camera_defocus=None if cam_on else plain_eff.camera_defocus,
+                         projector_defocus=None if prj_on else plain_eff.projector_defocus,
+                         noise=None, gain=1.0, saturation=1.0, camera_gamma=1.0, camera_psf_tail=None,
+                         reference_distance_mm=d_ref)
     cam_dist = eff.camera_distortion and bool(np.any(cam.distortion))
     acc = None
     timings: dict = {}
-    for i, a in enumerate(pts):
+    for i in range(n):
         sub = plan if i == 0 else PlanLog.of(None)
-        rays = aperture_rays(cam, cam_dist, a, dof.focus_mm)
-        g = compute_geometry(sample_scene, rays=rays, log=sub)
-        res = render_fn(sample_scene, keep_linear=False, quantised=False, geometry=g, log=sub)
+        s_scene = replace(scene, effects=sample_eff)
+        if prj_on:
+            b = unit[n - 1 - i] * (pdof.aperture_mm / 2.0) if cam_on else unit[i] * (pdof.aperture_mm / 2.0)
+            s_scene = replace(s_scene, system=replace(scene.system, projector=projector_at(prj, b, pdof.focus_mm)))
+        rays = aperture_rays(cam, cam_dist, unit[i] * (cdof.aperture_mm / 2.0), cdof.focus_mm) if cam_on else None
+        g = compute_geometry(s_scene, rays=rays, log=sub)
+        res = render_fn(s_scene, keep_linear=False, quantised=False, geometry=g, log=sub)
         acc = res.images.to(F64) if acc is None else acc.add_(res.images.to(F64))
         for k, v in list(g.timings.items()) + list(res.timings.items()):
             key = f"thin lens: {k}"

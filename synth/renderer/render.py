@@ -237,14 +237,14 @@ def check_render_memory(n_images: int, camera_size, available: int | None = None
 def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry: Geometry | None = None,
            log=None) -> RenderResult:
     """Render every pattern of ``scene``. ``geometry`` reuses a previous geometry stage of the
-    same scene pose (e.g. to render another pattern sequence; not with ``camera_defocus.samples``,
+    same scene pose (e.g. to render another pattern sequence; not with ``*_defocus.samples``,
     whose aperture points each need their own). ``log``: a ``logging.Logger`` the
     plan lines also go to, at DEBUG (default: the ``synth`` logger)."""
     check_fringe_periods(scene.patterns, scene.system.projector.size)
     check_render_memory(len(scene.patterns), scene.system.camera.size)
     plan = PlanLog.of(log)
     eff = scene.effects
-    if eff.camera_defocus is not None and eff.camera_defocus.samples:
+    if any(d is not None and d.samples for d in (eff.camera_defocus, eff.projector_defocus)):
         from ..effects.thin_lens import render_thin_lens  # the aperture average of pinhole renders
 
         return render_thin_lens(scene, render, keep_linear=keep_linear, quantised=quantised, log=plan)
