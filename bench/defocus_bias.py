@@ -10,13 +10,19 @@ renderer the bias is ``wrap(phi_defocused - phi_pinhole)``; Cycles: depth of fie
 seeds' difference / sqrt 2), against its 1-sample pinhole frames. Ours: the thin lens
 (synth.effects.thin_lens) at each ``--lens-samples`` and the old blur of the finished image.
 Two masks: all compared pixels (experiments.gi_bias.comparison_mask) and the outline band (those
-within 8 px of another object's pixel, where defocus can mix projector columns).
+within 8 px of another object's pixel or of a shadow's edge, where defocus mixes light of
+another projector column or a one-sided disc).
 
 Response curves (synth.effects.response, projector_gamma): the projector's gamma 2.2 / 0.6 at 4
 and 8 steps (Cycles: the pattern images raised to gamma; 1-sample point-sampled direct light,
 deterministic), bias ``wrap(phi_gamma - phi_linear)``; the camera's curve 1/2.2 after the lens
 (Cycles: its depth-of-field frames through the same curve, as a colour-management curve would),
 bias ``wrap(phi_lens,curve - phi_pinhole,curve)``.
+
+Projector defocus (synth.effects.thin_lens, projector_defocus.samples) cannot be rendered by
+Cycles (the twin's textured spot light breaks with any radius: ../shared/docs/BLENDER-NOTES.md);
+it is checked against an independent brute-force aperture integral instead
+(experiments.defocus_bias.projector_reference_bias).
 
 Times: ours, ``render()`` of the 8-frame stack, minimum over ``--repeats``; Cycles: the sum of
 its render times of one seed's 8 frames (cached from the run that rendered them).
@@ -42,9 +48,10 @@ def _log(quiet, *a):
 
 
 def outline_band(geometry, width: int = 8) -> np.ndarray:
-    """(H, W) bool: pixels within ``width`` px (Chebyshev) of a pixel of another object (or of no object)."""
+    """(H, W) bool: pixels within ``width`` px (Chebyshev) of a pixel of another object (or of no
+    object) or of other lighting (a cast shadow's edge: lit next to unlit)."""
     W, H = geometry.size
-    obj = geometry.object_id.reshape(H, W).numpy()
+    obj = geometry.object_id.reshape(H, W).numpy() * 2 + geometry.lit.reshape(H, W).numpy()
     edge = np.zeros((H, W), bool)
     edge[:, 1:] |= obj[:, 1:] != obj[:, :-1]
     edge[:, :-1] |= obj[:, 1:] != obj[:, :-1]
@@ -113,7 +120,7 @@ def _defocus_rows(a, name, focus):
             rows.append((name, m_name, k, compare(c["bias"], o["bias"], m), noise, times[k],
                          float(np.sum(c["seconds_per_frame"])) / len(c["maps"])))
     if a.figures:
-        _figure(a.figures / f"{name.split(',')[0]}_{'ball' if focus < 850 else 'wall'}.png",
+        _figure(a.figures / f"defocus_bias_focus_{'ball' if focus < 850 else 'wall'}.png",
                 f"{name}: wrap(phi_lens - phi_pinhole) at f = 1",
                 c["bias"], {k: o["bias"] for k, o in ours.items() if k != f"thin lens, {a.lens_samples[0]} points"}, mask)
     return rows, c, mask, ours
@@ -160,6 +167,32 @@ def _response_rows(a):
     return rows
 
 
+def _projector_rows(a):
+    """The projector's thin lens (focused on the ball's front, 40 mm aperture) against the
+    brute-force aperture integral of experiments.defocus_bias.projector_reference_bias."""
+    import time
+
+    from experiments.defocus_bias import PROJECTOR_FOCUS_MM, ours_dof_images, projector_reference_bias
+    from experiments.gi_bias import _setup, bias_map, compare, comparison_mask
+    from synth.effects.spec import Defocus
+
+    system, _, _ = _setup(8)
+    pin, r0 = ours_dof_images("ball-wall-dof", None)
+    t = time.perf_counter()
+    ref = projector_reference_bias(r0.geometry, system, aperture_mm=40.0, focus_mm=PROJECTOR_FOCUS_MM)
+    ref_s = time.perf_counter() - t
+    m = comparison_mask(r0.geometry, pin, pin) & np.isfinite(ref)
+    rows = []
+    for S in a.lens_samples + [0]:
+        best = float("inf")
+        for _ in range(a.repeats):
+            o, r = ours_dof_images("ball-wall-dof", None, projector_defocus=Defocus(40.0, PROJECTOR_FOCUS_MM, 6, S))
+            best = min(best, r.timings["total"])
+        rows.append(("old pattern blur" if S == 0 else f"thin lens, {S} points", compare(ref, bias_map(o, pin), m),
+                     best, ref_s))
+    return rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.defocus_bias", description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="no Blender: the stored test reference")
@@ -202,6 +235,14 @@ def main(argv=None) -> int:
         print(f"| {name} | {c['pixels']} ({m}) | {c['bias_rms']:.4f} / {c['bias_p99']:.3f} | {noise:.4f} | {k} | "
               f"{c['correlation']:.3f} | {c['diff_over_bias']:.3f} | {ours_s * 1e3:.0f} | {cyc_s:.1f} | "
               f"{cyc_s / ours_s:.0f}x |")
+    _log(a.quiet, "[defocus_bias] projector defocus against the brute-force aperture integral")
+    print("\n## Projector defocus (focus on the ball, 40 mm aperture): ours vs a brute-force aperture integral "
+          "(24 x 48 points; Cycles cannot: BLENDER-NOTES)\n")
+    print("| model | pixels | reference bias RMS / p99 rad | correlation | RMS diff / bias RMS | ours ms | reference s |")
+    print("|---|---|---|---|---|---|---|")
+    for k, c, ours_s, ref_s in _projector_rows(a):
+        print(f"| {k} | {c['pixels']} | {c['bias_rms']:.2e} / {c['bias_p99']:.2e} | {c['correlation']:.3f} | "
+              f"{c['diff_over_bias']:.3f} | {ours_s * 1e3:.0f} | {ref_s:.1f} |")
     _log(a.quiet, "[defocus_bias] response curves")
     print("\n## Response curves: unit-phase bias, Cycles vs ours\n")
     print("| scene | effect | pixels | Cycles bias RMS / p99 rad | Cycles noise / seed | correlation | "

@@ -27,7 +27,6 @@ average (and the PSF tail and response curve, synth.effects.response). The groun
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import replace
 
 import numpy as np
@@ -90,32 +89,38 @@ def _active(dof, sigma) -> bool:
     return dof is not None and dof.samples > 0 and sigma is not None and float(sigma.max()) >= 1e-3
 
 
-def render_thin_lens(scene, render_fn, *, keep_linear: bool, quantised: bool, log=None):
-    """Render ``scene`` whose ``camera_defocus.samples`` or ``projector_defocus.samples`` is >= 1 as
-    the aperture average (module docstring). ``render_fn``: synth.renderer.render.render (passed
-    in: it calls this module). A device whose blur sigma stays below 1e-3 px at every pixel (the
-    image-blur path's test) is not sampled; when neither is, the result is the render without
-    aperture sampling, bit for bit (the plan says "skipped (every pixel in focus)").
+def without_sampling(scene):
+    """``scene`` with both defocus ``samples`` set to 0 (the Gaussian-blur route)."""
+    eff = scene.effects
+    cdof, pdof = eff.camera_defocus, eff.projector_defocus
+    return replace(scene, effects=replace(eff, camera_defocus=None if cdof is None else replace(cdof, samples=0),
+                                          projector_defocus=None if pdof is None else replace(pdof, samples=0)))
+
+
+def aperture_average(scene, render_fn, log=None):
+    """The mean (K, H, W) float32 linear stack over the aperture points of ``scene`` (whose
+    ``camera_defocus.samples`` or ``projector_defocus.samples`` is >= 1; module docstring), before
+    the sensor: ``(images, geometry of the lens centre, timings)``; None when no device needs
+    sampling (its blur sigma below 1e-3 px at every pixel, the Gaussian route's own test): then
+    :func:`without_sampling` renders the scene, bit for bit as without any defocus sampling
+    (the plan says "skipped (every pixel in focus)"). ``render_fn``: synth.renderer.render.render.
 
     Both devices sampled: aperture point i of the camera goes with point n - 1 - i of the
     projector (inner with outer): each device's own average is exact, their joint integral is
     approximated by this pairing."""
     from ..renderer.geometry import compute_geometry
     from ..renderer.plan_log import PlanLog
-    from ..renderer.render import RenderResult, _sensor
 
     plan = PlanLog.of(log)
     eff = scene.effects
     cdof, pdof = eff.camera_defocus, eff.projector_defocus
-    t0 = time.perf_counter()
-    plain_eff = replace(eff, camera_defocus=None if cdof is None else replace(cdof, samples=0),
-                        projector_defocus=None if pdof is None else replace(pdof, samples=0))
-    centre = compute_geometry(replace(scene, effects=plain_eff), log=PlanLog.of(None))
+    plain = without_sampling(scene)
+    centre = compute_geometry(plain, log=PlanLog.of(None))
     lit = centre.lit
     cam_on = _active(cdof, None if centre.sigma_cam is None else centre.sigma_cam[centre.hit])
     prj_on = _active(pdof, None if centre.sigma_prj is None else centre.sigma_prj[lit])
-    if not cam_on and not prj_on:  # the image-blur path skips with "every pixel in focus" itself
-        return render_fn(replace(scene, effects=plain_eff), keep_linear=keep_linear, quantised=quantised, log=plan)
+    if not cam_on and not prj_on:
+        return None
     cam, prj = scene.system.camera, scene.system.projector
     n = max(cdof.samples if cam_on else 0, pdof.samples if prj_on else 0)
     unit = aperture_points(n)
@@ -126,8 +131,8 @@ def render_thin_lens(scene, render_fn, *, keep_linear: bool, quantised: bool, lo
         plan.info("projector defocus: thin lens, %d aperture sample(s), blur disc up to %.3g px", n,
                   4 * float(centre.sigma_prj[lit].max()))
     d_ref = eff.reference_distance_mm or float(np.linalg.norm(prj.center_world))
-    sample_eff = replace(eff, camera_defocus=None if cam_on else plain_eff.camera_defocus,
-                         projector_defocus=None if prj_on else plain_eff.projector_defocus,
+    sample_eff = replace(plain.effects, camera_defocus=None if cam_on else plain.effects.camera_defocus,
+                         projector_defocus=None if prj_on else plain.effects.projector_defocus,
                          noise=None, gain=1.0, saturation=1.0, camera_gamma=1.0, camera_psf_tail=None,
                          reference_distance_mm=d_ref)
     cam_dist = eff.camera_distortion and bool(np.any(cam.distortion))
@@ -137,7 +142,7 @@ def render_thin_lens(scene, render_fn, *, keep_linear: bool, quantised: bool, lo
         sub = plan if i == 0 else PlanLog.of(None)
         s_scene = replace(scene, effects=sample_eff)
         if prj_on:
-            b = unit[n - 1 - i] * (pdof.aperture_mm / 2.0) if cam_on else unit[i] * (pdof.aperture_mm / 2.0)
+            b = unit[n - 1 - i if cam_on else i] * (pdof.aperture_mm / 2.0)
             s_scene = replace(s_scene, system=replace(scene.system, projector=projector_at(prj, b, pdof.focus_mm)))
         rays = aperture_rays(cam, cam_dist, unit[i] * (cdof.aperture_mm / 2.0), cdof.focus_mm) if cam_on else None
         g = compute_geometry(s_scene, rays=rays, log=sub)
@@ -146,8 +151,4 @@ def render_thin_lens(scene, render_fn, *, keep_linear: bool, quantised: bool, lo
         for k, v in list(g.timings.items()) + list(res.timings.items()):
             key = f"thin lens: {k}"
             timings[key] = timings.get(key, 0.0) + v
-    images = acc.div_(n).to(torch.float32)
-    linear = images.clone() if keep_linear else None
-    images = _sensor(images, eff, quantised, timings)
-    timings["total"] = time.perf_counter() - t0
-    return RenderResult(images, [p.name for p in scene.patterns], centre, plan.lines, timings, eff.bits, linear)
+    return acc.div_(n).to(torch.float32), centre, timings

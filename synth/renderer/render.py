@@ -234,6 +234,22 @@ def check_render_memory(n_images: int, camera_size, available: int | None = None
     return need
 
 
+def _thin_lens(scene, keep_linear, quantised, plan) -> RenderResult:
+    """synth.effects.thin_lens: the aperture average of pinhole renders, then the sensor once."""
+    from ..effects.thin_lens import aperture_average, without_sampling
+
+    t0 = time.perf_counter()
+    avg = aperture_average(scene, render, log=plan)
+    if avg is None:  # every pixel in focus: the plain render, bit for bit
+        return render(without_sampling(scene), keep_linear=keep_linear, quantised=quantised, log=plan)
+    images, geometry, timings = avg
+    linear = images.clone() if keep_linear else None
+    images = _sensor(images, scene.effects, quantised, timings)
+    timings["total"] = time.perf_counter() - t0
+    return RenderResult(images, [p.name for p in scene.patterns], geometry, plan.lines, timings, scene.effects.bits,
+                        linear)
+
+
 def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry: Geometry | None = None,
            log=None) -> RenderResult:
     """Render every pattern of ``scene``. ``geometry`` reuses a previous geometry stage of the
@@ -245,9 +261,7 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
     plan = PlanLog.of(log)
     eff = scene.effects
     if any(d is not None and d.samples for d in (eff.camera_defocus, eff.projector_defocus)):
-        from ..effects.thin_lens import render_thin_lens  # the aperture average of pinhole renders
-
-        return render_thin_lens(scene, render, keep_linear=keep_linear, quantised=quantised, log=plan)
+        return _thin_lens(scene, keep_linear, quantised, plan)
     timings: dict = {}
     t0 = time.perf_counter()
     if geometry is None:
