@@ -47,27 +47,6 @@ def _log(quiet, *a):
         print(*a, file=sys.stderr, flush=True)
 
 
-def outline_band(geometry, width: int = 8) -> np.ndarray:
-    """(H, W) bool: pixels within ``width`` px (Chebyshev) of a pixel of another object (or of no
-    object) or of other lighting (a cast shadow's edge: lit next to unlit)."""
-    W, H = geometry.size
-    obj = geometry.object_id.reshape(H, W).numpy() * 2 + geometry.lit.reshape(H, W).numpy()
-    edge = np.zeros((H, W), bool)
-    edge[:, 1:] |= obj[:, 1:] != obj[:, :-1]
-    edge[:, :-1] |= obj[:, 1:] != obj[:, :-1]
-    edge[1:] |= obj[1:] != obj[:-1]
-    edge[:-1] |= obj[1:] != obj[:-1]
-    out = edge.copy()
-    for _ in range(width):
-        grown = out.copy()
-        grown[1:] |= out[:-1]
-        grown[:-1] |= out[1:]
-        grown[:, 1:] |= out[:, :-1]
-        grown[:, :-1] |= out[:, 1:]
-        out = grown
-    return out
-
-
 def _best_time(fn, repeats):
     best, out = float("inf"), None
     for _ in range(repeats):
@@ -100,6 +79,7 @@ def _figure(path, title, ref, maps, mask):
 
 def _defocus_rows(a, name, focus):
     from experiments.defocus_bias import APERTURE_MM, cycles_dof_bias, ours_dof_bias
+    from experiments.defocus_bias import outline_band
     from experiments.gi_bias import compare, comparison_mask
 
     ours = {}

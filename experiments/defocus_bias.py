@@ -61,6 +61,27 @@ def defocus_scene(name: str = "ball-wall-dof", *, albedo: float = 0.8) -> BiasSc
 SCENES = ("ball-wall-dof",)
 
 
+def outline_band(geometry, width: int = 8) -> np.ndarray:
+    """(H, W) bool: pixels within ``width`` px (Chebyshev) of a pixel of another object (or of no
+    object) or of other lighting (a cast shadow's edge: lit next to unlit)."""
+    W, H = geometry.size
+    obj = geometry.object_id.reshape(H, W).numpy() * 2 + geometry.lit.reshape(H, W).numpy()
+    edge = np.zeros((H, W), bool)
+    edge[:, 1:] |= obj[:, 1:] != obj[:, :-1]
+    edge[:, :-1] |= obj[:, 1:] != obj[:, :-1]
+    edge[1:] |= obj[1:] != obj[:-1]
+    edge[:-1] |= obj[1:] != obj[:-1]
+    out = edge.copy()
+    for _ in range(width):
+        grown = out.copy()
+        grown[1:] |= out[:-1]
+        grown[:-1] |= out[1:]
+        grown[:, 1:] |= out[:, :-1]
+        grown[:, :-1] |= out[:, 1:]
+        out = grown
+    return out
+
+
 def cycles_dof_images(name: str, *, samples: int, aperture_mm: float | None, seed: int = 0, steps: int = 8,
                       threads: int = 2, focus_mm: float = FOCUS_MM, timeout: float = 3600,
                       projector_gamma: float = 1.0) -> dict:
