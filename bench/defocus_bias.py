@@ -56,25 +56,11 @@ def _best_time(fn, repeats):
 
 
 def _figure(path, title, ref, maps, mask):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from .gi_bias import bias_figure
 
-    panels = [("Cycles", ref)] + list(maps.items())[:2] + [("Cycles - " + next(iter(maps)), ref - next(iter(maps.values())))]
-    v = float(np.percentile(np.abs(ref[mask]), 99.5)) or 1e-3
-    fig, axes = plt.subplots(1, 4, figsize=(16, 3.4))
-    for ax, (t, m) in zip(axes, panels):
-        im = ax.imshow(np.where(mask, m, np.nan), cmap="RdBu", vmin=-v, vmax=v)
-        ax.set_title(t)
-        ax.set_xticks([])
-        ax.set_yticks([])
-    fig.colorbar(im, ax=axes, shrink=0.8, label="unit-phase bias (rad)")
-    fig.suptitle(title)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=80)
-    plt.close(fig)
-    os.replace(tmp, path)
+    first = next(iter(maps))
+    panels = [("Cycles", ref)] + list(maps.items())[:2] + [(f"Cycles - {first}", ref - maps[first])]
+    bias_figure(path, panels, mask, float(np.percentile(np.abs(ref[mask]), 99.5)) or 1e-3, title)
 
 
 def _defocus_rows(a, name, focus):

@@ -124,16 +124,11 @@ def cycles_dof_bias(name: str = "ball-wall-dof", *, samples: int = 256, seeds=(0
                     focus_mm: float = FOCUS_MM, steps: int = 8) -> dict:
     """Cycles' defocus bias map (circular mean over ``seeds``), the per-seed maps, its pinhole
     stack and the seconds per defocused frame."""
-    from .gi_bias import bias_map, wrap
+    from .gi_bias import seeds_bias
 
     pin = cycles_dof_images(name, samples=1, aperture_mm=None, steps=steps)
-    maps, secs = [], []
-    for s in seeds:
-        out = cycles_dof_images(name, samples=samples, aperture_mm=aperture_mm, focus_mm=focus_mm, seed=s, steps=steps)
-        maps.append(bias_map(out["images"], pin["images"]))
-        secs += list(out["seconds_per_frame"])
-    mean = wrap(np.angle(np.mean(np.exp(1j * np.stack(maps)), 0)))
-    return {"bias": mean, "maps": maps, "direct": pin["images"], "seconds_per_frame": secs}
+    return seeds_bias(pin, [cycles_dof_images(name, samples=samples, aperture_mm=aperture_mm, focus_mm=focus_mm,
+                                              seed=s, steps=steps) for s in seeds])
 
 
 def ours_dof_bias(name: str = "ball-wall-dof", *, aperture_mm: float = APERTURE_MM, focus_mm: float = FOCUS_MM,
