@@ -17,7 +17,7 @@ Response curves (synth.effects.response, projector_gamma): the projector's gamma
 and 8 steps (Cycles: the pattern images raised to gamma; 1-sample point-sampled direct light,
 deterministic), bias ``wrap(phi_gamma - phi_linear)``; the camera's curve 1/2.2 after the lens
 (Cycles: its depth-of-field frames through the same curve, as a colour-management curve would),
-bias ``wrap(phi_lens,curve - phi_pinhole,curve)``.
+bias ``wrap(phi_lens,curve - phi_pinhole,linear)``: the curve's harmonics and the lens together.
 
 Projector defocus (synth.effects.thin_lens, projector_defocus.samples) cannot be rendered by
 Cycles (the twin's textured spot light breaks with any radius: ../shared/docs/BLENDER-NOTES.md);
@@ -112,7 +112,7 @@ def _response_rows(a):
                          compare(bias_map(cg["images"], lin_c["images"]), bias_map(og, lin_o), mask), 0.0, best,
                          float(np.sum(cg["seconds_per_frame"]))))
     # the camera's curve after the lens: Cycles' depth-of-field frames through the curve
-    pin_c = cycles_dof_images("ball-wall-dof", samples=1, aperture_mm=None, steps=8)["images"] ** CAMERA_CURVE
+    pin_c = cycles_dof_images("ball-wall-dof", samples=1, aperture_mm=None, steps=8)["images"]
     maps = []
     secs = []
     for s in range(a.seeds):
@@ -120,7 +120,7 @@ def _response_rows(a):
         maps.append(bias_map(cd["images"] ** CAMERA_CURVE, pin_c))
         secs.append(float(np.sum(cd["seconds_per_frame"])))
     ref = wrap(np.angle(np.mean(np.exp(1j * np.stack(maps)), 0)))
-    pin_o, r0 = ours_dof_images("ball-wall-dof", None, camera_gamma=CAMERA_CURVE)
+    pin_o, r0 = ours_dof_images("ball-wall-dof", None)
     mask = comparison_mask(r0.geometry, pin_c, pin_o)
     noise = float(np.sqrt(np.mean((maps[0] - maps[1])[mask] ** 2)) / np.sqrt(2)) if len(maps) > 1 else float("nan")
     S = a.lens_samples[-1]
@@ -138,7 +138,7 @@ def _projector_rows(a):
     brute-force aperture integral of experiments.defocus_bias.projector_reference_bias."""
     import time
 
-    from experiments.defocus_bias import PROJECTOR_FOCUS_MM, ours_dof_images, projector_reference_bias
+    from experiments.defocus_bias import PROJECTOR_FOCUS_MM, ours_dof_images, outline_band, projector_reference_bias
     from experiments.gi_bias import _setup, bias_map, compare, comparison_mask
     from synth.effects.spec import Defocus
 
@@ -148,14 +148,16 @@ def _projector_rows(a):
     ref = projector_reference_bias(r0.geometry, system, aperture_mm=40.0, focus_mm=PROJECTOR_FOCUS_MM)
     ref_s = time.perf_counter() - t
     m = comparison_mask(r0.geometry, pin, pin) & np.isfinite(ref)
+    band = m & outline_band(r0.geometry)
     rows = []
     for S in a.lens_samples + [0]:
         best = float("inf")
         for _ in range(a.repeats):
             o, r = ours_dof_images("ball-wall-dof", None, projector_defocus=Defocus(40.0, PROJECTOR_FOCUS_MM, 6, S))
             best = min(best, r.timings["total"])
-        rows.append(("old pattern blur" if S == 0 else f"thin lens, {S} points", compare(ref, bias_map(o, pin), m),
-                     best, ref_s))
+        for m_name, mm in (("all", m), ("outline band", band)):
+            rows.append(("old pattern blur" if S == 0 else f"thin lens, {S} points", m_name,
+                         compare(ref, bias_map(o, pin), mm), best, ref_s))
     return rows
 
 
@@ -198,16 +200,17 @@ def main(argv=None) -> int:
           "RMS diff / bias RMS | ours ms | Cycles s (8 frames) | speed-up |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for name, m, k, c, noise, ours_s, cyc_s in rows:
-        print(f"| {name} | {c['pixels']} ({m}) | {c['bias_rms']:.4f} / {c['bias_p99']:.3f} | {noise:.4f} | {k} | "
+        print(f"| {name} | {c['pixels']} ({m}) | {c['bias_rms']:.4f} / {c['bias_p99']:.3f} | {noise:.1e} | {k} | "
               f"{c['correlation']:.3f} | {c['diff_over_bias']:.3f} | {ours_s * 1e3:.0f} | {cyc_s:.1f} | "
               f"{cyc_s / ours_s:.0f}x |")
     _log(a.quiet, "[defocus_bias] projector defocus against the brute-force aperture integral")
     print("\n## Projector defocus (focus on the ball, 40 mm aperture): ours vs a brute-force aperture integral "
           "(24 x 48 points; Cycles cannot: BLENDER-NOTES)\n")
-    print("| model | pixels | reference bias RMS / p99 rad | correlation | RMS diff / bias RMS | ours ms | reference s |")
+    print("| model | pixels (mask) | reference bias RMS / p99 rad | correlation | RMS diff / bias RMS | ours ms "
+          "| reference s |")
     print("|---|---|---|---|---|---|---|")
-    for k, c, ours_s, ref_s in _projector_rows(a):
-        print(f"| {k} | {c['pixels']} | {c['bias_rms']:.2e} / {c['bias_p99']:.2e} | {c['correlation']:.3f} | "
+    for k, m_name, c, ours_s, ref_s in _projector_rows(a):
+        print(f"| {k} | {c['pixels']} ({m_name}) | {c['bias_rms']:.2e} / {c['bias_p99']:.2e} | {c['correlation']:.3f} | "
               f"{c['diff_over_bias']:.3f} | {ours_s * 1e3:.0f} | {ref_s:.1f} |")
     _log(a.quiet, "[defocus_bias] response curves")
     print("\n## Response curves: unit-phase bias, Cycles vs ours\n")
@@ -215,7 +218,7 @@ def main(argv=None) -> int:
           "RMS diff / bias RMS | ours ms | Cycles s | speed-up |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for name, k, c, noise, ours_s, cyc_s in _response_rows(a):
-        print(f"| {name} | {k} | {c['pixels']} | {c['bias_rms']:.2e} / {c['bias_p99']:.2e} | {noise:.4f} | "
+        print(f"| {name} | {k} | {c['pixels']} | {c['bias_rms']:.2e} / {c['bias_p99']:.2e} | {noise:.1e} | "
               f"{c['correlation']:.4f} | {c['diff_over_bias']:.2e} | {ours_s * 1e3:.0f} | {cyc_s:.1f} | "
               f"{cyc_s / ours_s:.0f}x |")
     return 0
