@@ -13,10 +13,10 @@ from part of the aperture and mixes in, and an object's blurred outline covers t
 as far as the lens sees it), as in Cycles' depth of field, and unlike a blur of the finished
 image, which mixes what the centre sees across the edge.
 
-``samples`` aperture points on a Vogel spiral (golden-angle, equal areas; 1 point: the lens
-centre, i.e. the pinhole). With few points a far surface shows ``samples`` shifted copies. (A
+``samples`` aperture points on a Vogel spiral (golden-angle, equal areas; an even number as
+mirrored pairs; 1 point: the lens centre, i.e. the pinhole). With few points a far surface shows ``samples`` shifted copies. (A
 per-sample prefilter, blurring each pinhole image by the Gaussian of one sample's share of the
-disc, sigma ``c / (4 sqrt(samples))``, was measured against 128 samples on the ball-wall scene
+disc, sigma ``c / (4 sqrt(samples))``, was measured (plain spiral) against 128 samples on the ball-wall scene
 and did not help: 8 samples 0.62 / 0.58 of the bias RMS with / without, 16 samples 0.21 / 0.21;
 it is not offered.)
 
@@ -39,16 +39,21 @@ GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
 
 
 def aperture_points(n: int) -> np.ndarray:
-    """(n, 2) points of the unit disc, equal areas (Vogel spiral: radius sqrt((i + 1/2) / n),
-    angle i times the golden angle); n = 1 gives the centre. Mean (0, 0) to O(1/n)."""
+    """(n, 2) points of the unit disc, equal areas: a Vogel spiral (radius sqrt((i + 1/2) / m),
+    angle i times the golden angle, i < m) of m = n / 2 points and their mirror images through
+    the centre when n is even (every odd moment exactly 0: no net parallax shift of what is out of
+    focus; a plain 32-point spiral's mean is 1.6 % of the radius off the centre), the plain
+    spiral of n points when n is odd; n = 1 gives the centre."""
     if n < 1:
         raise ValueError(f"aperture_points: n must be >= 1, got {n}")
     if n == 1:
         return np.zeros((1, 2))
-    i = np.arange(n, dtype=np.float64)
-    r = np.sqrt((i + 0.5) / n)
+    m = n // 2 if n % 2 == 0 else n
+    i = np.arange(m, dtype=np.float64)
+    r = np.sqrt((i + 0.5) / m)
     a = i * GOLDEN_ANGLE
-    return np.stack([r * np.cos(a), r * np.sin(a)], 1)
+    p = np.stack([r * np.cos(a), r * np.sin(a)], 1)
+    return np.concatenate([p, -p]) if n % 2 == 0 else p
 
 
 def aperture_rays(camera, use_distortion: bool, offset_mm, focus_mm: float) -> tuple[Rays, torch.Tensor]:
