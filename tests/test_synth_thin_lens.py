@@ -185,3 +185,23 @@ def test_camera_defocus_bias_of_a_ball_before_a_wall_against_cycles():
     old = compare(ref, ours_dof_bias(samples=0, focus_mm=float(meta["focus_mm"]),
                                      aperture_mm=float(meta["aperture_mm"]))["bias"], mask)
     assert old["correlation"] < c_all["correlation"] - 0.2 and old["diff_over_bias"] > 2 * c_all["diff_over_bias"]
+
+
+def test_the_sensor_runs_once_on_the_aperture_average_and_the_plan_says_so():
+    """Noise, PSF tail, gain, response and quantisation act on the mean (never per point): the
+    quantised output is round(clip(gain v, 0, sat)^g 255) of the kept linear mean, and the plan
+    has no contradictory "skipped" line from an aperture point's render."""
+    from experiments.defocus_bias import defocus_scene
+    from synth.effects.spec import PsfTail
+
+    system = parity_system(4)
+    pats = phase_sequence(("v",), (1,), 4)
+    eff = dict(camera_defocus=Defocus(80.0, 822.2, 6, 4), gain=1.2, saturation=0.95, camera_gamma=0.7)
+    r = render(Scene(system, defocus_scene().objects, pats, Effects(**eff)), keep_linear=True)
+    ref = torch.round((r.linear.double() * 1.2).clamp(0, 0.95) ** 0.7 * 255)
+    assert float((r.images.double() - ref).abs().max()) <= 1
+    t = render(Scene(system, defocus_scene().objects, pats, Effects(camera_psf_tail=PsfTail(0.1, 5.0), **eff)))
+    assert "camera PSF tail: run" in t.plan and "camera PSF tail: skipped (not asked for)" not in t.plan
+    assert not any(line.startswith("camera defocus: skipped") for line in t.plan)
+    assert "camera response: skipped (gamma 1.0)" not in t.plan
+    assert any(line.startswith("cast shadows: computed") for line in t.plan)  # the geometry's own lines stay

@@ -38,6 +38,11 @@ F64 = torch.float64
 GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
 
 
+#: plan lines of an aperture point's render that the average replaces (render() adds the sensor's)
+SAMPLE_PLAN_REPLACED = ("camera defocus: skipped", "projector defocus: skipped", "sensor noise", "camera PSF tail",
+                        "camera response", "gain + quantisation")
+
+
 def aperture_points(n: int) -> np.ndarray:
     """(n, 2) points of the unit disc, equal areas: a Vogel spiral (radius sqrt((i + 1/2) / m),
     angle i times the golden angle, i < m) of m = n / 2 points and their mirror images through
@@ -144,7 +149,7 @@ def aperture_average(scene, render_fn, log=None):
     acc = None
     timings: dict = {}
     for i in range(n):
-        sub = plan if i == 0 else PlanLog.of(None)
+        sub = PlanLog.of(None)
         s_scene = replace(scene, effects=sample_eff)
         if prj_on:
             b = unit[n - 1 - i if cam_on else i] * (pdof.aperture_mm / 2.0)
@@ -152,6 +157,10 @@ def aperture_average(scene, render_fn, log=None):
         rays = aperture_rays(cam, cam_dist, unit[i] * (cdof.aperture_mm / 2.0), cdof.focus_mm) if cam_on else None
         g = compute_geometry(s_scene, rays=rays, log=sub)
         res = render_fn(s_scene, keep_linear=False, quantised=False, geometry=g, log=sub)
+        if i == 0:  # the first point's stage decisions, less those the average makes itself
+            for line in sub.lines:
+                if not line.startswith(SAMPLE_PLAN_REPLACED):
+                    plan.info(line)
         acc = res.images.to(F64) if acc is None else acc.add_(res.images.to(F64))
         for k, v in list(g.timings.items()) + list(res.timings.items()):
             key = f"thin lens: {k}"

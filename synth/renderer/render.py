@@ -234,6 +234,18 @@ def check_render_memory(n_images: int, camera_size, available: int | None = None
     return need
 
 
+def _sensor_plan(eff, plan) -> bool:
+    """Plan lines of the sensor-side stages; True when the PSF tail or the response curve runs."""
+    if eff.noise is None:
+        plan.info("sensor noise: skipped (not asked for)")
+    tail = eff.camera_psf_tail
+    plan.info("camera PSF tail: %s", "run" if tail is not None and tail.fraction > 0
+              else "skipped (not asked for)" if tail is None else "skipped (fraction 0)")
+    if eff.camera_gamma == 1.0:
+        plan.info("camera response: skipped (gamma 1.0)")
+    return eff.camera_gamma != 1.0 or (tail is not None and tail.fraction > 0)
+
+
 def _thin_lens(scene, keep_linear, quantised, plan) -> RenderResult:
     """synth.effects.thin_lens: the aperture average of pinhole renders, then the sensor once."""
     from ..effects.thin_lens import aperture_average, without_sampling
@@ -243,6 +255,7 @@ def _thin_lens(scene, keep_linear, quantised, plan) -> RenderResult:
     if avg is None:  # every pixel in focus: the plain render, bit for bit
         return render(without_sampling(scene), keep_linear=keep_linear, quantised=quantised, log=plan)
     images, geometry, timings = avg
+    _sensor_plan(scene.effects, plan)
     linear = images.clone() if keep_linear else None
     images = _sensor(images, scene.effects, quantised, timings)
     timings["total"] = time.perf_counter() - t0
@@ -276,8 +289,6 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
     t = time.perf_counter()
     sig, cam_blur, gi_on = _optics_plan(eff, geometry, lit, plan)
     ir_on = _interreflection_plan(scene, lit, plan)
-    if eff.noise is None:
-        plan.info("sensor noise: skipped (not asked for)")
     u, v = geometry.u_p[lit], geometry.v_p[lit]
     psize = scene.system.projector.size
     # images = ambient + scale * p. Linear patterns: one matrix product (K, R) @ (R, N) over basis
@@ -290,11 +301,7 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
     p_other = nonlinear_values(scene.patterns, other, u, v, psize, eff, sig, log=plan) if other else None
     if lit.numel() == 0:
         plan.info("patterns: no camera pixel is lit by the projector (empty image apart from ambient light)")
-    cam_after = eff.camera_gamma != 1.0 or (eff.camera_psf_tail is not None and eff.camera_psf_tail.fraction > 0)
-    plan.info("camera PSF tail: %s", "run" if eff.camera_psf_tail is not None and eff.camera_psf_tail.fraction > 0
-              else "skipped (not asked for)" if eff.camera_psf_tail is None else "skipped (fraction 0)")
-    if eff.camera_gamma == 1.0:
-        plan.info("camera response: skipped (gamma 1.0)")
+    cam_after = _sensor_plan(eff, plan)
     fused = (quantised and not cam_blur and not gi_on and not ir_on and eff.noise is None and not keep_linear
              and not cam_after)
     if fused:
