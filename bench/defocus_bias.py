@@ -24,6 +24,10 @@ Cycles (the twin's textured spot light breaks with any radius: ../shared/docs/BL
 it is checked against an independent brute-force aperture integral instead
 (experiments.defocus_bias.projector_reference_bias).
 
+``--subsurface``: also Cycles' random-walk subsurface scattering (weight 0.8, radius 4 mm, on
+the ball-wall scene of experiments.gi_bias, 4 bounces) against our screen-space subsurface term
+(experiments.subsurface_bias); ``--skip-defocus`` prints only that table.
+
 Times: ours, ``render()`` of the 8-frame stack, minimum over ``--repeats``; Cycles: the sum of
 its render times of one seed's 8 frames (cached from the run that rendered them).
 ``--quick``: no Blender, the stored test reference (tests/data/defocus_bias_ball_wall.npz).
@@ -161,6 +165,34 @@ def _projector_rows(a):
     return rows
 
 
+def _subsurface_rows(a):
+    """Cycles' random-walk subsurface against our screen-space term (experiments.subsurface_bias)."""
+    from experiments.gi_bias import compare, comparison_mask
+    from experiments.subsurface_bias import cycles_sss_bias, ours_sss_bias
+
+    c = cycles_sss_bias(samples=a.samples, seeds=tuple(range(a.seeds)))
+    o = ours_sss_bias()
+    mask = comparison_mask(o["geometry"], c["direct"], o["direct"])
+    noise = (float(np.sqrt(np.mean((c["maps"][0] - c["maps"][1])[mask] ** 2)) / np.sqrt(2))
+             if len(c["maps"]) > 1 else float("nan"))
+    return [("ball-wall, plaster-like (weight 0.8, radius 4 mm)", "screen-space subsurface (sigma 0.78 mm)",
+             compare(c["bias"], o["bias"], mask), noise, o["seconds"],
+             float(np.sum(c["seconds_per_frame"])) / len(c["maps"]))]
+
+
+def _print_subsurface(a):
+    _log(a.quiet, "[defocus_bias] subsurface scattering")
+    print("## Subsurface scattering: unit-phase bias, Cycles random walk vs ours\n")
+    print("| scene | model | pixels | Cycles bias RMS / p99 rad | Cycles noise / seed | correlation | "
+          "RMS diff / bias RMS | ours ms | Cycles s (8 frames) | speed-up |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name, k, c, noise, ours_s, cyc_s in _subsurface_rows(a):
+        print(f"| {name} | {k} | {c['pixels']} | {c['bias_rms']:.4f} / {c['bias_p99']:.3f} | {noise:.1e} | "
+              f"{c['correlation']:.3f} | {c['diff_over_bias']:.3f} | {ours_s * 1e3:.0f} | {cyc_s:.1f} | "
+              f"{cyc_s / ours_s:.0f}x |")
+    print()
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.defocus_bias", description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="no Blender: the stored test reference")
@@ -170,6 +202,9 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--figures", type=Path, default=Path("out/defocus_bias"))
     ap.add_argument("--write-reference", type=Path, default=None)
+    ap.add_argument("--subsurface", action="store_true",
+                    help="also Cycles' random-walk subsurface against our screen-space term (slow renders)")
+    ap.add_argument("--skip-defocus", action="store_true", help="with --subsurface: only the subsurface rows")
     ap.add_argument("-q", "--quiet", action="store_true")
     a = ap.parse_args(argv)
     from experiments.defocus_bias import FOCUS_MM, ours_dof_bias
@@ -185,6 +220,10 @@ def main(argv=None) -> int:
                   f"{'old image blur' if S == 0 else f'thin lens, {S} points'} | {c['correlation']:.3f} | "
                   f"{c['diff_over_bias']:.3f} | {o['seconds'] * 1e3:.0f} |")
         return 0
+    if a.subsurface:
+        _print_subsurface(a)
+        if a.skip_defocus:
+            return 0
     rows = []
     for name, focus in FOCI.items():
         _log(a.quiet, f"[defocus_bias] {name}")
