@@ -182,15 +182,20 @@ def _subsurface_rows(a):
 
 def _print_subsurface(a):
     _log(a.quiet, "[defocus_bias] subsurface scattering")
-    print("## Subsurface scattering: unit-phase bias, Cycles random walk vs ours\n")
-    print("| scene | model | pixels | Cycles bias RMS / p99 rad | Cycles noise / seed | correlation | "
-          "RMS diff / bias RMS | ours ms | Cycles s (8 frames) | speed-up |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for name, k, c, noise, ours_s, cyc_s in _subsurface_rows(a):
-        print(f"| {name} | {k} | {c['pixels']} | {c['bias_rms']:.4f} / {c['bias_p99']:.3f} | {noise:.1e} | "
-              f"{c['correlation']:.3f} | {c['diff_over_bias']:.3f} | {ours_s * 1e3:.0f} | {cyc_s:.1f} | "
-              f"{cyc_s / ours_s:.0f}x |")
+    _print_effect_rows("Subsurface scattering: unit-phase bias, Cycles random walk vs ours", _subsurface_rows(a))
     print()
+
+
+def _print_effect_rows(heading, rows):
+    """One Markdown table of (scene, effect, comparison, Cycles noise, our s, Cycles s) rows."""
+    print(f"## {heading}\n")
+    print("| scene | effect | pixels | Cycles bias RMS / p99 rad | Cycles noise / seed | correlation | "
+          "RMS diff / bias RMS | ours ms | Cycles s | speed-up |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name, k, c, noise, ours_s, cyc_s in rows:
+        print(f"| {name} | {k} | {c['pixels']} | {c['bias_rms']:.2e} / {c['bias_p99']:.2e} | {noise:.1e} | "
+              f"{c['correlation']:.4f} | {c['diff_over_bias']:.2e} | {ours_s * 1e3:.0f} | {cyc_s:.1f} | "
+              f"{cyc_s / ours_s:.0f}x |")
 
 
 def main(argv=None) -> int:
@@ -252,14 +257,8 @@ def main(argv=None) -> int:
         print(f"| {k} | {c['pixels']} ({m_name}) | {c['bias_rms']:.2e} / {c['bias_p99']:.2e} | {c['correlation']:.3f} | "
               f"{c['diff_over_bias']:.3f} | {ours_s * 1e3:.0f} | {ref_s:.1f} |")
     _log(a.quiet, "[defocus_bias] response curves")
-    print("\n## Response curves: unit-phase bias, Cycles vs ours\n")
-    print("| scene | effect | pixels | Cycles bias RMS / p99 rad | Cycles noise / seed | correlation | "
-          "RMS diff / bias RMS | ours ms | Cycles s | speed-up |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for name, k, c, noise, ours_s, cyc_s in _response_rows(a):
-        print(f"| {name} | {k} | {c['pixels']} | {c['bias_rms']:.2e} / {c['bias_p99']:.2e} | {noise:.1e} | "
-              f"{c['correlation']:.4f} | {c['diff_over_bias']:.2e} | {ours_s * 1e3:.0f} | {cyc_s:.1f} | "
-              f"{cyc_s / ours_s:.0f}x |")
+    print()
+    _print_effect_rows("Response curves: unit-phase bias, Cycles vs ours", _response_rows(a))
     return 0
 
 
