@@ -8,8 +8,10 @@ Radiometry (linear camera value before gain, 1.0 = full scale):
 between the surface normal and the direction to the projector (Lambertian; 1 when shading is
 "none"), ``d_p`` the distance to the projector centre (the inverse-square term is 1 when
 ``falloff`` is false), ``d_ref`` the reference distance (default: projector centre to world
-origin). Then: global illumination (optional, synth.effects.global_illumination), camera defocus, Poisson-Gaussian noise (electrons), gain, saturation at full
-scale, quantisation to ``bits``. Interreflection (optional, synth.effects.interreflection) adds
+origin). Then: global illumination (optional, synth.effects.global_illumination), camera defocus
+(a blur, or the thin lens of synth.effects.thin_lens with ``samples``), the PSF's tail,
+Poisson-Gaussian noise (electrons), gain, saturation at full scale, the camera's response curve
+(synth.effects.response), quantisation to ``bits``. Interreflection (optional, synth.effects.interreflection) adds
 light that reaches a point from other surfaces, before the camera stages.
 """
 from __future__ import annotations
