@@ -9,9 +9,9 @@ from __future__ import annotations
 import sys
 import time
 
-from . import (ba_scale, calib_accuracy, calib_captures, calib_speed, decision_error_fit, deploy_speed,
-               detect_accuracy, export_speed, finetune_real, gi_bias, learned_deploy, learned_speed,
-               outlier_rule, spatial_unwrap, synth_speed, unwrap_speed)
+from . import (ba_scale, calib_accuracy, calib_captures, calib_speed, decision_error_fit, defocus_bias,
+               deploy_speed, detect_accuracy, export_speed, finetune_real, gi_bias, learned_deploy,
+               learned_speed, outlier_rule, spatial_unwrap, synth_speed, unwrap_speed)
 
 #: (name, main(argv) of the benchmark, arguments of its quick mode)
 BENCHMARKS = [
@@ -19,6 +19,7 @@ BENCHMARKS = [
     ("synth_speed", synth_speed.main, ["--quick"]),
     ("decision_error_fit", decision_error_fit.main, ["--quick"]),
     ("gi_bias", gi_bias.main, ["--quick", "-q"]),
+    ("defocus_bias", defocus_bias.main, ["--quick", "-q"]),
     ("detect_accuracy", detect_accuracy.main, ["--quick", "--setup", "0"]),
     ("calib_accuracy", calib_accuracy.main, ["--quick"]),
     ("ba_scale", ba_scale.main, ["--quick"]),

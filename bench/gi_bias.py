@@ -91,21 +91,26 @@ def _cycles_anchor(name, samples, threads) -> float:
 
 
 def _figure(path, name, ref, maps, mask):
+    panels = [("Cycles (4 bounces)", ref), ("ours, 1 bounce", maps["ours 1 bounce"]), ("old term", maps["old term"]),
+              ("Cycles - ours", ref - maps["ours 1 bounce"])]
+    bias_figure(path, panels, mask, float(np.percentile(np.abs(ref[mask]), 99)) or 1e-3,
+                f"{name}: wrap(phi_gi - phi_direct) at f = 1 (x 64 / 2 pi = fringes of a 64-period pattern)")
+
+
+def bias_figure(path, panels, mask, v, title):
+    """Four bias maps (``panels``: (title, (H,W) rad)) side by side, colour range +-v, written atomically."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    panels = [("Cycles (4 bounces)", ref), ("ours, 1 bounce", maps["ours 1 bounce"]), ("old term", maps["old term"]),
-              ("Cycles - ours", ref - maps["ours 1 bounce"])]
-    v = float(np.percentile(np.abs(ref[mask]), 99)) or 1e-3
     fig, axes = plt.subplots(1, 4, figsize=(16, 3.4))
-    for ax, (title, m) in zip(axes, panels):
+    for ax, (label, m) in zip(axes, panels):
         im = ax.imshow(np.where(mask, m, np.nan), cmap="RdBu", vmin=-v, vmax=v)
-        ax.set_title(title)
+        ax.set_title(label)
         ax.set_xticks([])
         ax.set_yticks([])
     fig.colorbar(im, ax=axes, shrink=0.8, label="unit-phase bias (rad)")
-    fig.suptitle(f"{name}: wrap(phi_gi - phi_direct) at f = 1 (x 64 / 2 pi = fringes of a 64-period pattern)")
+    fig.suptitle(title)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.stem + ".tmp.png")
     fig.savefig(tmp, dpi=80)

@@ -212,11 +212,15 @@ def cycles_bias(name: str, *, samples: int = 256, bounces: int = 4, seeds=(0, 1)
     rad, "noise_rms_per_seed" (RMS of the two seeds' difference / sqrt 2 over the comparison
     mask, NaN with one seed), "direct" (Cycles' direct stack), "seconds_per_frame" (GI frames)}."""
     direct = cycles_images(name, samples=1, bounces=0, steps=steps, threads=threads)
-    maps, secs = [], []
-    for s in seeds:
-        out = cycles_images(name, samples=samples, bounces=bounces, seed=s, steps=steps, threads=threads)
-        maps.append(bias_map(out["images"], direct["images"]))
-        secs += list(out["seconds_per_frame"])
+    return seeds_bias(direct, [cycles_images(name, samples=samples, bounces=bounces, seed=s, steps=steps,
+                                             threads=threads) for s in seeds])
+
+
+def seeds_bias(direct: dict, outs: list) -> dict:
+    """The bias maps of Cycles renders ``outs`` (one per seed, each {"images", "seconds_per_frame"})
+    against ``direct``: {"bias" (their circular mean), "maps", "direct" images, "seconds_per_frame"}."""
+    maps = [bias_map(o["images"], direct["images"]) for o in outs]
+    secs = [t for o in outs for t in o["seconds_per_frame"]]
     mean = wrap(np.angle(np.mean(np.exp(1j * np.stack(maps)), 0)))
     return {"bias": mean, "maps": maps, "direct": direct["images"], "seconds_per_frame": secs}
 

@@ -8,8 +8,10 @@ Radiometry (linear camera value before gain, 1.0 = full scale):
 between the surface normal and the direction to the projector (Lambertian; 1 when shading is
 "none"), ``d_p`` the distance to the projector centre (the inverse-square term is 1 when
 ``falloff`` is false), ``d_ref`` the reference distance (default: projector centre to world
-origin). Then: global illumination (optional, synth.effects.global_illumination), camera defocus, Poisson-Gaussian noise (electrons), gain, saturation at full
-scale, quantisation to ``bits``. Interreflection (optional, synth.effects.interreflection) adds
+origin). Then: global illumination (optional, synth.effects.global_illumination), camera defocus
+(a blur, or the thin lens of synth.effects.thin_lens with ``samples``), the PSF's tail,
+Poisson-Gaussian noise (electrons), gain, saturation at full scale, the camera's response curve
+(synth.effects.response), quantisation to ``bits``. Interreflection (optional, synth.effects.interreflection) adds
 light that reaches a point from other surfaces, before the camera stages.
 """
 from __future__ import annotations
@@ -27,11 +29,17 @@ class Defocus:
     ``c = aperture_mm * f_px * |1/z - 1/focus_mm|`` pixels; we use the Gaussian with the disc's
     per-axis second moment, ``sigma = c / 4`` (a uniform disc of radius r has variance r^2/4 along
     each axis), interpolated between ``levels`` blur levels. Checked against Blender's thin-lens
-    depth of field (tests/test_synth_reference.py)."""
+    depth of field (tests/test_synth_reference.py).
+
+    ``samples``: 0 (default), the Gaussian blur above (camera: of the finished image; projector:
+    of the pattern); >= 1, the thin lens itself, as the average of pinhole renders from
+    ``samples`` aperture points (synth.effects.thin_lens: exact occlusion across outlines for the
+    camera, penumbrae and exact per-point focus for the projector)."""
 
     aperture_mm: float
     focus_mm: float
     levels: int = 6
+    samples: int = 0
 
 
 @dataclass(frozen=True)
@@ -88,6 +96,15 @@ class Interreflection:
 
 
 @dataclass(frozen=True)
+class PsfTail:
+    """The camera PSF's wide tail (synth.effects.response): a fraction ``fraction`` of the light
+    on the sensor plane spread by a Gaussian of ``sigma_px`` camera pixels."""
+
+    fraction: float
+    sigma_px: float
+
+
+@dataclass(frozen=True)
 class Effects:
     exposure: float = 0.8
     shading: str = "lambert"          # "lambert" | "none"
@@ -100,6 +117,8 @@ class Effects:
     projector_defocus: Defocus | None = None
     camera_defocus: Defocus | None = None
     projector_gamma: float = 1.0
+    camera_gamma: float = 1.0           # camera response: output = clip(gain v, 0, saturation)^camera_gamma
+    camera_psf_tail: PsfTail | None = None
     gain: float = 1.0
     saturation: float = 1.0
     noise: Noise | None = None
@@ -137,7 +156,11 @@ def _sub(d, cls, key):
     check_keys(d, cls.__dataclass_fields__, "scene", SynthError, prefix=f"effects.{key}.")
     kw = {}
     for k in d:
-        if k in ("levels", "seed"):
+        if k == "samples":
+            if isinstance(d[k], bool) or not isinstance(d[k], int) or not 0 <= d[k] <= 1024:
+                raise SynthError(f"effects.{key}.samples: expected an integer in [0, 1024], got {d[k]!r}")
+            kw[k] = d[k]
+        elif k in ("levels", "seed"):
             if not isinstance(d[k], int) or d[k] < (2 if k == "levels" else 0):
                 raise SynthError(f"effects.{key}.{k}: expected an integer >= {2 if k == 'levels' else 0}, got {d[k]!r}")
             kw[k] = d[k]
@@ -197,6 +220,22 @@ def _interreflection(d) -> Interreflection | None:
     return Interreflection(**kw)
 
 
+def _psf_tail(d) -> PsfTail | None:
+    if d is None or d is False:
+        return None
+    if not isinstance(d, dict):
+        raise SynthError(f"effects.camera_psf_tail: expected a table, got {d!r}")
+    check_keys(d, PsfTail.__dataclass_fields__, "scene", SynthError, prefix="effects.camera_psf_tail.")
+    for k in PsfTail.__dataclass_fields__:
+        if k not in d:
+            raise SynthError(f"effects.camera_psf_tail.{k}: missing (fraction in [0, 1], sigma_px > 0)")
+    out = PsfTail(_number(d, "fraction", 0.0, 1.0, "effects.camera_psf_tail"),
+                  _number(d, "sigma_px", 0.0, 1000.0, "effects.camera_psf_tail"))
+    if out.sigma_px <= 0:
+        raise SynthError(f"effects.camera_psf_tail.sigma_px: expected > 0, got {out.sigma_px}")
+    return out
+
+
 def effects_from_table(d: dict | None) -> Effects:
     """``[effects]`` table -> Effects; unknown keys and bad values raise SynthError naming them."""
     d = dict(d or {})
@@ -229,8 +268,10 @@ def effects_from_table(d: dict | None) -> Effects:
             kw[k] = v
         elif k == "reference_distance_mm":
             kw[k] = _number(d, k, 1e-6)
-        elif k == "projector_gamma":
+        elif k in ("projector_gamma", "camera_gamma"):
             kw[k] = _number(d, k, 0.05, 10)
+        elif k == "camera_psf_tail":
+            kw[k] = _psf_tail(v)
         elif k in ("ambient", "exposure", "gain", "saturation", "vignetting", "A", "B"):
             kw[k] = _number(d, k, 0.0, 1.0 if k in ("vignetting", "A", "B") else None)
     eff = Effects(**kw)

@@ -254,10 +254,12 @@ def _defocus_sigmas(scene, in_field, z_prj, depth, hi, N):
     return sigma_prj, sigma_cam
 
 
-def compute_geometry(scene, *, shadows: bool | None = None, log=None) -> Geometry:
+def compute_geometry(scene, *, shadows: bool | None = None, log=None, rays=None) -> Geometry:
     """Run the geometry stage of ``scene`` (see the module docstring). ``shadows`` overrides
     the scene's choice (None: follow ``effects.shadows``). ``log``: where the stage decisions go
-    (:class:`synth.renderer.plan_log.PlanLog`, or a ``logging.Logger`` they go to at DEBUG)."""
+    (:class:`synth.renderer.plan_log.PlanLog`, or a ``logging.Logger`` they go to at DEBUG).
+    ``rays``: (Rays, valid) replacing the camera's pinhole rays (one aperture point of
+    synth.effects.thin_lens); the buffers stay in the camera frame."""
     log = PlanLog.of(log)
     sysm, eff = scene.system, scene.effects
     cam, prj = sysm.camera, sysm.projector
@@ -268,7 +270,7 @@ def compute_geometry(scene, *, shadows: bool | None = None, log=None) -> Geometr
     cam_dist = eff.camera_distortion and bool(np.any(cam.distortion))
     prj_dist = eff.projector_distortion and bool(np.any(prj.distortion))
     with clock("camera rays"):
-        rays, ray_ok = camera_rays(cam, cam_dist)
+        rays, ray_ok = camera_rays(cam, cam_dist) if rays is None else rays
     if not cam_dist:
         log.info("camera distortion: skipped (%s)", "zero coefficients" if eff.camera_distortion else "turned off")
     with clock("ray hits"):

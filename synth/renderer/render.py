@@ -189,14 +189,28 @@ def _linear_images(geometry, lit, idx, C, rows, other, p_other, K, eff, cam_blur
 
 
 def _sensor(images, eff, quantised: bool, timings):
-    """Sensor noise, then gain, saturation and quantisation (or gain and clipping alone)."""
+    """The PSF's tail, sensor noise, then gain, saturation, the response curve and quantisation
+    (or all but the quantisation); synth.effects.response."""
     t = time.perf_counter()
+    if eff.camera_psf_tail is not None and eff.camera_psf_tail.fraction > 0:
+        from ..effects.response import psf_tail
+
+        images = psf_tail(images, eff.camera_psf_tail.fraction, eff.camera_psf_tail.sigma_px)
+        timings["camera PSF tail"] = time.perf_counter() - t
+        t = time.perf_counter()
     if eff.noise is not None:
         gen = torch.Generator().manual_seed(int(eff.noise.seed))
         images = add_noise(images, eff.noise, gen)
         timings["noise"] = time.perf_counter() - t
     t = time.perf_counter()
-    if quantised:
+    if eff.camera_gamma != 1.0:
+        from ..effects.response import camera_response
+
+        images = camera_response(images, eff.camera_gamma, eff.gain, eff.saturation)
+        if quantised:
+            images = quantise(images, eff.bits, 1.0, eff.saturation ** eff.camera_gamma)
+            timings["gain + response + quantisation"] = time.perf_counter() - t
+    elif quantised:
         images = quantise(images, eff.bits, eff.gain, eff.saturation)
         timings["gain + quantisation"] = time.perf_counter() - t
     elif eff.gain != 1.0 or eff.saturation != 1.0:
@@ -220,15 +234,47 @@ def check_render_memory(n_images: int, camera_size, available: int | None = None
     return need
 
 
+def _sensor_plan(eff, plan) -> bool:
+    """Plan lines of the sensor-side stages; True when the PSF tail or the response curve runs."""
+    if eff.noise is None:
+        plan.info("sensor noise: skipped (not asked for)")
+    tail = eff.camera_psf_tail
+    plan.info("camera PSF tail: %s", "run" if tail is not None and tail.fraction > 0
+              else "skipped (not asked for)" if tail is None else "skipped (fraction 0)")
+    if eff.camera_gamma == 1.0:
+        plan.info("camera response: skipped (gamma 1.0)")
+    return eff.camera_gamma != 1.0 or (tail is not None and tail.fraction > 0)
+
+
+def _thin_lens(scene, keep_linear, quantised, plan) -> RenderResult:
+    """synth.effects.thin_lens: the aperture average of pinhole renders, then the sensor once."""
+    from ..effects.thin_lens import aperture_average, without_sampling
+
+    t0 = time.perf_counter()
+    avg = aperture_average(scene, render, log=plan)
+    if avg is None:  # every pixel in focus: the plain render, bit for bit
+        return render(without_sampling(scene), keep_linear=keep_linear, quantised=quantised, log=plan)
+    images, geometry, timings = avg
+    _sensor_plan(scene.effects, plan)
+    linear = images.clone() if keep_linear else None
+    images = _sensor(images, scene.effects, quantised, timings)
+    timings["total"] = time.perf_counter() - t0
+    return RenderResult(images, [p.name for p in scene.patterns], geometry, plan.lines, timings, scene.effects.bits,
+                        linear)
+
+
 def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry: Geometry | None = None,
            log=None) -> RenderResult:
     """Render every pattern of ``scene``. ``geometry`` reuses a previous geometry stage of the
-    same scene pose (e.g. to render another pattern sequence). ``log``: a ``logging.Logger`` the
+    same scene pose (e.g. to render another pattern sequence; not with ``*_defocus.samples``,
+    whose aperture points each need their own). ``log``: a ``logging.Logger`` the
     plan lines also go to, at DEBUG (default: the ``synth`` logger)."""
     check_fringe_periods(scene.patterns, scene.system.projector.size)
     check_render_memory(len(scene.patterns), scene.system.camera.size)
     plan = PlanLog.of(log)
     eff = scene.effects
+    if any(d is not None and d.samples for d in (eff.camera_defocus, eff.projector_defocus)):
+        return _thin_lens(scene, keep_linear, quantised, plan)
     timings: dict = {}
     t0 = time.perf_counter()
     if geometry is None:
@@ -243,8 +289,6 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
     t = time.perf_counter()
     sig, cam_blur, gi_on = _optics_plan(eff, geometry, lit, plan)
     ir_on = _interreflection_plan(scene, lit, plan)
-    if eff.noise is None:
-        plan.info("sensor noise: skipped (not asked for)")
     u, v = geometry.u_p[lit], geometry.v_p[lit]
     psize = scene.system.projector.size
     # images = ambient + scale * p. Linear patterns: one matrix product (K, R) @ (R, N) over basis
@@ -257,7 +301,9 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
     p_other = nonlinear_values(scene.patterns, other, u, v, psize, eff, sig, log=plan) if other else None
     if lit.numel() == 0:
         plan.info("patterns: no camera pixel is lit by the projector (empty image apart from ambient light)")
-    fused = quantised and not cam_blur and not gi_on and not ir_on and eff.noise is None and not keep_linear
+    cam_after = _sensor_plan(eff, plan)
+    fused = (quantised and not cam_blur and not gi_on and not ir_on and eff.noise is None and not keep_linear
+             and not cam_after)
     if fused:
         # nothing between the patterns and the quantiser acts across pixels: compute the lit
         # pixels in cache-sized chunks and quantise them at once; unlit pixels hold ambient only
