@@ -21,7 +21,22 @@ HELD_OUT = {"nefertiti.obj", "cheburashka.obj", "suzanne.obj"}
 REAL = ("export_real.toml", "export_real_fewstep.toml")
 
 
-def _procedural(layouts, **scene):
+def _window_system(tmp_path, w=160, h=120):
+    """The central w x h window of the built-in camera (same rays per pixel), as a calibration.json."""
+    from calib.system import default_system
+    from calib.io.calibration_json import system_to_dict
+
+    d = system_to_dict(default_system())
+    c = d["camera"]
+    c["K"][0][2] -= (c["size"][0] - w) / 2
+    c["K"][1][2] -= (c["size"][1] - h) / 2
+    c["size"] = [w, h]
+    path = tmp_path / "window.json"
+    path.write_text(json.dumps(d))
+    return str(path)
+
+
+def _procedural(layouts, system_file="system_window320.json", **scene):
     """A real-like config without meshes (no shared data needed)."""
     d = load_config(DATA / "export_real.toml")
     sc = {"objects": [1, 3], "mesh_fraction": 0.0, "procedural": ["sphere", "blobs", "heightfield", "steps"],
@@ -29,7 +44,7 @@ def _procedural(layouts, **scene):
     eff = {"noise": {"full_well_e": [6000, 40000], "read_noise_e": [2, 10]},
            "global_illumination": {"subsurface": [0, 0.6], "scatter_mm": [0.5, 4]},
            "interreflection": {"chance": 1.0, "bounces": [1, 2], "patch_px": [32, 48]}}
-    return config_from_dict({"export": {"samples": 4, "seed": 5}, "system": {"file": "system_window320.json"},
+    return config_from_dict({"export": {"samples": 4, "seed": 5}, "system": {"file": system_file},
                              "patterns": {"frequencies": [1, 8], "steps": 4, "orientations": ["v"]},
                              "scene": sc, "effects": eff}, base_dir=d.base_dir)
 
@@ -127,10 +142,10 @@ def test_real_like_configs_never_draw_a_held_out_mesh():
         assert drawn and not drawn & HELD_OUT, drawn
 
 
-def test_the_new_scene_kinds_render_with_interreflection_and_clean_labels():
+def test_the_new_scene_kinds_render_with_interreflection_and_clean_labels(tmp_path):
     from synth.export.sample import make_sample
 
-    cfg = _procedural(["wall", "table"])
+    cfg = _procedural(["wall", "table"], _window_system(tmp_path), size_mm=[15, 40])
     system, _ = base_system(cfg)
     seen = set()
     for i in range(2):
@@ -150,7 +165,7 @@ def test_a_board_alone_renders_without_the_drawn_effects():
     lone calibration board untouched: the renderer skips them and the images are bit-identical."""
     from dataclasses import replace
 
-    from synth import Scene, phase_sequence, render
+    from synth import Scene, render
     from synth.scenes.scene import scene_from_dict
 
     cfg = _procedural(["wall"])
@@ -160,9 +175,11 @@ def test_a_board_alone_renders_without_the_drawn_effects():
     eff = draw_effects(cfg, system, 1, np.random.default_rng(3), params)
     assert eff.interreflection is not None
     board = scene_from_dict({"objects": [{"kind": "board", "board": {"kind": "circles", "rows": 9, "cols": 11,
-                                                                      "spacing_mm": 20.0}}]})
+                                                                      "spacing_mm": 20.0}}],
+                             "patterns": {"sequence": [{"kind": "phase", "orientation": "v", "frequencies": [1, 8],
+                                                        "steps": 4}]}})
     eff = replace(eff, noise=None, global_illumination=None, camera_defocus=None, projector_defocus=None)
-    pat = phase_sequence(["v"], [1, 8], [4])
+    pat = board.patterns
     asked = render(Scene(system, board.objects, pat, eff, "board"))
     plain = render(Scene(system, board.objects, pat, replace(eff, interreflection=None), "board"))
     assert any(line.startswith("interreflection: skipped (a single convex board") for line in asked.plan)
