@@ -1,7 +1,8 @@
 """Two learned models on the same pixels: the shipped one and a retrained candidate (issue 21 item 7).
 
-    python -m bench.retrain_compare --new RUN/model.pt [--old learned] [--test TEST.h5 ...]
+    python -m bench.retrain_compare --model old=learned new=RUN/model.pt [--test TEST.h5 ...]
         [--real-items pyramid skull] [--work DIR] [--json OUT.json]
+    python -m bench.retrain_compare --merge old.json new.json     # runs of one model each, same sources
 
 Rows per source (error rate = wrong orders / pixels with valid inputs and a reference order; every
 row of a source on the same pixels, nothing dropped): Traditional (the prior rounded), old model,
@@ -31,7 +32,7 @@ def _dataset_items(path, freqs, methods, max_items=None):
     """Items of a dataset file for each (method, f): MF (1, f) and MW (f - 1, f) where held."""
     import h5py
 
-    from reports.learned_parity import capture_noise
+    from experiments.learned_parity import capture_noise
     from unwrap.dataset import FringeOrderDataset
     from unwrap.dataset_schema import read_attrs
 
@@ -47,7 +48,7 @@ def _dataset_items(path, freqs, methods, max_items=None):
                 pair = (1.0, float(f)) if m == "mf" else (float(f) - 1, float(f))
                 if not set(pair) <= have:
                     continue
-                noise = capture_noise(path, o, pair)
+                noise = capture_noise(path, o, (min(have), float(f)))   # the sensor's noise (an MF pair)
                 ds = FringeOrderDataset(path, method=m, frequencies=pair, orientation=o, crop=None, seed=0)
                 n = len(ds) if max_items is None else min(len(ds), max_items)
                 for i in range(n):
@@ -100,6 +101,22 @@ def score(items, models, graph_cut):
     return res
 
 
+def merge(parts: list) -> tuple[dict, dict]:
+    """Results of several runs over the same sources (one model each) -> one result; the
+    traditional rows and pixel counts must agree (same pixels)."""
+    models, res = {}, {}
+    for part in parts:
+        models.update(part["models"])
+        for label, R in part["results"].items():
+            if label not in res:
+                res[label] = {"pixels": R["pixels"], "rows": dict(R["rows"])}
+                continue
+            if R["pixels"] != res[label]["pixels"] or R["rows"]["Traditional"] != res[label]["rows"]["Traditional"]:
+                raise SystemExit(f"--merge: {label} differs between the runs (not the same pixels)")
+            res[label]["rows"].update(R["rows"])
+    return res, models
+
+
 def table(res, models) -> str:
     names = list(models)
     rows = ["Traditional"] + [f"Learned {n}" for n in names] + [f"Learned {n} + graph cut" for n in names]
@@ -110,13 +127,16 @@ def table(res, models) -> str:
         rates = [100 * R["rows"][r] / p for r in rows]
         ratio = (R["rows"][f"Learned {names[1]}"] / max(R["rows"][f"Learned {names[0]}"], 1)) if len(names) > 1 else 1
         L.append(f"| {label} ({R['pixels']:,}) | " + " | ".join(f"{v:.3f}" for v in rates) + f" | {ratio:.2f} |")
+    L.append("")
+    L.append("(error % of the pixels with a reference; new / old = ratio of the learned rows' wrong pixels)")
     return "\n".join(L)
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.retrain_compare", description=__doc__.split("\n")[0])
-    ap.add_argument("--old", default="learned", help="reference model (default: the shipped one)")
-    ap.add_argument("--new", required=True, help="candidate model.pt")
+    ap.add_argument("--model", nargs="*", default=[], metavar="NAME=MODEL",
+                    help="models to score, e.g. old=learned new=runs/x/model.pt (learned: the shipped one)")
+    ap.add_argument("--merge", nargs="*", default=None, metavar="JSON", help="combine earlier runs' --json files")
     ap.add_argument("--test", nargs="*", default=[], help="dataset files (twin / Cycles) with geometric orders")
     ap.add_argument("--freqs", nargs="*", type=float, default=[48.0, 96.0])
     ap.add_argument("--methods", nargs="*", default=["mf", "mw"], choices=["mf", "mw", "nt"])
@@ -126,7 +146,13 @@ def main(argv=None) -> int:
     ap.add_argument("--work", default="/tmp/sltwin_bench_spatial", help="cache of exported captures")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
-    models = {"old": a.old, "new": a.new}
+    if a.merge:
+        res, models = merge([json.loads(Path(p).read_text()) for p in a.merge])
+        print(table(res, models))
+        return 0
+    models = dict(m.split("=", 1) for m in a.model)
+    if not models:
+        ap.error("give --model NAME=MODEL (one or more) or --merge")
     work = Path(a.work)
     work.mkdir(parents=True, exist_ok=True)
     items = []

@@ -78,7 +78,7 @@ def _file_items(path, label, max_items=None):
     """Items of a dataset file (twin export or exported capture), MF with its lowest and highest frequency."""
     import h5py
 
-    from reports.learned_parity import capture_noise
+    from experiments.learned_parity import capture_noise
     from unwrap.dataset import FringeOrderDataset
     from unwrap.dataset_schema import read_attrs
 
