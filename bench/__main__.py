@@ -10,7 +10,8 @@ import sys
 import time
 
 from . import (ba_scale, calib_accuracy, calib_captures, deploy_speed, detect_accuracy, export_speed,
-               finetune_real, gi_bias, learned_speed, outlier_rule, spatial_unwrap, synth_speed, unwrap_speed)
+               finetune_real, gi_bias, learned_speed, outlier_rule, retrain_compare, spatial_unwrap, synth_speed,
+               unwrap_speed)
 
 #: (name, main(argv) of the benchmark, arguments of its quick mode)
 BENCHMARKS = [
@@ -27,6 +28,7 @@ BENCHMARKS = [
     ("spatial_unwrap", spatial_unwrap.main, ["--quick"]),
     ("deploy_speed", deploy_speed.main, ["--quick"]),
     ("finetune_real", finetune_real.main, ["--quick"]),
+    ("retrain_compare", retrain_compare.main, ["--quick"]),
 ]
 
 

@@ -145,17 +145,21 @@ def main(argv=None) -> int:
     ap.add_argument("--no-graph-cut", action="store_true")
     ap.add_argument("--work", default="/tmp/sltwin_bench_spatial", help="cache of exported captures")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--quick", action="store_true", help="the shipped model on the pyramid's v orientation, no graph cut")
     a = ap.parse_args(argv)
     if a.merge:
         res, models = merge([json.loads(Path(p).read_text()) for p in a.merge])
         print(table(res, models))
         return 0
     models = dict(m.split("=", 1) for m in a.model)
+    if a.quick:
+        models = models or {"shipped": "learned"}
+        a.real_items, a.test, a.no_graph_cut = [], [], True
     if not models:
         ap.error("give --model NAME=MODEL (one or more) or --merge")
     work = Path(a.work)
     work.mkdir(parents=True, exist_ok=True)
-    items = []
+    items = _pyramid_items(("v",)) if a.quick else []
     if "pyramid" in a.real_items:
         items += _pyramid_items()
     if "skull" in a.real_items:

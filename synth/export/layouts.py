@@ -76,12 +76,10 @@ def _move(obj, p: dict, X) -> None:
     p["t"] = [float(v) for v in X]
 
 
-def _wall(system, cfg, rng, depth: float, name: str = "wall"):
+def _wall(system, cfg, rng, depth: float, facing_rotation, name: str = "wall"):
     """An unbounded wall through the camera-axis point at ``depth`` (camera z, mm), facing the
     camera within ``wall_tilt_deg``: (Plane, its unit normal (world, towards the camera), a
     point on it, params)."""
-    from .scenes import facing_rotation
-
     cam = system.camera
     P = _cam_to_world(system, [0.0, 0.0, depth])
     tilt = cfg.wall_tilt_deg.draw(rng)
@@ -92,14 +90,14 @@ def _wall(system, cfg, rng, depth: float, name: str = "wall"):
                                     "tilt_deg": tilt, "depth_mm": depth}
 
 
-def place_before_wall(objects, params, system, cfg, rng) -> list:
+def place_before_wall(objects, params, system, cfg, rng, facing_rotation) -> list:
     """Layout ``wall``: the wall and every object pushed along its camera ray to ``wall_gap_mm``
     before it. Returns the extra objects (the wall); fills ``params['layout']``."""
     cam = system.camera
     z0 = float(cam.t[2])
     obj_depths = [float(cam.R[2] @ o.t.numpy() + cam.t[2]) for o in objects]
     wall_depth = max(obj_depths) + cfg.wall_depth_mm.draw(rng)
-    wall, n, P, wp = _wall(system, cfg, rng, wall_depth)
+    wall, n, P, wp = _wall(system, cfg, rng, wall_depth, facing_rotation)
     gaps = []
     C = cam.center_world
     for obj, p in zip(objects, params["objects"]):
@@ -119,11 +117,9 @@ def place_before_wall(objects, params, system, cfg, rng) -> list:
     return [wall]
 
 
-def place_on_table(objects, params, system, cfg, rng) -> list:
+def place_on_table(objects, params, system, cfg, rng, facing_rotation) -> list:
     """Layout ``table``: a table top (and with chance ``table_wall`` a wall behind it); every
     object re-placed on the top at a random visible point. Returns the extra objects."""
-    from .scenes import facing_rotation
-
     cam = system.camera
     z0 = float(cam.t[2])
     elev = math.radians(cfg.table_elevation_deg.draw(rng))
@@ -164,4 +160,6 @@ def place_on_table(objects, params, system, cfg, rng) -> list:
     return extra
 
 
+#: layout name -> f(objects, params, system, cfg, rng, facing_rotation) -> extra objects (the caller,
+#: synth.export.scenes, passes its facing_rotation: no import back into it)
 LAYOUTS = {"wall": place_before_wall, "table": place_on_table}

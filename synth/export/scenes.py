@@ -228,7 +228,7 @@ def draw_scene(cfg: ExportConfig, system, rng) -> tuple[Scene, dict]:
     layout = "free" if cfg.layouts == ("free",) else cfg.layouts[int(rng.integers(len(cfg.layouts)))]
     if layout != "free":
         from .layouts import LAYOUTS
-        objects += LAYOUTS[layout](objects, params, system, cfg, rng)
+        objects += LAYOUTS[layout](objects, params, system, cfg, rng, facing_rotation)
     elif rng.uniform() < cfg.background:
         objects.append(_background([o.t.numpy() for o in objects], cfg, system, rng, params))
     eff = draw_effects(cfg, system, len(objects), rng, params)
