@@ -49,17 +49,18 @@ def _procedural(layouts, system_file="system_window320.json", **scene):
                              "scene": sc, "effects": eff}, base_dir=d.base_dir)
 
 
-def _wall_and_objects(scene):
-    objs = scene.objects
-    return [o for o in objs if o.name.startswith("object")], {o.name: o for o in objs if not o.name.startswith("object")}
+def _layout_draws(cfg, n=8):
+    """(system, objects, extra objects by name (wall / table), params) of samples 0..n-1."""
+    system, _ = base_system(cfg)
+    for i in range(n):
+        scene, params = draw_scene(cfg, system, np.random.default_rng([cfg.seed, i, 0]))
+        objs = scene.objects
+        yield (system, [o for o in objs if o.name.startswith("object")],
+               {o.name: o for o in objs if not o.name.startswith("object")}, params)
 
 
 def test_wall_layout_puts_every_object_at_its_drawn_gap_before_the_wall():
-    cfg = _procedural(["wall"])
-    system, _ = base_system(cfg)
-    for i in range(8):
-        scene, params = draw_scene(cfg, system, np.random.default_rng([cfg.seed, i, 0]))
-        objects, extra = _wall_and_objects(scene)
+    for system, objects, extra, params in _layout_draws(_procedural(["wall"])):
         wall = extra["wall"]
         n, P = wall.R[:, 2].numpy(), wall.t.numpy()
         assert params["layout"]["kind"] == "wall" and n @ (system.camera.center_world - P) > 0  # faces the camera
@@ -70,11 +71,7 @@ def test_wall_layout_puts_every_object_at_its_drawn_gap_before_the_wall():
 
 
 def test_table_layout_stands_every_object_on_the_top():
-    cfg = _procedural(["table"], table_wall=1.0)
-    system, _ = base_system(cfg)
-    for i in range(8):
-        scene, params = draw_scene(cfg, system, np.random.default_rng([cfg.seed, i, 0]))
-        objects, extra = _wall_and_objects(scene)
+    for system, objects, extra, params in _layout_draws(_procedural(["table"], table_wall=1.0)):
         table = extra["table"]
         n, A = table.R[:, 2].numpy(), table.t.numpy()
         # the camera looks down on the top at the drawn elevation
