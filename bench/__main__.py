@@ -11,7 +11,7 @@ import time
 
 from . import (ba_scale, calib_accuracy, calib_captures, calib_speed, decision_error_fit, defocus_bias,
                deploy_speed, detect_accuracy, export_speed, finetune_real, gi_bias, learned_deploy,
-               learned_speed, outlier_rule, spatial_unwrap, synth_speed, unwrap_speed)
+               learned_speed, outlier_rule, retrain_compare, spatial_unwrap, synth_speed, unwrap_speed)
 
 #: (name, main(argv) of the benchmark, arguments of its quick mode)
 BENCHMARKS = [
@@ -32,6 +32,7 @@ BENCHMARKS = [
     ("calib_speed", calib_speed.main, ["--quick"]),
     ("learned_deploy", learned_deploy.main, ["--quick"]),
     ("finetune_real", finetune_real.main, ["--quick"]),
+    ("retrain_compare", retrain_compare.main, ["--quick"]),
 ]
 
 

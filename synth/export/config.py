@@ -38,6 +38,13 @@ render plan of each sample says so)::
     albedo = [0.3, 0.95]
     texture = 0.5                 # chance that an object has an albedo texture
     texture_contrast = [0.1, 0.6]
+    layouts = ["free"]            # drawn uniformly per sample: "free" | "wall" | "table" (synth.export.layouts)
+    wall_depth_mm = [20, 120]     # wall / table: the wall behind the farthest object centre
+    wall_gap_mm = [2, 60]         # wall: object's nearest point to the wall
+    wall_tilt_deg = [0, 50]
+    wall_albedo = [0.5, 0.95]     # wall and table top
+    table_elevation_deg = [15, 50]
+    table_wall = 0.5              # chance of a wall behind the table
 
     [effects]                     # ranges; absent or 0 = not simulated
     exposure = [0.5, 0.9]
@@ -49,6 +56,7 @@ render plan of each sample says so)::
     camera_defocus = {aperture_mm = [0, 6], focus_offset_mm = [-150, 150]}
     global_illumination = {subsurface = [0, 0.5], scatter_mm = [0.5, 4], interreflection = [0, 0.1],
                            interreflection_mm = [20, 60]}
+    interreflection = {chance = 0.9, bounces = [1, 2], patch_px = [32, 48]}  # physically based
     bits = 8
     shadows = "auto"
 
@@ -67,6 +75,11 @@ from ..errors import ExportConfigError, SynthError  # noqa: F401  (ExportConfigE
 
 
 PROCEDURAL = ("sphere", "blobs", "heightfield", "steps", "plane")
+LAYOUTS = ("free", "wall", "table")
+#: scene keys of the wall / table layouts (left out of to_dict with the free layout alone, so the
+#: configs made before layouts existed keep their fingerprint)
+_LAYOUT_KEYS = ("layouts", "wall_depth_mm", "wall_gap_mm", "wall_tilt_deg", "wall_albedo", "table_elevation_deg",
+                "table_wall")
 CODECS = ("lzf", "gzip", "none") + tuple(f"gzip-{i}" for i in range(1, 10))
 
 
@@ -120,6 +133,13 @@ class ExportConfig:
     albedo: Range = Range(0.3, 0.95)
     texture: float = 0.5
     texture_contrast: Range = Range(0.1, 0.6)
+    layouts: tuple = ("free",)
+    wall_depth_mm: Range = Range(20.0, 120.0)
+    wall_gap_mm: Range = Range(2.0, 60.0)
+    wall_tilt_deg: Range = Range(0.0, 50.0)
+    wall_albedo: Range = Range(0.5, 0.95)
+    table_elevation_deg: Range = Range(15.0, 50.0)
+    table_wall: float = 0.5
     effects: dict = field(default_factory=dict)  # name -> Range or {sub: Range}; plus bits, shadows
     codec: str = "gzip-1"
     text: str = ""
@@ -137,7 +157,8 @@ class ExportConfig:
             if isinstance(v, Path):
                 return str(v)
             return v
-        return {k: conv(v) for k, v in self.__dict__.items() if k not in ("text", "base_dir")}
+        skip = {"text", "base_dir"} | (set(_LAYOUT_KEYS) if self.layouts == ("free",) else set())
+        return {k: conv(v) for k, v in self.__dict__.items() if k not in skip}  # free layout: as before layouts
 
 
 # -- validation helpers --------------------------------------------------------------------------
@@ -185,10 +206,11 @@ _EFFECT_RANGES = {
     "camera_defocus": ({"aperture_mm": (0.0, 100.0), "focus_offset_mm": (-1e4, 1e4)}, None),
     "global_illumination": ({"subsurface": (0.0, 1.0), "scatter_mm": (1e-3, 1e3), "interreflection": (0.0, 1.0),
                              "interreflection_mm": (1e-3, 1e4)}, None),
+    "interreflection": ({"chance": (0.0, 1.0), "bounces": (1.0, 2.0), "patch_px": (0.5, 256.0)}, None),
 }
 _EFFECT_DEFAULTS = {"exposure": Range(0.8, 0.8)}
 _SUB_REQUIRED = {"noise": "full_well_e", "projector_defocus": "aperture_mm", "camera_defocus": "aperture_mm",
-                 "global_illumination": None}
+                 "global_illumination": None, "interreflection": "chance"}
 
 _RANGE = float | tuple[float, ...]
 #: The TOML's layout (section -> key -> type) that the strict reader (unwrap.strict) checks first.
@@ -200,7 +222,9 @@ SCHEMA = {
     "scene": {"objects": int | tuple[int, ...], "mesh_dir": str, "meshes": tuple[str, ...], "mesh_fraction": float,
               "procedural": tuple[str, ...], "size_mm": _RANGE, "depth_mm": _RANGE, "background": float,
               "background_gap_mm": _RANGE, "background_tilt_deg": _RANGE, "albedo": _RANGE, "texture": float,
-              "texture_contrast": _RANGE},
+              "texture_contrast": _RANGE, "layouts": tuple[str, ...], "wall_depth_mm": _RANGE,
+              "wall_gap_mm": _RANGE, "wall_tilt_deg": _RANGE, "wall_albedo": _RANGE,
+              "table_elevation_deg": _RANGE, "table_wall": float},
     "effects": {**{name: _RANGE if subs is None else dict.fromkeys(subs, _RANGE)
                    for name, (subs, _) in _EFFECT_RANGES.items()}, "bits": int, "shadows": str},
     "output": {"codec": str},
@@ -316,6 +340,17 @@ def _scene_section(sc: dict, base_dir) -> dict:
         "albedo": _range(sc.get("albedo", [0.3, 0.95]), "scene.albedo", 0.0, 1.0),
         "texture": _prob(sc.get("texture", 0.5), "scene.texture"),
         "texture_contrast": _range(sc.get("texture_contrast", [0.1, 0.6]), "scene.texture_contrast", 0.0, 1.0)})
+    lay = sc.get("layouts", ["free"])
+    if not lay or any(x not in LAYOUTS for x in lay) or len(set(lay)) != len(lay):
+        _fail("scene.layouts", f"expected a non-empty list of distinct {list(LAYOUTS)}, got {lay!r}")
+    out.update({
+        "layouts": tuple(lay),
+        "wall_depth_mm": _range(sc.get("wall_depth_mm", [20, 120]), "scene.wall_depth_mm", 0.0, 5000.0),
+        "wall_gap_mm": _range(sc.get("wall_gap_mm", [2, 60]), "scene.wall_gap_mm", 0.0, 5000.0),
+        "wall_tilt_deg": _range(sc.get("wall_tilt_deg", [0, 50]), "scene.wall_tilt_deg", 0.0, 80.0),
+        "wall_albedo": _range(sc.get("wall_albedo", [0.5, 0.95]), "scene.wall_albedo", 0.0, 1.0),
+        "table_elevation_deg": _range(sc.get("table_elevation_deg", [15, 50]), "scene.table_elevation_deg", 5.0, 85.0),
+        "table_wall": _prob(sc.get("table_wall", 0.5), "scene.table_wall")})
     return out
 
 

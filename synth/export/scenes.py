@@ -16,7 +16,7 @@ from functools import lru_cache
 import numpy as np
 
 from .config import ExportConfig, ExportConfigError, Range
-from ..effects.spec import Defocus, Effects, GlobalIllumination, Noise
+from ..effects.spec import Defocus, Effects, GlobalIllumination, Interreflection, Noise
 from ..errors import SynthError
 from ..scenes.meshes import blobs_heights, heightfield_mesh, load_mesh, steps_mesh
 from ..scenes.objects import Mesh, Plane, Sphere
@@ -204,6 +204,13 @@ def draw_effects(cfg: ExportConfig, system, n_objects: int, rng, params: dict) -
                                 interreflection_mm=_draw(g.get("interreflection_mm", Range(40.0, 40.0)), rng))
         if gi.active:
             kw["global_illumination"] = gi
+    if "interreflection" in e and not e["interreflection"]["chance"].off:
+        ir = e["interreflection"]
+        if rng.uniform() < _draw(ir["chance"], rng):
+            b = ir.get("bounces", Range(1.0, 1.0))
+            kw["interreflection"] = Interreflection(
+                bounces=int(rng.integers(int(b.lo), int(b.hi) + 1)),
+                patch_px=_draw(ir.get("patch_px", Range(32.0, 32.0)), rng))
     eff = Effects(**kw)
     params["effects"] = eff.to_dict()
     return eff
@@ -218,7 +225,11 @@ def draw_scene(cfg: ExportConfig, system, rng) -> tuple[Scene, dict]:
         use_mesh = cfg.meshes and rng.uniform() < cfg.mesh_fraction
         kind = "mesh" if use_mesh else cfg.procedural[int(rng.integers(len(cfg.procedural)))]
         objects.append(_object(kind, f"object{i}", cfg, system, rng, params))
-    if rng.uniform() < cfg.background:
+    layout = "free" if cfg.layouts == ("free",) else cfg.layouts[int(rng.integers(len(cfg.layouts)))]
+    if layout != "free":
+        from .layouts import LAYOUTS
+        objects += LAYOUTS[layout](objects, params, system, cfg, rng, facing_rotation)
+    elif rng.uniform() < cfg.background:
         objects.append(_background([o.t.numpy() for o in objects], cfg, system, rng, params))
     eff = draw_effects(cfg, system, len(objects), rng, params)
     patterns = phase_sequence(cfg.orientations, cfg.frequencies, list(cfg.steps))
