@@ -287,11 +287,12 @@ def wrap(x):
 
 
 def make_sample(scene: CyclesScene, system, *, samples: int, bounces: int = 4, threads: int = 2, cache_dir=None,
-                noise_seed: int = 0, noise_check: bool = True, frequencies=FREQUENCIES, steps: int = STEPS,
+                noise_seed: int = 0, unit_seeds=(0, 1), frequencies=FREQUENCIES, steps: int = STEPS,
                 full_well_e: float = FULL_WELL_E, read_noise_e: float = READ_NOISE_E) -> dict:
     """Render ``scene`` with Cycles and reduce it to one dataset sample (unwrap.dataset_schema):
-    {"arrays", "params", "label_check" (1, F, 4), "stats"}. ``noise_check``: render the unit
-    frequency's basis again with seed 1 to measure Cycles' own noise."""
+    {"arrays", "params", "label_check" (1, F, 4), "stats"}. ``unit_seeds``: the unit frequency's
+    basis frames are rendered with each of these seeds and averaged (its phase error is amplified
+    f times, so it gets the samples); the first two measure Cycles' own noise per seed."""
     from unwrap.dataset_schema import (FLAG_LOW_MODULATION, FLAG_OUT_OF_RANGE, FLAG_SATURATED, MASK_EDGE, MASK_LIT,
                                        MASK_SHADOW, MASK_SURFACE, encode_modulation, encode_phase)
     from unwrap.phase_shift import wrapped_phase
@@ -308,6 +309,9 @@ def make_sample(scene: CyclesScene, system, *, samples: int, bounces: int = 4, t
                        cache_dir=cache_dir)
     direct = cycles_frames(scene, system, basis, samples=1, bounces=0, seed=0, threads=threads, cache_dir=cache_dir)
     stack_gi = np.einsum("kb,bhw->khw", coef, gi["images"])
+    unit = [gi["images"][:3]] + [cycles_frames(scene, system, basis[:3], samples=samples, bounces=bounces, seed=s,
+                                               threads=threads, cache_dir=cache_dir)["images"] for s in unit_seeds[1:]]
+    stack_gi[:steps] = np.einsum("kb,bhw->khw", coef[:steps, :3], np.mean(unit, axis=0))
     stack_direct = np.einsum("kb,bhw->khw", coef, direct["images"])
     lit = geom.lit.reshape(H, W).numpy()
     edge = edge_mask(geom)
@@ -349,22 +353,24 @@ def make_sample(scene: CyclesScene, system, *, samples: int, bounces: int = 4, t
     stats = {"lit_agreement_interior": agree_interior, "lit_pixels": int(lit.sum()),
              "seconds_per_frame_gi": float(np.mean(gi["seconds_per_frame"])), "bias_unit": bias,
              "mask_for_bias": lit & ~edge}
-    if noise_check:
-        g1 = cycles_frames(scene, system, basis[:3], samples=samples, bounces=bounces, seed=1, threads=threads,
-                           cache_dir=cache_dir)
-        s1 = np.einsum("kb,bhw->khw", coef[:steps, :3], g1["images"])
-        stats["noise_unit_per_seed"] = wrap(unit_phase(s1) - biased[frequencies[0]]) / math.sqrt(2)
+    if len(unit) > 1:
+        s0, s1 = (np.einsum("kb,bhw->khw", coef[:steps, :3], u) for u in unit[:2])
+        stats["noise_unit_per_seed"] = wrap(unit_phase(s1) - unit_phase(s0)) / math.sqrt(2)
+        stats["unit_seeds"] = len(unit)
     params = {"renderer": "blender cycles", "scene": scene.params, "note": scene.note, "samples": samples,
               "bounces": bounces, "exposure": EXPOSURE, "noise": {"full_well_e": full_well_e,
                                                                    "read_noise_e": read_noise_e, "bits": BITS,
                                                                    "seed": noise_seed},
               "camera_crop": system.meta.get("crop"), "basis_frames": len(basis),
               "cycles_seconds_per_frame": stats["seconds_per_frame_gi"],
-              "lit_agreement_interior": agree_interior, "seconds": time.perf_counter() - t0}
+              "lit_agreement_interior": agree_interior, "bias": bias_summary(stats, frequencies),
+              "label_check_clean": {f"{f:g}": check[0, j, :2].tolist() for j, f in enumerate(frequencies) if j},
+              "label_check_effects": {f"{f:g}": check[0, j, 2:].tolist() for j, f in enumerate(frequencies) if j},
+              "seconds": time.perf_counter() - t0}
     return {"arrays": arrays, "params": params, "label_check": check, "stats": stats}
 
 
-def bias_summary(stats: dict, arrays: dict, frequencies=FREQUENCIES) -> dict:
+def bias_summary(stats: dict, frequencies=FREQUENCIES) -> dict:
     """Bias statistics of one sample: unit-phase bias RMS / p99 (rad and in fringes of each f),
     Cycles' noise RMS per seed, over lit non-edge pixels."""
     m = stats["mask_for_bias"]
@@ -375,13 +381,17 @@ def bias_summary(stats: dict, arrays: dict, frequencies=FREQUENCIES) -> dict:
     if "noise_unit_per_seed" in stats:
         n = stats["noise_unit_per_seed"][m]
         out["cycles_noise_rms_rad"] = float(np.sqrt(np.mean(n ** 2)))
+        out["cycles_noise_median_abs_rad"] = float(np.median(np.abs(n)))
+        out["unit_seeds"] = stats["unit_seeds"]
+        # the unit phase of the file averages the seeds' frames: its noise is the per-seed one / sqrt(n)
+        out["unit_noise_rms_rad"] = out["cycles_noise_rms_rad"] / math.sqrt(stats["unit_seeds"])
     for f in frequencies[1:]:
         out[f"bias_over_half_fringe_{f:g}"] = float(np.mean(np.abs(b) > math.pi / f))
     return out
 
 
 def build_testset(out, *, scenes=tuple(SCENES), size=(320, 240), samples: int = 128, bounces: int = 4,
-                  threads: int = 2, cache_dir=None, noise_check: bool = True, progress=None) -> dict:
+                  threads: int = 2, cache_dir=None, unit_seeds=(0, 1), progress=None) -> dict:
     """Render ``scenes`` and write the test file ``out`` (HDF5, one sample per scene, atomic,
     resumable through the frame cache in ``cache_dir``). Returns {"file", "scenes": [bias summary
     per scene], "seconds"}."""
@@ -413,8 +423,8 @@ def build_testset(out, *, scenes=tuple(SCENES), size=(320, 240), samples: int = 
         for i, name in enumerate(scenes):
             sc = build_scene(name)
             s = make_sample(sc, system, samples=samples, bounces=bounces, threads=threads, cache_dir=cache_dir,
-                            noise_seed=i, noise_check=noise_check)
-            summaries.append({"scene": name, "note": sc.note, **bias_summary(s["stats"], s["arrays"]),
+                            noise_seed=i, unit_seeds=unit_seeds)
+            summaries.append({"scene": name, "note": sc.note, **s["params"]["bias"],
                               "cycles_seconds_per_frame": s["params"]["cycles_seconds_per_frame"]})
             if i in todo:
                 writer.write_part(i, s["arrays"], json.dumps(s["params"], default=str), s["label_check"])
@@ -422,3 +432,21 @@ def build_testset(out, *, scenes=tuple(SCENES), size=(320, 240), samples: int = 
                 progress(name, summaries[-1])
         writer.assemble()
     return {"file": str(out), "scenes": summaries, "system": system, "seconds": time.perf_counter() - t0}
+
+
+def wrong_pixel_context(wrong: np.ndarray, counted: np.ndarray, *, radius: int = 25, patch_px: int = 100) -> dict:
+    """Where wrong orders sit (issue 21's bust analysis): counts of the ``wrong`` (H, W) pixels
+    among ``counted`` ones, of those within ``radius`` px (Euclidean) of a pixel that is not
+    counted (shadow, background, invalid), of the counted pixels there, and of the wrong pixels in
+    8-connected patches of >= ``patch_px`` wrong pixels."""
+    import cv2
+
+    wrong = np.asarray(wrong, bool) & np.asarray(counted, bool)
+    counted = np.asarray(counted, bool)
+    dist = cv2.distanceTransform(counted.astype(np.uint8), cv2.DIST_L2, 5)  # distance to the nearest uncounted px
+    near = counted & (dist <= radius)
+    n, lab, st, _ = cv2.connectedComponentsWithStats(wrong.astype(np.uint8), connectivity=8)
+    big = np.zeros(n, bool)
+    big[1:] = st[1:, cv2.CC_STAT_AREA] >= patch_px
+    return {"wrong": int(wrong.sum()), "wrong_near": int((wrong & near).sum()), "counted": int(counted.sum()),
+            "counted_near": int(near.sum()), "wrong_in_patches": int(big[lab][wrong].sum())}

@@ -136,6 +136,17 @@ def markdown(res: dict) -> str:
         for key, curve in conf.items():
             L.append(f"| {key} | " + " | ".join(_pct(e) for _, e in curve) + " |")
         L.append("")
+    cyc = res.get("cycles") or {}
+    if cyc:
+        L += ["## Cycles set: held-out meshes rendered by Blender Cycles, bias-dominated (MF, v) [%]", "",
+              "| f | row | error % | traditional / row | pixels |", "|---|---|---:|---:|---:|"]
+        for f, rows in cyc.items():
+            t = (rows.get("Traditional") or {}).get("mf", {}).get("ours")
+            for row, per in rows.items():
+                r = per.get("mf", {}).get("ours")
+                L.append(f"| {f} | {row} | {_pct(r)} | {'-' if not r or t is None else f'{t / r:.2f}x'} | "
+                         f"{per.get('mf', {}).get('pixels', '')} |")
+        L.append("")
     real = res.get("real") or []
     if real:
         L += ["## Real captures (reference orders from the export) [%]", "",
