@@ -35,13 +35,16 @@ README = """Cycles test set of sltwin (issue 21, item 3): held-out meshes render
 
 Rebuild (from the repository root; renders only the frames missing from ./frames):
     PYTHONPATH=$PWD nice -n 10 .venv/bin/python -m bench.cycles_testset --out {out} \\
-        --size {w} {h} --samples {samples}
+        --size {w} {h} --samples {samples} --unit-seeds {nseeds}
 
 File: cycles_test.h5 (dataset schema of docs/dataset.md, kind twin, v fringes, f = 1, 48, 96, 12 steps);
 one sample per scene: {scenes}.
 Made by: experiments.cycles_testset.build_testset, code {code}, {date}.
 Camera: the default system made ideal, its 640x480 camera cropped to {w}x{h} at the full focal length.
-Cycles: {samples} samples per pixel, 4 diffuse bounces, point-sampled pixels, seed 0 (seed 1 for the noise check).
+Cycles: {samples} samples per pixel, 4 diffuse bounces, point-sampled pixels, seed 0; the unit frequency's
+basis frames averaged over seeds 0..{nseeds_1} (their difference measures Cycles' noise).
+Stacks: 12 steps synthesised from 3 basis frames per frequency (light transport is linear; see
+experiments/cycles_testset.py).
 Sensor (the twin's): Poisson-Gaussian, full well {fw:g} e-, read noise {rn:g} e-, 8 bits, noise seed = scene index.
 Per-scene parameters and bias statistics: the 'params' dataset (JSON) of each sample.
 frames/: the cached Cycles basis frames (.npz), keyed by scene, camera and settings.
@@ -57,7 +60,7 @@ def file_items(path, f: float):
     the scene name and the sample's parameters."""
     import h5py
 
-    from reports.learned_parity import capture_noise
+    from experiments.learned_parity import capture_noise
     from unwrap.dataset import FringeOrderDataset
 
     pair = (1.0, float(f))
@@ -130,6 +133,8 @@ def main(argv=None) -> int:
     ap.add_argument("--samples", type=int, default=64, help="Cycles samples per pixel (default 64)")
     ap.add_argument("--scenes", nargs="+", default=list(SCENES), choices=list(SCENES))
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--unit-seeds", type=int, default=2, help="seeds averaged for the unit frequency (>= 2 measures "
+                                                               "Cycles' noise; default 2)")
     ap.add_argument("--eval-only", default=None, metavar="FILE", help="score an existing file, render nothing")
     ap.add_argument("--no-learned", action="store_true", help="skip the network rows")
     ap.add_argument("--json", default=None)
@@ -151,13 +156,14 @@ def main(argv=None) -> int:
                   f"{s.get('cycles_noise_rms_rad', float('nan')):.4f} rad", file=sys.stderr, flush=True)
 
         build_testset(path, scenes=tuple(args.scenes), size=tuple(args.size), samples=args.samples,
-                      threads=args.threads, cache_dir=out, progress=progress)
+                      threads=args.threads, cache_dir=out, unit_seeds=tuple(range(args.unit_seeds)),
+                      progress=progress)
         readme = out / "README.txt"
         tmp = readme.with_suffix(".tmp")
         tmp.write_text(README.format(out=out, w=args.size[0], h=args.size[1], samples=args.samples,
-                                     scenes=", ".join(args.scenes), code=code_version(),
+                                     scenes=", ".join(args.scenes), nseeds=args.unit_seeds, code=code_version(),
                                      date=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), fw=FULL_WELL_E,
-                                     rn=READ_NOISE_E))
+                                     rn=READ_NOISE_E, nseeds_1=args.unit_seeds - 1))
         tmp.replace(readme)
         print(f"{path}: built in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
 

@@ -10,8 +10,14 @@ import pytest
 from synth.blender_twin import blender_available
 from tests.conftest import shared_data
 
-pytestmark = [pytest.mark.blender, pytest.mark.realdata, pytest.mark.slow,
-              pytest.mark.skipif(not blender_available(sys.executable), reason="bpy not installed (make test installs it)")]
+CYCLES = [pytest.mark.blender, pytest.mark.realdata, pytest.mark.slow,
+          pytest.mark.skipif(not blender_available(sys.executable), reason="bpy not installed (make test installs it)")]
+
+
+def _cycles(fn):
+    for m in CYCLES:
+        fn = m(fn)
+    return fn
 
 SIZE = (64, 48)
 
@@ -28,6 +34,7 @@ def tiny(tmp_path_factory):
     return ct, work, r
 
 
+@_cycles
 def test_file_reads_and_true_orders_are_the_twin_geometry(tiny):
     import h5py
 
@@ -58,6 +65,7 @@ def test_file_reads_and_true_orders_are_the_twin_geometry(tiny):
         assert 0.0 <= s.counts["Traditional"].rate < 0.5
 
 
+@_cycles
 def test_cycles_geometry_agrees_with_the_twin(tiny):
     """Cycles' direct light (1 sample, pixel centres) is lit where the twin is, and traditional MF
     on its noise-free frames gives the twin's orders wherever both are lit."""
@@ -92,6 +100,7 @@ def test_cycles_geometry_agrees_with_the_twin(tiny):
         assert int((np.asarray(res.order) != true)[both].sum()) == 0
 
 
+@_cycles
 def test_basis_synthesis_equals_a_direct_cycles_render_of_the_step(tiny):
     from synth.blender_twin import render_in_blender
 
@@ -113,3 +122,55 @@ def test_basis_synthesis_equals_a_direct_cycles_render_of_the_step(tiny):
     for k in range(len(ks)):
         same = np.abs(out[k] - synth[k]) < 1e-4
         assert same.mean() >= 0.98, same.mean()
+
+
+# -- cheap parts (no Blender) ---------------------------------------------------------------------
+
+def test_crop_keeps_the_focal_length_and_projects_like_the_full_camera():
+    from calib import default_system
+    from experiments.cycles_testset import testset_system
+
+    full = default_system().ideal().camera
+    s = testset_system((320, 240))
+    x0, y0, W, H = s.meta["crop"]
+    assert (W, H) == (320, 240) and s.camera.fx == full.fx
+    P = np.array([[0.0, 0.0, 0.0], [20.0, -15.0, 10.0], [-30.0, 25.0, -20.0]])
+    q = s.camera.project(P)
+    q_full = full.project(P)
+    assert np.allclose(q[:, 0], q_full[:, 0] - x0, atol=1e-9)
+    # fy = fx (Blender's square pixels): rows agree to the fy / fx difference of the full camera
+    assert np.allclose(q[:, 1], q_full[:, 1] - y0, atol=abs(full.fy / full.fx - 1) * 300 + 1e-9)
+
+
+def test_every_step_is_a_combination_of_three_basis_images():
+    from experiments.cycles_testset import FREQUENCIES, STEPS, patterns_and_basis, testset_system
+
+    system = testset_system((64, 48))
+    patterns, basis, coef = patterns_and_basis(system)
+    assert basis.shape[0] == 1 + 2 * len(FREQUENCIES) and coef.shape == (STEPS * len(FREQUENCIES), basis.shape[0])
+    imgs = np.stack([p.projector_image(system.projector.size, 0.5, 0.5) for p in patterns])
+    assert np.abs(np.einsum("kb,bhw->khw", coef, basis.astype(np.float64)) - imgs).max() < 1e-5
+    with pytest.raises(ValueError, match="multiple of 4"):
+        patterns_and_basis(system, steps=6)
+
+
+def test_wrong_pixel_context_counts_near_invalid_and_patches():
+    from experiments.cycles_testset import wrong_pixel_context
+
+    counted = np.ones((100, 100), bool)
+    counted[:, :10] = False                        # an invalid band on the left
+    wrong = np.zeros_like(counted)
+    wrong[40:52, 12:22] = True                     # 120 px patch, 2-11 px from the band
+    wrong[80, 90] = True                           # an isolated pixel far from it
+    c = wrong_pixel_context(wrong, counted, radius=25)
+    assert c["wrong"] == 121 and c["wrong_near"] == 120 and c["wrong_in_patches"] == 120
+    assert c["counted_near"] == 100 * 25 and c["counted"] == 9000
+
+
+def test_calib_eval_lays_out_the_cycles_section():
+    from reports.learned_eval import markdown
+
+    res = {"source": "t", "cycles": {48: {"Traditional": {"mf": {"ours": 0.10, "pixels": 100}},
+                                          "DP-TPU (physics-aware)": {"mf": {"ours": 0.025, "pixels": 100}}}}}
+    md = markdown(res)
+    assert "## Cycles set" in md and "| 48 | DP-TPU (physics-aware) | 2.50 | 4.00x | 100 |" in md
