@@ -9,7 +9,7 @@ from __future__ import annotations
 import sys
 import time
 
-from . import (ba_scale, calib_accuracy, calib_captures, deploy_speed, detect_accuracy, export_speed,
+from . import (ba_scale, calib_accuracy, calib_captures, cycles_testset, deploy_speed, detect_accuracy, export_speed,
                finetune_real, gi_bias, learned_speed, outlier_rule, spatial_unwrap, synth_speed, unwrap_speed)
 
 #: (name, main(argv) of the benchmark, arguments of its quick mode)
@@ -27,6 +27,7 @@ BENCHMARKS = [
     ("spatial_unwrap", spatial_unwrap.main, ["--quick"]),
     ("deploy_speed", deploy_speed.main, ["--quick"]),
     ("finetune_real", finetune_real.main, ["--quick"]),
+    ("cycles_testset", cycles_testset.main, ["--quick"]),
 ]
 
 

@@ -1,7 +1,7 @@
 """The Cycles test set (issue 21, item 3): build it, then score every decoder on it.
 
-    python -m bench.cycles_testset [--out DIR] [--size 320 240] [--samples 64] [--scenes ...]
-                                   [--eval-only FILE] [--json OUT.json] [--no-learned]
+    python -m bench.cycles_testset [--out DIR] [--size 320 240] [--samples 64] [--unit-seeds 2]
+                                   [--scenes ...] [--eval-only FILE] [--json OUT.json] [--no-learned] [--quick]
 
 Builds ``DIR/cycles_test.h5`` with :func:`experiments.cycles_testset.build_testset` (Blender
 Cycles, 4 diffuse bounces; the Cycles frames are cached in ``DIR/frames``, so a rerun or an
@@ -105,30 +105,32 @@ def error_context(items, radius: int = 25) -> dict:
 
 
 def bias_table(items48, contexts: dict) -> str:
-    L = ["| scene | counted px | bias RMS rad | bias p99 rad (x48 fringes) | Cycles noise / seed rad | bias / noise "
-         "| lit twin = lit Cycles (interior) | label check 48 / 96 (interior, edge) |",
+    """The bias statistics of the set (per scene) and where the traditional errors sit (per f)."""
+    L = ["| scene | counted px | bias RMS rad | bias p99 rad (x48 fringes) | Cycles noise per seed / of the unit used, "
+         "RMS rad | bias / noise of the unit | lit twin = lit Cycles (interior) | label check 48 / 96 (interior, edge) |",
          "|---|---:|---:|---:|---:|---:|---:|---|"]
     for it in items48:
-        b = it["params"].get("bias", {})
+        b = {k: v for k, v in it["params"].get("bias", {}).items()}
         lc = it["params"].get("label_check_clean", {})
-        L.append(f"| {it['scene']} | {int(((it['valid']) & (it['ref'] >= 0)).sum()):,} | {b.get('bias_rms_rad', float('nan')):.4f} | "
-                 f"{b.get('bias_p99_rad', float('nan')):.3f} ({48 * b.get('bias_p99_rad', float('nan')) / (2 * np.pi):.2f}) | "
-                 f"{b.get('cycles_noise_rms_rad', float('nan')):.4f} | "
-                 f"{b.get('bias_rms_rad', np.nan) / b.get('cycles_noise_rms_rad', np.nan):.1f} | "
-                 f"{100 * b.get('lit_agreement_interior', np.nan):.2f} % | {lc.get('48', '-')} / {lc.get('96', '-')} |")
-    L += ["", "| f | traditional wrong px | within 25 px of an invalid px (counted px there) | in patches >= 100 px |"
-              " traditional % per scene |", "|---|---:|---:|---:|---|"]
+        rms, p99 = b.get("bias_rms_rad", np.nan), b.get("bias_p99_rad", np.nan)
+        n1, nu = b.get("cycles_noise_rms_rad", np.nan), b.get("unit_noise_rms_rad", np.nan)
+        counted = int((it["valid"] & (it["ref"] >= 0)).sum())
+        L.append(f"| {it['scene']} | {counted:,} | {rms:.4f} | {p99:.3f} ({48 * p99 / (2 * np.pi):.2f}) | "
+                 f"{n1:.4f} / {nu:.4f} | {rms / nu:.1f} | {100 * b.get('lit_agreement_interior', np.nan):.2f} % | "
+                 f"{lc.get('48', '-')} / {lc.get('96', '-')} |")
+    L += ["", "| f | traditional wrong px | within 25 px of an invalid px (counted px there) | in patches >= 100 px "
+              "| traditional % per scene |", "|---|---:|---:|---:|---|"]
     for f, c in contexts.items():
-        L.append(f"| {f:g} | {c['wrong']:,} | {100 * c['wrong_near_invalid']:.1f} % ({100 * c['counted_near_invalid']:.1f} %) | "
-                 f"{100 * c['wrong_in_patches_100']:.1f} % | "
-                 + ", ".join(f"{k} {v:.2f}" for k, v in c["traditional_per_scene_pct"].items()) + " |")
+        per = ", ".join(f"{k} {v:.2f}" for k, v in c["traditional_per_scene_pct"].items())
+        L.append(f"| {f:g} | {c['wrong']:,} | {100 * c['wrong_near_invalid']:.1f} % "
+                 f"({100 * c['counted_near_invalid']:.1f} %) | {100 * c['wrong_in_patches_100']:.1f} % | {per} |")
     return "\n".join(L)
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.cycles_testset", description=__doc__.split("\n")[0])
-    ap.add_argument("--out", default=None, help="folder of the set and its frame cache (default: $SLTWIN_CYCLES_TESTSET "
-                                                "or <tmp>/sltwin_cycles_testset)")
+    ap.add_argument("--out", default=None, help="folder of the set and its frame cache (default: "
+                                                "$SLTWIN_CYCLES_TESTSET or <tmp>/sltwin_cycles_testset)")
     ap.add_argument("--size", type=int, nargs=2, default=(320, 240), metavar=("W", "H"))
     ap.add_argument("--samples", type=int, default=64, help="Cycles samples per pixel (default 64)")
     ap.add_argument("--scenes", nargs="+", default=list(SCENES), choices=list(SCENES))
@@ -138,7 +140,12 @@ def main(argv=None) -> int:
     ap.add_argument("--eval-only", default=None, metavar="FILE", help="score an existing file, render nothing")
     ap.add_argument("--no-learned", action="store_true", help="skip the network rows")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--quick", action="store_true", help="a 64x48 crop, 4 samples, suzanne-wall only, in <out>/quick "
+                                                         "(checks that the pipeline runs; numbers not for quoting)")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.size, args.samples, args.scenes = (64, 48), 4, ["suzanne-wall"]
+        args.out = str(Path(args.out or default_out()) / "quick")
 
     if args.eval_only:
         path = Path(args.eval_only)

@@ -212,7 +212,8 @@ def patterns_and_basis(system, frequencies=FREQUENCIES, steps: int = STEPS):
             y = imgs[j * steps + k].ravel()
             c, *_ = np.linalg.lstsq(X, y, rcond=None)
             if np.abs(X @ c - y).max() > 1e-5:
-                raise ExperimentError("a phase-shift step is not a combination of the basis images (pattern convention?)")
+                raise ExperimentError("a phase-shift step is not a combination of the basis images "
+                                      "(pattern convention?)")
             coef[j * steps + k, cols] = c
     return patterns, np.stack(basis).astype(np.float32), coef
 
@@ -286,25 +287,11 @@ def wrap(x):
     return np.angle(np.exp(1j * np.asarray(x)))
 
 
-def make_sample(scene: CyclesScene, system, *, samples: int, bounces: int = 4, threads: int = 2, cache_dir=None,
-                noise_seed: int = 0, unit_seeds=(0, 1), frequencies=FREQUENCIES, steps: int = STEPS,
-                full_well_e: float = FULL_WELL_E, read_noise_e: float = READ_NOISE_E) -> dict:
-    """Render ``scene`` with Cycles and reduce it to one dataset sample (unwrap.dataset_schema):
-    {"arrays", "params", "label_check" (1, F, 4), "stats"}. ``unit_seeds``: the unit frequency's
-    basis frames are rendered with each of these seeds and averaged (its phase error is amplified
-    f times, so it gets the samples); the first two measure Cycles' own noise per seed."""
-    from unwrap.dataset_schema import (FLAG_LOW_MODULATION, FLAG_OUT_OF_RANGE, FLAG_SATURATED, MASK_EDGE, MASK_LIT,
-                                       MASK_SHADOW, MASK_SURFACE, encode_modulation, encode_phase)
-    from unwrap.phase_shift import wrapped_phase
-    from unwrap.temporal import mf_unwrap
-    from synth.export.sample import edge_mask
-    from synth.renderer.truth import phase_truth
-
-    t0 = time.perf_counter()
-    patterns, basis, coef = patterns_and_basis(system, frequencies, steps)
-    W, H = system.camera.size
-    Wp, Hp = system.projector.size
-    geom = twin_geometry(scene, system, patterns)
+def cycles_stacks(scene: CyclesScene, system, coef, basis, *, samples: int, bounces: int, threads: int, cache_dir,
+                  unit_seeds=(0, 1), steps: int = STEPS) -> dict:
+    """Cycles' phase-shift stacks (K, H, W) with interreflection (``gi``; the unit frequency's
+    basis averaged over ``unit_seeds``) and with direct light only (``direct``, 1 sample), the
+    unit stack of each of the first two seeds (``unit_by_seed``) and the GI seconds per frame."""
     gi = cycles_frames(scene, system, basis, samples=samples, bounces=bounces, seed=0, threads=threads,
                        cache_dir=cache_dir)
     direct = cycles_frames(scene, system, basis, samples=1, bounces=0, seed=0, threads=threads, cache_dir=cache_dir)
@@ -312,58 +299,90 @@ def make_sample(scene: CyclesScene, system, *, samples: int, bounces: int = 4, t
     unit = [gi["images"][:3]] + [cycles_frames(scene, system, basis[:3], samples=samples, bounces=bounces, seed=s,
                                                threads=threads, cache_dir=cache_dir)["images"] for s in unit_seeds[1:]]
     stack_gi[:steps] = np.einsum("kb,bhw->khw", coef[:steps, :3], np.mean(unit, axis=0))
-    stack_direct = np.einsum("kb,bhw->khw", coef, direct["images"])
-    lit = geom.lit.reshape(H, W).numpy()
-    edge = edge_mask(geom)
-    # --- Cycles' geometry against the twin's: lit where the twin is lit --------------------------
-    cyc_lit = direct["images"][0] > 1e-4
-    agree_interior = float(np.mean((cyc_lit == lit)[~edge]))
-    # --- sensor, phase -----------------------------------------------------------------------------
-    counts = sensor(stack_gi, full_well_e=full_well_e, read_noise_e=read_noise_e, seed=noise_seed)
+    return {"gi": stack_gi, "direct": np.einsum("kb,bhw->khw", coef, direct["images"]),
+            "direct_uniform": direct["images"][0], "seeds": len(unit),
+            "unit_by_seed": [np.einsum("kb,bhw->khw", coef[:steps, :3], u) for u in unit[:2]],
+            "seconds_per_frame": float(np.mean(gi["seconds_per_frame"]))}
+
+
+def phase_arrays(counts: np.ndarray, frequencies, steps: int) -> dict:
+    """The ``v/phase``, ``v/modulation``, ``v/flags`` arrays (F, H, W) of quantised stacks, as the
+    export computes them (synth.export.sample)."""
+    from unwrap.dataset_schema import (FLAG_LOW_MODULATION, FLAG_OUT_OF_RANGE, FLAG_SATURATED, encode_modulation,
+                                       encode_phase)
+    from unwrap.phase_shift import wrapped_phase
+
     top = float((1 << BITS) - 1)
-    F = len(frequencies)
-    ph = np.zeros((F, H, W), np.int16)
-    mod = np.zeros((F, H, W), np.uint16)
-    flags = np.zeros((F, H, W), np.uint8)
-    orders = np.full((F, H, W), -1, np.int8)
-    clean, biased = {}, {}
-    for j, f in enumerate(frequencies):
-        sl = slice(j * steps, (j + 1) * steps)
-        w = wrapped_phase(counts[sl], min_modulation=MIN_MODULATION * top, saturation=top)
+    F, H, W = len(frequencies), counts.shape[1], counts.shape[2]
+    ph, mod, flags = np.zeros((F, H, W), np.int16), np.zeros((F, H, W), np.uint16), np.zeros((F, H, W), np.uint8)
+    for j in range(F):
+        w = wrapped_phase(counts[j * steps:(j + 1) * steps], min_modulation=MIN_MODULATION * top, saturation=top)
         ph[j] = encode_phase(np.where(w.valid, w.phase, 0.0))
         mod[j] = encode_modulation(w.B / top)
         flags[j] = (w.low_modulation * FLAG_LOW_MODULATION | w.saturated * FLAG_SATURATED
                     | w.out_of_range * FLAG_OUT_OF_RANGE).astype(np.uint8)
-        orders[j] = phase_truth(geom, (Wp, Hp), "v", f)[1]
-        clean[f] = unit_phase(stack_direct[sl])
-        biased[f] = unit_phase(stack_gi[sl])
-    check = np.full((1, F, 4), -1, np.int32)
+    return {"v/phase": ph, "v/modulation": mod, "v/flags": flags}
+
+
+def label_check(phases: dict, orders: np.ndarray, frequencies, width: float, lit, edge) -> np.ndarray:
+    """(F, 2) mismatches (interior, edge) of traditional MF 1 -> f on ``phases`` ({f: (H, W)})
+    against the geometric ``orders`` (F, H, W); row 0 (the unit) -1."""
+    from unwrap.temporal import mf_unwrap
+
+    out = np.full((len(frequencies), 2), -1, np.int32)
     for j, f in enumerate(frequencies[1:], start=1):
-        for c, phs in ((0, clean), (2, biased)):
-            r = mf_unwrap([phs[frequencies[0]], phs[f]], (frequencies[0], f), width=Wp, valid=lit)
-            wrong = lit & (np.asarray(r.order) != orders[j])
-            check[0, j, c:c + 2] = [int((wrong & ~edge).sum()), int((wrong & edge).sum())]
-    coord = geom.u_p.reshape(H, W).numpy()
+        r = mf_unwrap([phases[frequencies[0]], phases[f]], (frequencies[0], f), width=width, valid=lit)
+        wrong = lit & (np.asarray(r.order) != orders[j])
+        out[j] = [int((wrong & ~edge).sum()), int((wrong & edge).sum())]
+    return out
+
+
+def make_sample(scene: CyclesScene, system, *, samples: int, bounces: int = 4, threads: int = 2, cache_dir=None,
+                noise_seed: int = 0, unit_seeds=(0, 1), frequencies=FREQUENCIES, steps: int = STEPS,
+                full_well_e: float = FULL_WELL_E, read_noise_e: float = READ_NOISE_E) -> dict:
+    """Render ``scene`` with Cycles and reduce it to one dataset sample (unwrap.dataset_schema):
+    {"arrays", "params", "label_check" (1, F, 4), "stats"}. ``unit_seeds``: the unit frequency's
+    basis frames are rendered with each of these seeds and averaged (its phase error is amplified
+    f times, so it gets the samples); the first two measure Cycles' own noise per seed."""
+    from unwrap.dataset_schema import MASK_EDGE, MASK_LIT, MASK_SHADOW, MASK_SURFACE
+    from synth.export.sample import edge_mask
+    from synth.renderer.truth import phase_truth
+
+    t0 = time.perf_counter()
+    patterns, basis, coef = patterns_and_basis(system, frequencies, steps)
+    W, H = system.camera.size
+    geom = twin_geometry(scene, system, patterns)
+    st = cycles_stacks(scene, system, coef, basis, samples=samples, bounces=bounces, threads=threads,
+                       cache_dir=cache_dir, unit_seeds=unit_seeds, steps=steps)
+    lit = geom.lit.reshape(H, W).numpy()
+    edge = edge_mask(geom)
+    agree_interior = float(np.mean(((st["direct_uniform"] > 1e-4) == lit)[~edge]))  # Cycles lit where the twin is
+    counts = sensor(st["gi"], full_well_e=full_well_e, read_noise_e=read_noise_e, seed=noise_seed)
+    arrays = phase_arrays(counts, frequencies, steps)
+    orders = np.stack([phase_truth(geom, system.projector.size, "v", f)[1] for f in frequencies]).astype(np.int8)
+    sl = {f: slice(j * steps, (j + 1) * steps) for j, f in enumerate(frequencies)}
+    clean = {f: unit_phase(st["direct"][sl[f]]) for f in frequencies}
+    biased = {f: unit_phase(st["gi"][sl[f]]) for f in frequencies}
+    Wp = system.projector.width
+    check = np.concatenate([label_check(clean, orders, frequencies, Wp, lit, edge),
+                            label_check(biased, orders, frequencies, Wp, lit, edge)], axis=1)[None]
     masks = (geom.hit.reshape(H, W).numpy() * MASK_SURFACE | lit * MASK_LIT
              | geom.shadow.reshape(H, W).numpy() * MASK_SHADOW | edge * MASK_EDGE).astype(np.uint8)
-    arrays = {"masks": masks, "v/phase": ph, "v/modulation": mod, "v/flags": flags, "v/order": orders,
-              "v/coordinate": np.where(lit, coord, np.nan).astype(np.float32)}
-    # --- bias statistics: Cycles with interreflection against Cycles direct, unit frequency ------
-    bias = wrap(biased[frequencies[0]] - clean[frequencies[0]])
-    stats = {"lit_agreement_interior": agree_interior, "lit_pixels": int(lit.sum()),
-             "seconds_per_frame_gi": float(np.mean(gi["seconds_per_frame"])), "bias_unit": bias,
-             "mask_for_bias": lit & ~edge}
-    if len(unit) > 1:
-        s0, s1 = (np.einsum("kb,bhw->khw", coef[:steps, :3], u) for u in unit[:2])
+    arrays.update({"masks": masks, "v/order": orders,
+                   "v/coordinate": np.where(lit, geom.u_p.reshape(H, W).numpy(), np.nan).astype(np.float32)})
+    # bias statistics: Cycles with interreflection against Cycles direct, unit frequency
+    stats = {"lit_agreement_interior": agree_interior, "mask_for_bias": lit & ~edge,
+             "bias_unit": wrap(biased[frequencies[0]] - clean[frequencies[0]])}
+    if st["seeds"] > 1:
+        s0, s1 = st["unit_by_seed"]
         stats["noise_unit_per_seed"] = wrap(unit_phase(s1) - unit_phase(s0)) / math.sqrt(2)
-        stats["unit_seeds"] = len(unit)
+        stats["unit_seeds"] = st["seeds"]
     params = {"renderer": "blender cycles", "scene": scene.params, "note": scene.note, "samples": samples,
-              "bounces": bounces, "exposure": EXPOSURE, "noise": {"full_well_e": full_well_e,
-                                                                   "read_noise_e": read_noise_e, "bits": BITS,
-                                                                   "seed": noise_seed},
+              "bounces": bounces, "exposure": EXPOSURE, "unit_seeds": st["seeds"],
+              "noise": {"full_well_e": full_well_e, "read_noise_e": read_noise_e, "bits": BITS, "seed": noise_seed},
               "camera_crop": system.meta.get("crop"), "basis_frames": len(basis),
-              "cycles_seconds_per_frame": stats["seconds_per_frame_gi"],
-              "lit_agreement_interior": agree_interior, "bias": bias_summary(stats, frequencies),
+              "cycles_seconds_per_frame": st["seconds_per_frame"], "lit_agreement_interior": agree_interior,
+              "bias": bias_summary(stats, frequencies),
               "label_check_clean": {f"{f:g}": check[0, j, :2].tolist() for j, f in enumerate(frequencies) if j},
               "label_check_effects": {f"{f:g}": check[0, j, 2:].tolist() for j, f in enumerate(frequencies) if j},
               "seconds": time.perf_counter() - t0}

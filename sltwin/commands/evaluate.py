@@ -18,8 +18,9 @@ def add_arguments(parser):
     parser.add_argument("--synthetic", type=positive_int, default=0, metavar="N",
                         help="instead of --test: N in-memory synthetic scenes (quick check)")
     parser.add_argument("--real", nargs="+", default=[], help="real capture dataset file(s) with reference orders")
-    parser.add_argument("--cycles", nargs="+", default=[], help="Cycles test set file(s) (python -m bench.cycles_testset): "
-                                                           "its own section, MF rows at the --s5 frequencies")
+    parser.add_argument("--cycles", nargs="+", default=[],
+                        help="Cycles test set file(s) (python -m bench.cycles_testset): its own section, MF rows at "
+                             "the --s5 frequencies")
     parser.add_argument("--max-samples", type=positive_int, default=None,
                         help="score at most this many test scenes (>= 1)")
     parser.add_argument("--s5", type=positive_float, nargs="+", default=[48, 96], metavar="F",
@@ -80,7 +81,8 @@ def run(args) -> int:
     res = write_evaluation(evaluate_models(
         src, physics=physics, prior_free=args.prior_free, mse_only=args.mse_only, real=list(args.real),
         s5_frequencies=tuple(args.s5), s6_frequencies=tuple(args.s6), methods=tuple(args.methods),
-        filtered_window=args.window, speed=not args.no_speed, training_runs=runs, cycles=list(args.cycles)), args.output)
+        filtered_window=args.window, speed=not args.no_speed, training_runs=runs, cycles=list(args.cycles)),
+        args.output)
     print(res["markdown"])
     print(f"wrote {args.output}/eval.md, eval.json, {', '.join(res['figures'])}")
     return 0
