@@ -423,7 +423,7 @@ def build_testset(out, *, scenes=tuple(SCENES), size=(320, 240), samples: int = 
     t0 = time.perf_counter()
     settings = {"scenes": list(scenes), "size": list(size), "samples": samples, "bounces": bounces,
                 "frequencies": list(FREQUENCIES), "steps": STEPS, "full_well_e": FULL_WELL_E,
-                "read_noise_e": READ_NOISE_E, "bits": BITS, "tilt_deg": TILT_DEG}
+                "read_noise_e": READ_NOISE_E, "bits": BITS, "tilt_deg": TILT_DEG, "unit_seeds": list(unit_seeds)}
     sys_json = json.dumps(system_to_dict(system))
     cfg_json = json.dumps(settings, sort_keys=True)
     attrs = {"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "kind": "twin", "orientations": ["v"],
