@@ -337,6 +337,19 @@ def label_check(phases: dict, orders: np.ndarray, frequencies, width: float, lit
     return out
 
 
+def seed_flips(p0, p1, phases: dict, frequencies, width: float, mask) -> dict:
+    """{f: fraction of ``mask`` whose MF order 1 -> f changes when the unit phase of one seed
+    (``p0``) is replaced by another's (``p1``); the high phase ``phases[f]`` is the same."""
+    from unwrap.temporal import mf_unwrap
+
+    out = {}
+    for f in frequencies[1:]:
+        a, b = (np.asarray(mf_unwrap([p, phases[f]], (frequencies[0], f), width=width, valid=mask).order)
+                for p in (p0, p1))
+        out[f"{f:g}"] = float(np.mean((a != b)[mask]))
+    return out
+
+
 def make_sample(scene: CyclesScene, system, *, samples: int, bounces: int = 4, threads: int = 2, cache_dir=None,
                 noise_seed: int = 0, unit_seeds=(0, 1), frequencies=FREQUENCIES, steps: int = STEPS,
                 full_well_e: float = FULL_WELL_E, read_noise_e: float = READ_NOISE_E) -> dict:
@@ -375,8 +388,11 @@ def make_sample(scene: CyclesScene, system, *, samples: int, bounces: int = 4, t
              "bias_unit": wrap(biased[frequencies[0]] - clean[frequencies[0]])}
     if st["seeds"] > 1:
         s0, s1 = st["unit_by_seed"]
-        stats["noise_unit_per_seed"] = wrap(unit_phase(s1) - unit_phase(s0)) / math.sqrt(2)
+        p0, p1 = unit_phase(s0), unit_phase(s1)
+        stats["noise_unit_per_seed"] = wrap(p1 - p0) / math.sqrt(2)
         stats["unit_seeds"] = st["seeds"]
+        # decisions Cycles' noise alone changes: MF 1 -> f with one seed's unit phase vs the other's
+        stats["orders_changed_between_seeds"] = seed_flips(p0, p1, biased, frequencies, Wp, lit & ~edge)
     params = {"renderer": "blender cycles", "scene": scene.params, "note": scene.note, "samples": samples,
               "bounces": bounces, "exposure": EXPOSURE, "unit_seeds": st["seeds"],
               "noise": {"full_well_e": full_well_e, "read_noise_e": read_noise_e, "bits": BITS, "seed": noise_seed},
@@ -404,6 +420,7 @@ def bias_summary(stats: dict, frequencies=FREQUENCIES) -> dict:
         out["unit_seeds"] = stats["unit_seeds"]
         # the unit phase of the file averages the seeds' frames: its noise is the per-seed one / sqrt(n)
         out["unit_noise_rms_rad"] = out["cycles_noise_rms_rad"] / math.sqrt(stats["unit_seeds"])
+        out["orders_changed_between_seeds"] = stats["orders_changed_between_seeds"]
     for f in frequencies[1:]:
         out[f"bias_over_half_fringe_{f:g}"] = float(np.mean(np.abs(b) > math.pi / f))
     return out
