@@ -110,7 +110,7 @@ def bias_table(items48, contexts: dict) -> str:
          "RMS rad | bias / noise of the unit | lit twin = lit Cycles (interior) | label check 48 / 96 (interior, edge) |",
          "|---|---:|---:|---:|---:|---:|---:|---|"]
     for it in items48:
-        b = {k: v for k, v in it["params"].get("bias", {}).items()}
+        b = dict(it["params"].get("bias", {}))
         lc = it["params"].get("label_check_clean", {})
         rms, p99 = b.get("bias_rms_rad", np.nan), b.get("bias_p99_rad", np.nan)
         n1, nu = b.get("cycles_noise_rms_rad", np.nan), b.get("unit_noise_rms_rad", np.nan)
@@ -118,6 +118,13 @@ def bias_table(items48, contexts: dict) -> str:
         L.append(f"| {it['scene']} | {counted:,} | {rms:.4f} | {p99:.3f} ({48 * p99 / (2 * np.pi):.2f}) | "
                  f"{n1:.4f} / {nu:.4f} | {rms / nu:.1f} | {100 * b.get('lit_agreement_interior', np.nan):.2f} % | "
                  f"{lc.get('48', '-')} / {lc.get('96', '-')} |")
+    L += ["", "| scene | traditional % (no sensor noise) at 48: one seed's unit / the unit used / extrapolated to no "
+              "Cycles noise | at 96 |", "|---|---|---|"]
+    for it in items48:
+        e = it["params"].get("bias", {}).get("error_vs_cycles_noise", {})
+        cell = {f: " / ".join(f"{100 * v:.2f}" for v in (e[f][0], e[f][2], e[f][3])) if f in e else "-"
+                for f in ("48", "96")}
+        L.append(f"| {it['scene']} | {cell['48']} | {cell['96']} |")
     L += ["", "| f | traditional wrong px | within 25 px of an invalid px (counted px there) | in patches >= 100 px "
               "| traditional % per scene |", "|---|---:|---:|---:|---|"]
     for f, c in contexts.items():
