@@ -210,7 +210,7 @@ def patterns_and_basis(system, frequencies=FREQUENCIES, steps: int = STEPS):
         X = Bm[cols].T
         for k in range(steps):
             y = imgs[j * steps + k].ravel()
-            c, *_ = np.linalg.lstsq(X, y, rcond=None)
+            c, *_ = np.linalg.lstsq(X[::61], y[::61], rcond=None)   # a subset fixes c; all pixels check it
             if np.abs(X @ c - y).max() > 1e-5:
                 raise ExperimentError("a phase-shift step is not a combination of the basis images "
                                       "(pattern convention?)")
