@@ -69,16 +69,15 @@ def file_items(path, f: float):
         width = float(json.loads(h5.attrs["widths"])["v"])
     noise = capture_noise(path, "v", pair)
     ds = FringeOrderDataset(path, method="mf", frequencies=pair, orientation="v", crop=None, seed=0)
+    maps = {"phase_low": "phase_low", "phase_high": "phase_high", "m_low": "modulation_low", "m_high": "modulation_high"}
     items = []
     for i in range(len(ds)):
         it = ds[i]
-        items.append(dict(name=f"Cycles set, f = {f:g} #{i}", scene=params[i].get("scene", {}).get("scene", str(i)),
-                          params=params[i], phase_low=it["phase_low"][0].numpy().astype(np.float64),
-                          phase_high=it["phase_high"][0].numpy().astype(np.float64),
-                          m_low=it["modulation_low"][0].numpy().astype(np.float64),
-                          m_high=it["modulation_high"][0].numpy().astype(np.float64),
-                          valid=it["valid"].numpy(), ref=it["order_true"].numpy().astype(np.int64),
-                          freqs=pair, width=width, steps=noise["steps"], sigma_I=noise["sigma_I"]))
+        item = {k: it[v][0].numpy().astype(np.float64) for k, v in maps.items()}
+        item.update(name=f"Cycles set, f = {f:g} #{i}", scene=params[i].get("scene", {}).get("scene", str(i)),
+                    params=params[i], valid=it["valid"].numpy(), ref=it["order_true"].numpy().astype(np.int64),
+                    freqs=pair, width=width, steps=noise["steps"], sigma_I=noise["sigma_I"])
+        items.append(item)
     return items
 
 
