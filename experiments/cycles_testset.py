@@ -337,12 +337,13 @@ def label_check(phases: dict, orders: np.ndarray, frequencies, width: float, lit
     return out
 
 
-def noise_dependence(p0, p1, p_mean, phases: dict, orders: np.ndarray, frequencies, width: float, mask) -> dict:
+def noise_dependence(p0, p1, p_mean, n_seeds: int, phases: dict, orders: np.ndarray, frequencies, width: float,
+                     mask) -> dict:
     """How much of the traditional error Cycles' noise makes: {f: [error with the unit phase of
-    seed 0, of seed 1, of their mean (half the noise variance), extrapolated to no Cycles noise]}
-    (fractions of ``mask``; MF 1 -> f on the noise-free stacks, high phase ``phases[f]``, against
-    the true order relative to it). The extrapolation assumes the error grows linearly with the
-    noise variance: e(0) = 2 e(var / 2) - e(var)."""
+    seed 0, of seed 1, of the mean of ``n_seeds`` seeds (1/n the noise variance), extrapolated to
+    no Cycles noise]} (fractions of ``mask``; MF 1 -> f on the noise-free stacks, high phase
+    ``phases[f]``, against the true order relative to it). The extrapolation assumes the error
+    grows linearly with the noise variance: e(0) = e(var / n) - (e(var) - e(var / n)) / (n - 1)."""
     from unwrap.temporal import mf_unwrap
 
     out = {}
@@ -350,7 +351,8 @@ def noise_dependence(p0, p1, p_mean, phases: dict, orders: np.ndarray, frequenci
         rates = [float(np.mean((np.asarray(mf_unwrap([p, phases[f]], (frequencies[0], f), width=width,
                                                      valid=mask).order) != orders[j])[mask]))
                  for p in (p0, p1, p_mean)]
-        out[f"{f:g}"] = rates + [2 * rates[2] - (rates[0] + rates[1]) / 2]
+        e1 = (rates[0] + rates[1]) / 2
+        out[f"{f:g}"] = rates + [rates[2] - (e1 - rates[2]) / (n_seeds - 1)]
     return out
 
 
@@ -398,8 +400,8 @@ def make_sample(scene: CyclesScene, system, *, samples: int, bounces: int = 4, t
         # true order relative to the noise-free high phase (a pixel at the +-pi cut counts right)
         rel = np.stack([np.rint((np.nan_to_num(phase_truth(geom, system.projector.size, "v", f)[0]) - biased[f])
                                 / (2 * np.pi)) for f in frequencies])
-        stats["error_vs_cycles_noise"] = noise_dependence(p0, p1, biased[frequencies[0]], biased, rel, frequencies,
-                                                          Wp, lit & ~edge)
+        stats["error_vs_cycles_noise"] = noise_dependence(p0, p1, biased[frequencies[0]], st["seeds"], biased, rel,
+                                                          frequencies, Wp, lit & ~edge)
     params = {"renderer": "blender cycles", "scene": scene.params, "note": scene.note, "samples": samples,
               "bounces": bounces, "exposure": EXPOSURE, "unit_seeds": st["seeds"],
               "noise": {"full_well_e": full_well_e, "read_noise_e": read_noise_e, "bits": BITS, "seed": noise_seed},
