@@ -1,11 +1,11 @@
 """The Cycles test set (issue 21, item 3): build it, then score every decoder on it.
 
-    python -m bench.cycles_testset [--out DIR] [--size 320 240] [--samples 64] [--unit-seeds 2]
+    python -m bench.cycles_testset [--out DIR] [--size 320 240] [--samples 64] [--unit-seeds 4]
                                    [--scenes ...] [--eval-only FILE] [--json OUT.json] [--no-learned] [--quick]
 
 Builds ``DIR/cycles_test.h5`` with :func:`experiments.cycles_testset.build_testset` (Blender
 Cycles, 4 diffuse bounces; the Cycles frames are cached in ``DIR/frames``, so a rerun or an
-interrupted run only renders what is missing; ~40 min on 2 shared cores at the defaults) and a
+interrupted run only renders what is missing; ~60 min on 2 shared cores at the defaults) and a
 ``DIR/README.txt`` saying how it was made; then, at f = 48 and f = 96 (MF pairs 1 -> f), the rows
 of ``bench.spatial_unwrap`` on the same pixels - traditional, filtered 15x15, graph cut
 (:mod:`unwrap.spatial_orders`), the shipped learned model, learned + graph cut, and their gated
@@ -141,8 +141,8 @@ def main(argv=None) -> int:
     ap.add_argument("--samples", type=int, default=64, help="Cycles samples per pixel (default 64)")
     ap.add_argument("--scenes", nargs="+", default=list(SCENES), choices=list(SCENES))
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--unit-seeds", type=int, default=2, help="seeds averaged for the unit frequency (>= 2 measures "
-                                                               "Cycles' noise; default 2)")
+    ap.add_argument("--unit-seeds", type=int, default=4, help="seeds averaged for the unit frequency (>= 2 measures "
+                                                               "Cycles' noise; default 4)")
     ap.add_argument("--eval-only", default=None, metavar="FILE", help="score an existing file, render nothing")
     ap.add_argument("--no-learned", action="store_true", help="skip the network rows")
     ap.add_argument("--json", default=None)
