@@ -10,7 +10,7 @@ import pytest
 from synth.blender_twin import blender_available
 from tests.conftest import shared_data
 
-CYCLES = [pytest.mark.blender, pytest.mark.realdata, pytest.mark.slow,
+CYCLES = [pytest.mark.blender, pytest.mark.realdata,
           pytest.mark.skipif(not blender_available(sys.executable), reason="bpy not installed (make test installs it)")]
 
 
