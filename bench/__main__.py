@@ -9,9 +9,10 @@ from __future__ import annotations
 import sys
 import time
 
-from . import (ba_scale, calib_accuracy, calib_captures, calib_speed, decision_error_fit, defocus_bias,
-               deploy_speed, detect_accuracy, export_speed, finetune_real, gi_bias, learned_deploy,
-               learned_speed, outlier_rule, retrain_compare, spatial_unwrap, synth_speed, unwrap_speed)
+from . import (ba_scale, calib_accuracy, calib_captures, calib_speed, cycles_testset, decision_error_fit,
+               defocus_bias, deploy_speed, detect_accuracy, export_speed, finetune_real, gi_bias,
+               learned_deploy, learned_speed, outlier_rule, retrain_compare, spatial_unwrap, synth_speed,
+               unwrap_speed)
 
 #: (name, main(argv) of the benchmark, arguments of its quick mode)
 BENCHMARKS = [
@@ -33,6 +34,7 @@ BENCHMARKS = [
     ("learned_deploy", learned_deploy.main, ["--quick"]),
     ("finetune_real", finetune_real.main, ["--quick"]),
     ("retrain_compare", retrain_compare.main, ["--quick"]),
+    ("cycles_testset", cycles_testset.main, ["--quick"]),
 ]
 
 

@@ -128,7 +128,7 @@ class _OneFile(TestSource):
 def evaluate_models(source: TestSource, *, physics, prior_free=None, mse_only=None, real=(),
                     s5_frequencies=(48, 96), s6_frequencies=(16, 32, 48, 64, 80, 96), methods=PAIR_METHODS,
                     filtered_window: int = 15, speed: bool = True, training_runs: dict | None = None,
-                    shared_machine: bool = True) -> dict:
+                    shared_machine: bool = True, cycles=()) -> dict:
     """Everything ``calib eval`` reports (module docstring), computed: the S5 and S6 tables with the
     paper's numbers, confidence curves, per-capture rows, speed and training rates, and under
     ``"plots"`` what the figures draw (confidence curves per frequency and method, example frames);
@@ -154,6 +154,9 @@ def evaluate_models(source: TestSource, *, physics, prior_free=None, mse_only=No
                          if s is not None}
     res["s6"] = table_s6(cache, s6_frequencies, methods) if s6_frequencies else {}
     res["checks"] = {f"{m} {f:g}": s.checks.get(ROW_PA) for (m, f), s in s5["scored"].items() if s is not None}
+    if cycles:  # the Cycles test set (experiments.cycles_testset): MF only, v fringes, its own section
+        cyc = _Cache(TestSource(files=list(cycles), orientations=("v",), label="Cycles set"), models, filtered_window)
+        res["cycles"] = table_s5(cyc, s5_frequencies, ("mf",))["table"]
     if real:
         rows = real_table(real, models[ROW_PA], window=filtered_window)
         for r in rows:

@@ -136,6 +136,7 @@ def markdown(res: dict) -> str:
         for key, curve in conf.items():
             L.append(f"| {key} | " + " | ".join(_pct(e) for _, e in curve) + " |")
         L.append("")
+    L += _cycles_section(res.get("cycles") or {})
     real = res.get("real") or []
     if real:
         L += ["## Real captures (reference orders from the export) [%]", "",
@@ -164,6 +165,21 @@ def markdown(res: dict) -> str:
             L.append(f"| training {name}: samples/s | {v:.2f} |")
         L.append("")
     return "\n".join(L)
+
+
+def _cycles_section(cyc: dict) -> list:
+    """The Cycles test set's rows (experiments.learned_eval ``res["cycles"]``), or nothing."""
+    if not cyc:
+        return []
+    L = ["## Cycles set: held-out meshes rendered by Blender Cycles, bias-dominated (MF, v) [%]", "",
+         "| f | row | error % | traditional / row | pixels |", "|---|---|---:|---:|---:|"]
+    for f, rows in cyc.items():
+        t = (rows.get("Traditional") or {}).get("mf", {}).get("ours")
+        for row, per in rows.items():
+            r = per.get("mf", {}).get("ours")
+            L.append(f"| {f} | {row} | {_pct(r)} | {'-' if not r or t is None else f'{t / r:.2f}x'} | "
+                     f"{per.get('mf', {}).get('pixels', '')} |")
+    return L + [""]
 
 
 def write_evaluation(res: dict, out_dir) -> dict:

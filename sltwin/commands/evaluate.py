@@ -1,4 +1,4 @@
-"""``calib eval [--model M] [--prior-free P] [--mse-only S] (--test FILE ... | --synthetic N) [--real FILE ...]
+"""``calib eval [--model M] [--prior-free P] [--mse-only S] (--test FILE ... | --synthetic N) [--real FILE ...] [--cycles FILE ...]
 -o OUT``: tables S5 / S6 beside the paper's, confidence curves, real captures, speed
 (experiments.learned_eval)."""
 from __future__ import annotations
@@ -18,6 +18,9 @@ def add_arguments(parser):
     parser.add_argument("--synthetic", type=positive_int, default=0, metavar="N",
                         help="instead of --test: N in-memory synthetic scenes (quick check)")
     parser.add_argument("--real", nargs="+", default=[], help="real capture dataset file(s) with reference orders")
+    parser.add_argument("--cycles", nargs="+", default=[],
+                        help="Cycles test set file(s) (python -m bench.cycles_testset): its own section, MF rows at "
+                             "the --s5 frequencies")
     parser.add_argument("--max-samples", type=positive_int, default=None,
                         help="score at most this many test scenes (>= 1)")
     parser.add_argument("--s5", type=positive_float, nargs="+", default=[48, 96], metavar="F",
@@ -47,10 +50,10 @@ def run(args) -> int:
 
     if bool(args.test) == bool(args.synthetic):
         raise CommandError("give either --test FILE ... or --synthetic N")
-    for f in list(args.test) + list(args.real):
+    for f in list(args.test) + list(args.real) + list(args.cycles):
         if not Path(f).is_file():
             raise CommandError(f"{f}: no such dataset file (calib export writes them)")
-    claim(args.output, "dir", inputs=[*args.test, *args.real, args.model, args.prior_free, args.mse_only])
+    claim(args.output, "dir", inputs=[*args.test, *args.real, *args.cycles, args.model, args.prior_free, args.mse_only])
     for option, freqs in (("--s5", args.s5), ("--s6", args.s6)):
         low = [f for f in freqs if f <= 1]
         if low:
@@ -58,6 +61,7 @@ def run(args) -> int:
                                "frequencies > 1")
     dataset_files(args.test, "--test", needs="a fringe-order dataset written by calib export CONFIG (the twin's "
                                               "test data)")
+    dataset_files(args.cycles, "--cycles", needs="a Cycles test set written by python -m bench.cycles_testset")
     dataset_files(args.real, "--real", need_reference=True,
                   needs="a real capture with reference orders: calib export --capture DIR -o real.h5")
     model_of_kind(args.model, "physics", "--model")
@@ -77,7 +81,8 @@ def run(args) -> int:
     res = write_evaluation(evaluate_models(
         src, physics=physics, prior_free=args.prior_free, mse_only=args.mse_only, real=list(args.real),
         s5_frequencies=tuple(args.s5), s6_frequencies=tuple(args.s6), methods=tuple(args.methods),
-        filtered_window=args.window, speed=not args.no_speed, training_runs=runs), args.output)
+        filtered_window=args.window, speed=not args.no_speed, training_runs=runs, cycles=list(args.cycles)),
+        args.output)
     print(res["markdown"])
     print(f"wrote {args.output}/eval.md, eval.json, {', '.join(res['figures'])}")
     return 0
