@@ -124,3 +124,26 @@ def test_calib_report_with_learned_files_adds_the_parity_section(tmp_path, capsy
     for data, (_, f, samples, pixels, trad, filtered, learned, check) in rows.items():
         assert samples == "2" and int(pixels) > 30_000 and check.endswith("ok")
         assert learned == trad                                  # zero correction = the traditional order
+
+
+def test_noise_curve_recovers_the_sensor_of_synthetic_residuals():
+    """noise_curve inverts the plane-residual noise per modulation decile: residuals drawn from a
+    sensor of 10,000 e- full well and 30 e- read noise (8-bit quantisation on top) give it back."""
+    import math
+
+    import numpy as np
+
+    from experiments.learned_parity import noise_curve
+
+    rng = np.random.default_rng(3)
+    N, fw, read = 3, 10_000.0, 30.0
+    q2 = 1.0 / (12.0 * 255.0 ** 2)
+    B = rng.uniform(0.03, 0.3, 400_000)
+    sigma_I = np.sqrt((read / fw) ** 2 + q2 + B / fw)
+    sigma_phase = sigma_I / (B * math.sqrt(N / 2.0)) / math.sqrt(25.0 / 22.0)   # undo the fit's dof factor
+    c = noise_curve(rng.normal(0.0, sigma_phase), B, N)
+    assert len(c["modulation"]) == 10 and np.all(np.diff(c["sigma_I"]) > 0)
+    assert c["full_well_e"] == pytest.approx(fw, rel=0.1)
+    assert c["read_noise_e"] == pytest.approx(read, rel=0.15)
+    flat = noise_curve(rng.normal(0.0, 0.01 / B), B, N)      # phase noise ~ 1/B: constant sigma_I, no shot noise
+    assert flat["full_well_e"] is None or flat["full_well_e"] > 1e5   # 10x the sensor above: no shot noise
