@@ -89,6 +89,8 @@ def test_verdict_names_a_twin_that_under_predicts_the_real_errors():
     assert "the twin under-predicts real errors 4.4x" in v and "behaves on the real capture" not in v
     v = verdict([row("real", 181, 109), row("twin", 101, 111)])    # the skull today (calib demo)
     assert "the twin under-predicts real errors 1.8x" in v and "behaves on the real capture" not in v
+    v = verdict([row("real", 181, 109), row("twin", 5338, 5000)])   # a twin 30x too noisy vouches for nothing
+    assert "the twin over-predicts real errors 29.5x" in v and "behaves on the real capture" not in v
     assert "behaves on the real capture as on its twin" in verdict([row("real", 120, 110), row("twin", 100, 95)])
 
 
