@@ -93,6 +93,13 @@ def section(res: dict, *, twin_info: dict | None = None):
                             f"{t.get('sigma_phase_rad', float('nan')) / n.get('sigma_phase_rad', float('nan')):.2f}"
                             " (twin / real); the intensities need not match (the twin's light falloff and "
                             "saturation differ from the capture's)."))
+        curves = [(name, d.get("curve")) for name, d in (("capture", n), ("twin", t)) if d.get("curve")]
+        if curves:
+            blocks.append(("p", "Noise against modulation (experiments.learned_parity.noise_curve, sigma_I per "
+                                "decile of B): " + "; ".join(
+                                    f"{name} sigma_I {c['sigma_I'][0]:.4f} at B {c['modulation'][0]:.3f} -> "
+                                    f"{c['sigma_I'][-1]:.4f} at B {c['modulation'][-1]:.3f}" for name, c in curves)
+                                + ". A twin matched at the median only can still differ at equal modulation."))
     table = []
     for r in rows:
         chk = r["check"] or {}

@@ -149,3 +149,18 @@ def test_noise_curve_recovers_the_sensor_of_synthetic_residuals():
     assert c["read_noise_e"] == pytest.approx(read, rel=0.15)
     flat = noise_curve(rng.normal(0.0, 0.01 / B), B, N)      # phase noise ~ 1/B: constant sigma_I, no shot noise
     assert flat["full_well_e"] is None or flat["full_well_e"] > 1e5   # 10x the sensor above: no shot noise
+
+
+def test_parity_section_shows_the_noise_against_modulation_when_measured():
+    """The noise paragraph gains the capture's noise curve (noise_curve's ends) when the twin info holds it."""
+    from reports.learned_parity import section
+
+    curve = {"modulation": [0.04, 0.2], "sigma_I": [0.0035, 0.0056], "full_well_e": 1e4, "read_noise_e": 30.0}
+    info = {"noise_real": {"sigma_I": 0.0047, "sigma_phase_rad": 0.03, "modulation": 0.13, "steps": 3, "curve": curve},
+            "noise_twin": {"sigma_I": 0.0016, "sigma_phase_rad": 0.027, "modulation": 0.047, "steps": 3},
+            "full_well": 1e5}
+    (_, blocks), _ = section({"rows": [], "model_meta": {}}, twin_info=info)
+    text = " ".join(str(b[1]) for b in blocks)
+    assert "capture sigma_I 0.0035 at B 0.040 -> 0.0056 at B 0.200" in text and "twin sigma_I" not in text
+    (_, blocks), _ = section({"rows": [], "model_meta": {}}, twin_info={**info, "noise_real": {"sigma_I": 0.0047}})
+    assert "Noise against modulation" not in " ".join(str(b[1]) for b in blocks)
