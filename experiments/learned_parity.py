@@ -70,7 +70,37 @@ def capture_noise(path, orientation: str = "v", pair=None) -> dict:
         raise ExperimentError(f"{path}: no sample with reference orders to measure the noise on")
     noise = plane_residual_noise(np.concatenate(res), np.concatenate(mods), N)
     return {"sigma_I": noise["sigma_I"], "sigma_phase_rad": noise["sigma_phase_rad"],
-            "modulation": noise["modulation"], "pixels": noise["pixels"], "steps": N, "pair": list(pair)}
+            "modulation": noise["modulation"], "pixels": noise["pixels"], "steps": N, "pair": list(pair),
+            "curve": noise_curve(np.concatenate(res), np.concatenate(mods), N)}
+
+
+def noise_curve(residuals, modulation, steps: int, bins: int = 10, bits: int = 8) -> dict:
+    """The intensity noise against modulation and the sensor it implies (:func:`capture_noise`'s
+    plane residuals, rad, and modulations B, full scale, of the same pixels; ``steps`` N).
+
+    Per decile of B, ``sigma_I`` as in :func:`unwrap.reliability.plane_residual_noise`; then the
+    least-squares line ``sigma_I^2 = c0 + c1 B`` (shot noise with ``I ~ B`` plus a constant): full
+    well ``1 / c1`` electrons, read noise ``sqrt(c0 - q^2) / c1`` electrons, ``q^2 = 1 / (12 (2^bits
+    - 1)^2)`` the quantisation the renderer adds itself (0 where c0 is below it).
+    RETURNED VALUE: {"modulation": [median B per bin], "sigma_I": [per bin], "full_well_e",
+    "read_noise_e"} (full well and read noise None when the slope is not positive)."""
+    from unwrap.reliability import plane_residual_noise
+
+    e, B = np.asarray(residuals, np.float64).reshape(-1), np.asarray(modulation, np.float64).reshape(-1)
+    edges = np.quantile(B, np.linspace(0.0, 1.0, bins + 1))
+    xs, ys = [], []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        s = (B >= lo) & (B <= hi)
+        if s.sum() >= 100:
+            r = plane_residual_noise(e[s], B[s], steps)
+            xs.append(r["modulation"])
+            ys.append(r["sigma_I"])
+    c0, c1 = np.linalg.lstsq(np.vstack([np.ones(len(xs)), xs]).T, np.square(ys), rcond=None)[0]
+    q2 = 1.0 / (12.0 * ((1 << bits) - 1) ** 2)
+    ok = c1 > 0
+    return {"modulation": [float(x) for x in xs], "sigma_I": [float(y) for y in ys],
+            "full_well_e": float(1.0 / c1) if ok else None,
+            "read_noise_e": float(math.sqrt(max(c0 - q2, 0.0)) / c1) if ok else None}
 
 
 def _world_depths(system_file) -> tuple[float, float]:
@@ -84,11 +114,13 @@ def _world_depths(system_file) -> tuple[float, float]:
 
 
 def twin_config(system_file, full_well: float, *, mesh_dir, exposure=(0.45, 0.95), samples: int = 6, steps: int = 3,
-                frequencies=(1, 16, 48, 96), depth_mm=(350, 450), size_mm=(100, 200), seed: int = 5):
+                frequencies=(1, 16, 48, 96), depth_mm=(350, 450), size_mm=(100, 200), seed: int = 5,
+                read_noise_e: float = 2.0):
     """The export config (``synth.export.config.ExportConfig``, built in memory) of twin renders of
     ``system_file`` with the matched noise and exposure: scene and effect ranges as the training
     set's, objects at the capture's working distance (``depth_mm`` from the world origin), both
-    devices focused on it (+-50 mm); meshes from ``mesh_dir``."""
+    devices focused on it (+-50 mm); meshes from ``mesh_dir``; ``read_noise_e``: the sensor's read
+    noise (electrons; :func:`capture_noise_curve` measures it on a capture)."""
     import tomli_w
 
     from synth.export.config import config_from_dict
@@ -108,7 +140,7 @@ def twin_config(system_file, full_well: float, *, mesh_dir, exposure=(0.45, 0.95
                   "background_tilt_deg": [0, 25], "albedo": [0.3, 0.95], "texture": 0.5,
                   "texture_contrast": [0.1, 0.6]},
         "effects": {"exposure": [round(float(e), 4) for e in exposure], "ambient": [0.0, 0.08],
-                    "noise": {"full_well_e": round(float(full_well), 1), "read_noise_e": 2},
+                    "noise": {"full_well_e": round(float(full_well), 1), "read_noise_e": round(float(read_noise_e), 2)},
                     "projector_defocus": {"aperture_mm": [0, 3], "focus_offset_mm": [round(v, 1) for v in f_prj]},
                     "camera_defocus": {"aperture_mm": [0, 3], "focus_offset_mm": [round(v, 1) for v in f_cam]},
                     "global_illumination": {"subsurface": [0, 0.6], "scatter_mm": [0.5, 4], "interreflection": [0, 0.1],

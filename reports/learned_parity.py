@@ -5,8 +5,8 @@ Verdict: the model "behaves on real data as on the twin" when, at the capture's 
 learned/traditional error ratio on the capture is within a factor 2 of the twin's (or both error
 rates are below 0.1 %), and the learned error rate on the capture is not above the traditional;
 when the capture's traditional error is more than 1.5x its twin's, the verdict says instead that
-"the twin under-predicts real errors Nx" (the twin does not make the real errors, so it cannot vouch).
-"""
+"the twin under-predicts real errors Nx" (the twin does not make the real errors, so it cannot vouch);
+below 1 / 1.5x, "the twin over-predicts real errors Nx" (its errors are not the capture's either)."""
 from __future__ import annotations
 
 import numpy as np
@@ -32,6 +32,11 @@ def verdict(rows) -> str:
     if not small and gap > 1.5:       # issue 21: a twin that misses most real errors cannot vouch for the model
         return (f"Verdict: the twin under-predicts real errors {gap:.1f}x at f = {f:g} (traditional: real "
                 f"{100 * real[0]['traditional'].rate:.3f} %, twin {100 * twin['traditional'].rate:.3f} %), so it "
+                f"cannot show that the model behaves on real captures as on the twin (learned/traditional error: "
+                f"real {rr:.2f}, twin {tr:.2f}).")
+    if not small and gap < 1 / 1.5:   # the twin makes errors the capture does not: it cannot vouch either
+        return (f"Verdict: the twin over-predicts real errors {1 / max(gap, 1e-12):.1f}x at f = {f:g} (traditional: "
+                f"real {100 * real[0]['traditional'].rate:.3f} %, twin {100 * twin['traditional'].rate:.3f} %), so it "
                 f"cannot show that the model behaves on real captures as on the twin (learned/traditional error: "
                 f"real {rr:.2f}, twin {tr:.2f}).")
     word = "behaves on the real capture as on its twin" if same and not_worse else \
@@ -88,6 +93,13 @@ def section(res: dict, *, twin_info: dict | None = None):
                             f"{t.get('sigma_phase_rad', float('nan')) / n.get('sigma_phase_rad', float('nan')):.2f}"
                             " (twin / real); the intensities need not match (the twin's light falloff and "
                             "saturation differ from the capture's)."))
+        curves = [(name, d.get("curve")) for name, d in (("capture", n), ("twin", t)) if d.get("curve")]
+        if curves:
+            blocks.append(("p", "Noise against modulation (experiments.learned_parity.noise_curve, sigma_I per "
+                                "decile of B): " + "; ".join(
+                                    f"{name} sigma_I {c['sigma_I'][0]:.4f} at B {c['modulation'][0]:.3f} -> "
+                                    f"{c['sigma_I'][-1]:.4f} at B {c['modulation'][-1]:.3f}" for name, c in curves)
+                                + ". A twin matched at the median only can still differ at equal modulation."))
     table = []
     for r in rows:
         chk = r["check"] or {}

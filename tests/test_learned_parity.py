@@ -77,7 +77,8 @@ def test_traditional_gap_says_whether_the_matched_noise_explains_the_real_errors
 
 
 def test_verdict_names_a_twin_that_under_predicts_the_real_errors():
-    """Issue 21: the skull's real traditional error is 4.4x its twin's; the verdict must say so."""
+    """Issue 21: the skull's real traditional error is 1.8x its twin's (4.4x against the reference
+    before its stored-phase fix); the verdict must say so."""
     from reports.learned_parity import verdict
     from unwrap.learned.metrics import ErrorCount
 
@@ -86,6 +87,10 @@ def test_verdict_names_a_twin_that_under_predicts_the_real_errors():
 
     v = verdict([row("real", 450, 370), row("twin", 102, 112)])
     assert "the twin under-predicts real errors 4.4x" in v and "behaves on the real capture" not in v
+    v = verdict([row("real", 181, 109), row("twin", 101, 111)])    # the skull today (calib demo)
+    assert "the twin under-predicts real errors 1.8x" in v and "behaves on the real capture" not in v
+    v = verdict([row("real", 181, 109), row("twin", 5338, 5000)])   # a twin 30x too noisy vouches for nothing
+    assert "the twin over-predicts real errors 29.5x" in v and "behaves on the real capture" not in v
     assert "behaves on the real capture as on its twin" in verdict([row("real", 120, 110), row("twin", 100, 95)])
 
 
@@ -121,3 +126,41 @@ def test_calib_report_with_learned_files_adds_the_parity_section(tmp_path, capsy
     for data, (_, f, samples, pixels, trad, filtered, learned, check) in rows.items():
         assert samples == "2" and int(pixels) > 30_000 and check.endswith("ok")
         assert learned == trad                                  # zero correction = the traditional order
+
+
+def test_noise_curve_recovers_the_sensor_of_synthetic_residuals():
+    """noise_curve inverts the plane-residual noise per modulation decile: residuals drawn from a
+    sensor of 10,000 e- full well and 30 e- read noise (8-bit quantisation on top) give it back."""
+    import math
+
+    import numpy as np
+
+    from experiments.learned_parity import noise_curve
+
+    rng = np.random.default_rng(3)
+    N, fw, read = 3, 10_000.0, 30.0
+    q2 = 1.0 / (12.0 * 255.0 ** 2)
+    B = rng.uniform(0.03, 0.3, 400_000)
+    sigma_I = np.sqrt((read / fw) ** 2 + q2 + B / fw)
+    sigma_phase = sigma_I / (B * math.sqrt(N / 2.0)) / math.sqrt(25.0 / 22.0)   # undo the fit's dof factor
+    c = noise_curve(rng.normal(0.0, sigma_phase), B, N)
+    assert len(c["modulation"]) == 10 and np.all(np.diff(c["sigma_I"]) > 0)
+    assert c["full_well_e"] == pytest.approx(fw, rel=0.1)
+    assert c["read_noise_e"] == pytest.approx(read, rel=0.15)
+    flat = noise_curve(rng.normal(0.0, 0.01 / B), B, N)      # phase noise ~ 1/B: constant sigma_I, no shot noise
+    assert flat["full_well_e"] is None or flat["full_well_e"] > 1e5   # 10x the sensor above: no shot noise
+
+
+def test_parity_section_shows_the_noise_against_modulation_when_measured():
+    """The noise paragraph gains the capture's noise curve (noise_curve's ends) when the twin info holds it."""
+    from reports.learned_parity import section
+
+    curve = {"modulation": [0.04, 0.2], "sigma_I": [0.0035, 0.0056], "full_well_e": 1e4, "read_noise_e": 30.0}
+    info = {"noise_real": {"sigma_I": 0.0047, "sigma_phase_rad": 0.03, "modulation": 0.13, "steps": 3, "curve": curve},
+            "noise_twin": {"sigma_I": 0.0016, "sigma_phase_rad": 0.027, "modulation": 0.047, "steps": 3},
+            "full_well": 1e5}
+    (_, blocks), _ = section({"rows": [], "model_meta": {}}, twin_info=info)
+    text = " ".join(str(b[1]) for b in blocks)
+    assert "capture sigma_I 0.0035 at B 0.040 -> 0.0056 at B 0.200" in text and "twin sigma_I" not in text
+    (_, blocks), _ = section({"rows": [], "model_meta": {}}, twin_info={**info, "noise_real": {"sigma_I": 0.0047}})
+    assert "Noise against modulation" not in " ".join(str(b[1]) for b in blocks)
