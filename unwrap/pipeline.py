@@ -32,7 +32,6 @@ from .patterns import projector_coordinate
 from .phase_io import write_phase_file
 from .phase_shift import wrapped_phase
 from .reliability import fit_noise_sigma, modulation_threshold, predicted_error_rate
-from .safe_output import save_figure
 from .temporal import Unwrapped, mf_unwrap, mw_unwrap, nt_unwrap
 
 
@@ -350,22 +349,6 @@ def write_results(results: dict, out_dir, *, previews: bool = True, attrs: dict 
 
 
 def _previews(results, out: Path):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    for o, r in results.items():
-        u = r.result
-        fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
-        coord = projector_coordinate(np.asarray(u.phase), u.frequency, r.width)
-        for ax, img, title, cmap in (
-                (axes[0], coord, f"projector coordinate ({o}) [px]", "viridis"),
-                (axes[1], np.where(u.valid, u.order, np.nan), f"fringe order k (f = {u.frequency:g})", "turbo"),
-                (axes[2], r.modulation, "modulation B", "gray")):
-            im = ax.imshow(img, cmap=cmap)
-            ax.set_title(title)
-            ax.axis("off")
-            fig.colorbar(im, ax=ax, fraction=0.046)
-        fig.suptitle(f"{o}: method {u.method}, valid {100 * np.mean(u.valid):.1f} %")
-        fig.tight_layout()
-        save_figure(fig, out / f"{o}_unwrap.png", dpi=80)
-        plt.close(fig)
+    """PNG previews, drawn with OpenCV (:mod:`unwrap.previews`)."""
+    from .previews import write_previews
+    write_previews(results, out)
