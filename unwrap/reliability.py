@@ -36,7 +36,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.special import erf
 
 from .errors import UnwrapError
 from .phase_shift import equal_shifts, least_squares_weights
@@ -49,6 +48,16 @@ def phase_sigma(sigma, steps: int, B) -> float:
     if steps < 3 or not B > 0 or sigma < 0:
         raise UnwrapError(f"phase_sigma needs steps >= 3, B > 0, sigma >= 0; got {steps}, {B}, {sigma}")
     return math.sqrt(2.0 * sigma ** 2 / (steps * B ** 2))
+
+
+_erf = np.frompyfunc(math.erf, 1, 1)
+"""Elementwise ``math.erf`` (within 1 ulp of ``scipy.special.erf``; importing scipy.special cost
+~0.3 s of every ``calib unwrap``, for 4001-point grids)."""
+
+
+def erf(x):
+    """Error function of an array (float64)."""
+    return np.asarray(_erf(np.asarray(x, dtype=np.float64)), dtype=np.float64)
 
 
 def phase_error_pdf(e, sigma_phi: float):
