@@ -83,7 +83,8 @@ def _filtered_order_compiled(FK, plane_kernel, method, phase_low, phase_high, f_
               for a in (phase_low, phase_high))
     ok = np.ascontiguousarray(valid)
     Phi = np.empty(ok.shape)
-    FK.coarse_kernel(lo, hi, ok, method == "mf", cut, Phi)
+    if FK.coarse_kernel(lo, hi, ok, method == "mf", cut, Phi):
+        FK.coarse_fix(lo, hi, ok, method == "mf", cut, Phi)
     Ps = plane_kernel(Phi, ok, (int(window) | 1) // 2)
     k = np.empty(ok.shape, dtype=np.int64)
     FK.order_kernel(Ps, hi, ok, f_hi / f_c, 2 * math.pi, 0.5 + TIE_BAND, float(math.floor(f_hi + 0.5)), k)
