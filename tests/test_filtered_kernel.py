@@ -29,6 +29,12 @@ def _damage(s, valid, seed):
     valid = valid.copy()
     valid[H // 3:H // 3 + 20, W // 4:W // 4 + 30] = False
     valid[rng.random((H, W)) < 0.05] = False
+    # valid pixels whose coarse phase is no wrapped phase: the MW / NT beat of (-inf, inf) is NaN,
+    # an MF low phase of 20 rad lies outside the cut's 2 pi
+    ys, xs = rng.integers(0, H, 10), rng.integers(0, W, 10)
+    lo[ys, xs], hi[ys, xs], valid[ys, xs] = -np.inf, np.inf, True
+    ys, xs = rng.integers(0, H, 10), rng.integers(0, W, 10)
+    lo[ys, xs], valid[ys, xs] = 20.0, True
     return lo, hi, valid
 
 
@@ -46,7 +52,7 @@ def test_compiled_filtered_order_equals_the_numpy_formulation(method, freqs, ind
         assert got.dtype == np.int64 and got.shape == ref.shape
         assert np.array_equal(got, ref)
         assert (got >= 0).sum() > 3000 and (got == -1).sum() > 500        # both kinds of pixel present
-    # the infinite phases inside valid take the numpy fix-up of the coarse pass
+    # those take the numpy fix-up of the coarse pass
     from unwrap.learned import _filtered_kernel as FK
     assert FK.coarse_kernel(lo, hi, valid, method == "mf", -0.1, np.empty(lo.shape)) > 0
     # float32 phases and a non-contiguous valid mask go through the same kernels

@@ -85,9 +85,10 @@ def coarse_fix(phase_low, phase_high, valid, is_mf, cut, out):
 
     idx = np.nonzero(np.isnan(out))
     t = lambda a: np.where(valid[idx], np.nan_to_num(np.asarray(a, np.float64)[idx]), 0.0)  # noqa: E731
-    lo = t(phase_low)
-    c = lo if is_mf else wrap(t(phase_high) - lo)
-    out[idx] = np.remainder(c - cut, 2 * math.pi) + cut
+    with np.errstate(over="ignore", invalid="ignore"):                 # +-1.8e308 from infinite phases
+        lo = t(phase_low)
+        c = lo if is_mf else wrap(t(phase_high) - lo)
+        out[idx] = np.remainder(c - cut, 2 * math.pi) + cut
 
 
 @nb.njit(parallel=True, **_JIT)
