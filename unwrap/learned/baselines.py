@@ -38,7 +38,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from .._xp import round_order
+from .._xp import TIE_BAND, round_order
 from ..methods import PAIR_METHODS, check_method
 from .errors import ModelError
 
@@ -51,15 +51,50 @@ def filtered_order(method: str, phase_low, phase_high, frequencies, valid, *, wi
     window (px, odd); fit "plane" (local least-squares plane, default) or "mean" (box mean); width =
     projector pixels across the fringes (places the 2 pi cut of the coarse phase as
     unwrap.temporal does; optional).
-    """
-    from .fast_features import smoothed_priors
 
+    With numba and ``fit="plane"``: the plane kernel between two compiled per-pixel passes
+    (:mod:`unwrap.learned._filtered_kernel`), the same orders as the numpy formulation
+    (:func:`_filtered_order_numpy`, used otherwise).
+    """
     check_method(method, PAIR_METHODS, ModelError)
     f_lo, f_hi = (float(f) for f in frequencies)
     if method != "mf" and f_hi - f_lo > 1 + 1e-9:
         raise ModelError(f"{method} pair ({f_lo:g}, {f_hi:g}): the filtered baseline needs a beat of at most "
                          f"1 period (an absolute coarse phase); this pair's is {f_hi - f_lo:g}")
     valid = np.asarray(valid, dtype=bool)
+    if fit == "plane":
+        try:
+            from . import _filtered_kernel as FK
+            from ._plane_kernel import plane_filter_kernel
+        except ImportError:
+            pass
+        else:
+            return _filtered_order_compiled(FK, plane_filter_kernel, method, phase_low, phase_high, f_lo, f_hi,
+                                            valid, window, width)
+    return _filtered_order_numpy(method, phase_low, phase_high, f_lo, f_hi, valid, window, fit, width)
+
+
+def _filtered_order_compiled(FK, plane_kernel, method, phase_low, phase_high, f_lo, f_hi, valid, window, width):
+    """:func:`filtered_order` as coarse pass -> plane kernel -> order pass (numba)."""
+    from .fast_features import coarse_cut
+
+    f_c, cut = coarse_cut(method, f_lo, f_hi, width)
+    lo, hi = (a if isinstance(a, np.ndarray) and a.dtype in (np.float32, np.float64) else np.asarray(a, np.float64)
+              for a in (phase_low, phase_high))
+    ok = np.ascontiguousarray(valid)
+    Phi = np.empty(ok.shape)
+    if FK.coarse_kernel(lo, hi, ok, method == "mf", cut, Phi):
+        FK.coarse_fix(lo, hi, ok, method == "mf", cut, Phi)
+    Ps = plane_kernel(Phi, ok, (int(window) | 1) // 2)
+    k = np.empty(ok.shape, dtype=np.int64)
+    FK.order_kernel(Ps, hi, ok, f_hi / f_c, 2 * math.pi, 0.5 + TIE_BAND, float(math.floor(f_hi + 0.5)), k)
+    return k
+
+
+def _filtered_order_numpy(method, phase_low, phase_high, f_lo, f_hi, valid, window, fit, width):
+    """The numpy formulation of :func:`filtered_order` (the reference of the compiled path)."""
+    from .fast_features import smoothed_priors
+
     t = lambda a: np.where(valid, np.nan_to_num(np.asarray(a, dtype=np.float64)), 0.0)  # noqa: E731
     priors, _ = smoothed_priors(method, t(phase_low), t(phase_high), f_lo, f_hi, valid, (window,), fit, width)
     prior = priors[int(window) | 1]

@@ -124,15 +124,19 @@ def coarse_phase(method: str, phi_l: np.ndarray, phi_h: np.ndarray, f_l: float, 
     """(absolute coarse phase (H, W) float64, coarse frequency, usable): MF the unit phase, MW / NT
     the beat of the pair (absolute only when ``f_h - f_l <= 1``, else ``usable`` is False), cut
     at 2 pi as :func:`unwrap.learned.smoothing.smoothed_prior` cuts it."""
-    from ..temporal import edge_fraction
-
     is_mf = method == "mf"
-    beat = f_h - f_l
-    usable = is_mf or beat <= 1.0 + 1e-9
-    f_c = min(f_l if is_mf else beat, 1.0)
-    cut = min(-math.pi * (1.0 - f_c), -2 * math.pi * f_c * edge_fraction(width))
+    usable = is_mf or f_h - f_l <= 1.0 + 1e-9
+    f_c, cut = coarse_cut(method, f_l, f_h, width)
     coarse = phi_l if is_mf else wrap(phi_h - phi_l)
     return np.remainder(coarse - cut, 2 * math.pi) + cut, f_c, usable
+
+
+def coarse_cut(method: str, f_l: float, f_h: float, width=None) -> tuple[float, float]:
+    """(coarse frequency, cut (rad)) of :func:`coarse_phase`: the coarse phase lies in [cut, cut + 2 pi)."""
+    from ..temporal import edge_fraction
+
+    f_c = min(f_l if method == "mf" else f_h - f_l, 1.0)
+    return f_c, min(-math.pi * (1.0 - f_c), -2 * math.pi * f_c * edge_fraction(width))
 
 
 def smoothed_priors(method: str, phi_l, phi_h, f_l: float, f_h: float, valid, windows=SMOOTH_WINDOWS,
