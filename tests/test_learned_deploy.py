@@ -174,6 +174,27 @@ def test_onnxruntime_gives_the_torch_orders_on_every_valid_pixel_of_a_capture(on
         np.testing.assert_allclose(a.extras["confidence"], b.extras["confidence"], atol=1e-4)
 
 
+def test_onnx_thread_pool_spins_only_on_an_idle_machine(onnx_model, monkeypatch):
+    """Spinning pool threads are faster alone and much slower beside other jobs (docs/speed.md):
+    by default the session spins only when the load average is below the number of cores; an
+    explicit choice wins, and the logits do not depend on it."""
+    import os
+
+    from unwrap.learned.runtime import OnnxPredictor
+
+    cores = os.cpu_count() or 1
+    monkeypatch.setattr(os, "getloadavg", lambda: (cores + 3.0, 0.0, 0.0))
+    busy = OnnxPredictor(onnx_model)
+    monkeypatch.setattr(os, "getloadavg", lambda: (0.0, 0.0, 0.0))
+    idle = OnnxPredictor(onnx_model)
+    assert busy.spin is False and idle.spin is True
+    assert OnnxPredictor(onnx_model, spin=False).spin is False
+    x = np.random.default_rng(1).standard_normal((1, busy.session.get_inputs()[0].shape[1], 64, 64)).astype(np.float32)
+    name = busy.session.get_inputs()[0].name
+    np.testing.assert_allclose(busy.session.run(None, {name: x})[0], idle.session.run(None, {name: x})[0],
+                               rtol=0, atol=1e-5)
+
+
 def test_calib_unwrap_with_an_onnx_model_never_imports_torch(onnx_model, capture, tmp_path):
     code = ("import sys\nfrom sltwin.cli import main\n"
             f"rc = main(['unwrap', {str(capture)!r}, '--model', {str(onnx_model)!r}, '-o', {str(tmp_path / 'o')!r}, "

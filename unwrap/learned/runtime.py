@@ -78,13 +78,17 @@ class OnnxPredictor:
     """An onnxruntime session of an exported model; ``logits(x)``.
 
     Session: all graph optimisations, sequential execution, no memory arena (the peak stays one
-    forward's), ``threads`` intra-op threads (None: onnxruntime's default, one per core) that do
-    not spin while waiting for work: on a machine shared with other jobs a spinning pool measured
-    1.5x slower (docs/speed.md, "Learned path at deployment speed")."""
+    forward's), ``threads`` intra-op threads (None: onnxruntime's default, one per core).
+    ``spin``: whether idle pool threads spin waiting for work. On an idle 2-core machine spinning
+    is faster (forward 105 vs 119 ms, 640x480); on a machine shared with other jobs a spinning
+    pool measured 1.5x slower (891 vs 587 ms at load ~15; docs/speed.md). None: spin only when the
+    1-minute load average, taken when the session is made, is below the number of cores."""
 
     backend = "onnxruntime"
 
-    def __init__(self, path, providers=None, threads=None):
+    def __init__(self, path, providers=None, threads=None, spin=None):
+        import os
+
         import onnxruntime as ort
 
         path = Path(path)
@@ -97,7 +101,10 @@ class OnnxPredictor:
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         opts.enable_cpu_mem_arena = False     # activations freed after each frame: the peak stays one forward's
         opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
+        if spin is None:
+            spin = os.getloadavg()[0] < (os.cpu_count() or 1)
+        self.spin = bool(spin)
+        opts.add_session_config_entry("session.intra_op.allow_spinning", "1" if spin else "0")
         if threads:
             opts.intra_op_num_threads = int(threads)
         try:
