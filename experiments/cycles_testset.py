@@ -40,7 +40,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -48,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ExperimentError
+from .gi_bias import cached_cycles
 
 #: The held-out meshes (synth/data/export_test.toml).
 MESH_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
@@ -239,17 +239,9 @@ def cycles_frames(scene: CyclesScene, system, basis: np.ndarray, *, samples: int
         key = _cache_key(scene.name, system, samples=samples, bounces=bounces, seed=seed, n=len(basis),
                          b=hashlib.sha1(np.ascontiguousarray(basis).tobytes()).hexdigest()[:8])
         path = Path(cache_dir) / "frames" / key
-        if path.exists():
-            z = np.load(path)
-            return {"images": z["images"], "seconds_per_frame": z["seconds_per_frame"].tolist()}
-    out = render_in_blender(system, scene.meshes, basis, exposure=EXPOSURE, reference_distance_mm=d_ref,
-                            threads=threads, samples=samples, bounces=bounces, seed=seed, timeout=timeout)
-    if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp.npz")
-        np.savez_compressed(tmp, images=out["images"], seconds_per_frame=np.asarray(out["seconds_per_frame"]))
-        os.replace(tmp, path)
-    return {"images": out["images"], "seconds_per_frame": list(out["seconds_per_frame"])}
+    return cached_cycles(path, lambda: render_in_blender(
+        system, scene.meshes, basis, exposure=EXPOSURE, reference_distance_mm=d_ref, threads=threads,
+        samples=samples, bounces=bounces, seed=seed, timeout=timeout))
 
 
 def twin_geometry(scene: CyclesScene, system, patterns):

@@ -24,7 +24,6 @@ cached in :func:`experiments.gi_bias.cache_dir` (``$SLTWIN_GI_CACHE``).
 from __future__ import annotations
 
 import functools
-import os
 
 import numpy as np
 
@@ -34,7 +33,7 @@ from synth.scenes.meshes import sphere_mesh
 from synth.scenes.objects import Plane, Sphere
 from synth.scenes.scene import DEFAULT_BALL_RADIUS_MM, Scene
 
-from .gi_bias import EXPOSURE, BiasScene, _rect, _setup, cache_dir
+from .gi_bias import EXPOSURE, BiasScene, _rect, _setup, cache_dir, cached_cycles
 
 #: camera depth (mm) of the ball's front, where the camera is focused
 FOCUS_MM = 822.2
@@ -92,21 +91,15 @@ def cycles_dof_images(name: str, *, samples: int, aperture_mm: float | None, see
 
     ap = "pinhole" if aperture_mm is None else f"a{aperture_mm:g}_f{focus_mm:g}"
     g = "" if projector_gamma == 1.0 else f"_pg{projector_gamma:g}"
-    path = cache_dir() / f"{name}_{ap}_s{samples}_seed{seed}_n{steps}{g}.npz"
-    if path.exists():
-        z = np.load(path)
-        return {"images": z["images"], "seconds_per_frame": z["seconds_per_frame"].tolist()}
-    system, d_ref, patterns = _setup(steps)
-    sc = defocus_scene(name)
-    proj = np.stack([p.projector_image(system.projector.size, 0.5, 0.5) for p in patterns]) ** projector_gamma
-    dof = None if aperture_mm is None else {"focus_mm": float(focus_mm), "aperture_mm": float(aperture_mm)}
-    out = render_in_blender(system, sc.meshes, proj, exposure=EXPOSURE, reference_distance_mm=d_ref, threads=threads,
-                            samples=samples, seed=seed, camera_dof=dof, timeout=timeout)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez_compressed(tmp, images=out["images"], seconds_per_frame=np.asarray(out["seconds_per_frame"]))
-    os.replace(tmp, path)
-    return out
+    def render():
+        system, d_ref, patterns = _setup(steps)
+        proj = np.stack([p.projector_image(system.projector.size, 0.5, 0.5) for p in patterns]) ** projector_gamma
+        dof = None if aperture_mm is None else {"focus_mm": float(focus_mm), "aperture_mm": float(aperture_mm)}
+        return render_in_blender(system, defocus_scene(name).meshes, proj, exposure=EXPOSURE,
+                                 reference_distance_mm=d_ref, threads=threads, samples=samples, seed=seed,
+                                 camera_dof=dof, timeout=timeout)
+
+    return cached_cycles(cache_dir() / f"{name}_{ap}_s{samples}_seed{seed}_n{steps}{g}.npz", render)
 
 
 def ours_dof_images(name: str, camera_defocus: Defocus | None, *, steps: int = 8, **effects):

@@ -22,7 +22,6 @@ import functools
 import math
 import os
 import tempfile
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -134,28 +133,36 @@ def cache_dir() -> Path:
     return Path(os.environ.get("SLTWIN_GI_CACHE", Path(tempfile.gettempdir()) / "sltwin_gi_cache"))
 
 
+def cached_cycles(path: Path | None, render) -> dict:
+    """Cycles' images stored at ``path`` (.npz), or ``render()`` (a dict with ``images`` and
+    ``seconds_per_frame``) stored there atomically (temporary file, rename); ``path`` None: no
+    cache. Returns ``{"images", "seconds_per_frame"}`` (a list of seconds)."""
+    if path is not None and path.exists():
+        z = np.load(path)
+        return {"images": z["images"], "seconds_per_frame": z["seconds_per_frame"].tolist()}
+    out = render()
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp.npz")
+        np.savez_compressed(tmp, images=out["images"], seconds_per_frame=np.asarray(out["seconds_per_frame"]))
+        os.replace(tmp, path)
+    return {"images": out["images"], "seconds_per_frame": list(out["seconds_per_frame"])}
+
+
 def cycles_images(name: str, *, samples: int, bounces: int, seed: int = 0, steps: int = 8, threads: int = 2,
                   cache: bool = True, timeout: float = 1800) -> dict:
     """Cycles' (K, H, W) float64 linear images of scene ``name`` (unit-frequency vertical fringes,
     ``steps`` steps) and its seconds per frame; cached (module docstring)."""
     from synth.blender_twin import render_in_blender
 
+    def render():
+        system, d_ref, patterns = _setup(steps)
+        proj = np.stack([p.projector_image(system.projector.size, 0.5, 0.5) for p in patterns])
+        return render_in_blender(system, bias_scene(name).meshes, proj, exposure=EXPOSURE, reference_distance_mm=d_ref,
+                                 threads=threads, samples=samples, bounces=bounces, seed=seed, timeout=timeout)
+
     key = f"{name}_s{samples}_b{bounces}_seed{seed}_n{steps}.npz"
-    path = cache_dir() / key
-    if cache and path.exists():
-        z = np.load(path)
-        return {"images": z["images"], "seconds_per_frame": z["seconds_per_frame"].tolist()}
-    system, d_ref, patterns = _setup(steps)
-    sc = bias_scene(name)
-    proj = np.stack([p.projector_image(system.projector.size, 0.5, 0.5) for p in patterns])
-    out = render_in_blender(system, sc.meshes, proj, exposure=EXPOSURE, reference_distance_mm=d_ref,
-                            threads=threads, samples=samples, bounces=bounces, seed=seed, timeout=timeout)
-    if cache:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp.npz")
-        np.savez_compressed(tmp, images=out["images"], seconds_per_frame=np.asarray(out["seconds_per_frame"]))
-        os.replace(tmp, path)
-    return out
+    return cached_cycles(cache_dir() / key if cache else None, render)
 
 
 def ours_images(name: str, interreflection: Interreflection | None, *, steps: int = 8, gi=None):

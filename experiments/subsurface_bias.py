@@ -13,11 +13,10 @@ weight 0.8, radius 4 mm; docs/dataset.md), used unchanged.
 """
 from __future__ import annotations
 
-import os
 
 import numpy as np
 
-from .gi_bias import EXPOSURE, _setup, bias_scene, cache_dir
+from .gi_bias import EXPOSURE, _setup, bias_scene, cache_dir, cached_cycles
 
 WEIGHT = 0.8
 RADIUS_MM = 4.0
@@ -31,20 +30,15 @@ def cycles_sss_images(name: str = "ball-wall", *, samples: int = 256, seed: int 
     object and 4 bounces; cached like experiments.gi_bias.cycles_images."""
     from synth.blender_twin import render_in_blender
 
-    path = cache_dir() / f"{name}_sss_w{WEIGHT:g}_r{RADIUS_MM:g}_s{samples}_b4_seed{seed}_n{steps}.npz"
-    if path.exists():
-        z = np.load(path)
-        return {"images": z["images"], "seconds_per_frame": z["seconds_per_frame"].tolist()}
-    system, d_ref, patterns = _setup(steps)
-    proj = np.stack([p.projector_image(system.projector.size, 0.5, 0.5) for p in patterns])
-    out = render_in_blender(system, bias_scene(name).meshes, proj, exposure=EXPOSURE, reference_distance_mm=d_ref,
-                            threads=threads, samples=samples, bounces=4, seed=seed, timeout=timeout,
-                            subsurface={"weight": WEIGHT, "radius_mm": RADIUS_MM, "method": "RANDOM_WALK"})
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez_compressed(tmp, images=out["images"], seconds_per_frame=np.asarray(out["seconds_per_frame"]))
-    os.replace(tmp, path)
-    return out
+    def render():
+        system, d_ref, patterns = _setup(steps)
+        proj = np.stack([p.projector_image(system.projector.size, 0.5, 0.5) for p in patterns])
+        return render_in_blender(system, bias_scene(name).meshes, proj, exposure=EXPOSURE, reference_distance_mm=d_ref,
+                                 threads=threads, samples=samples, bounces=4, seed=seed, timeout=timeout,
+                                 subsurface={"weight": WEIGHT, "radius_mm": RADIUS_MM, "method": "RANDOM_WALK"})
+
+    return cached_cycles(cache_dir() / f"{name}_sss_w{WEIGHT:g}_r{RADIUS_MM:g}_s{samples}_b4_seed{seed}_n{steps}.npz",
+                         render)
 
 
 def cycles_sss_bias(name: str = "ball-wall", *, samples: int = 256, seeds=(0, 1), steps: int = 8) -> dict:
