@@ -35,6 +35,7 @@ def measure(argv, root: Path, out: Path, repeats: int) -> dict:
     """Walls (each run), peak MB (max), the fastest run's stage profile and solve time, error."""
     walls, peak, stages, solve, err = [], float("nan"), None, None, None
     for _ in range(repeats):
+        (out / "calibration.json").unlink(missing_ok=True)     # a failed run must not read the last one's
         r = run_cli([*argv, "-o", out], root, 1)
         err = err or r["error"]
         peak = r["peak_mb"] if peak != peak else max(peak, r["peak_mb"])

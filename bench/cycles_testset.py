@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments.cycles_testset import SCENES
+from unwrap.safe_output import write_text
 
 README = """Cycles test set of sltwin (issue 21, item 3): held-out meshes rendered by Blender Cycles.
 
@@ -171,13 +172,10 @@ def main(argv=None) -> int:
         build_testset(path, scenes=tuple(args.scenes), size=tuple(args.size), samples=args.samples,
                       threads=args.threads, cache_dir=out, unit_seeds=tuple(range(args.unit_seeds)),
                       progress=progress)
-        readme = out / "README.txt"
-        tmp = readme.with_suffix(".tmp")
-        tmp.write_text(README.format(out=out, w=args.size[0], h=args.size[1], samples=args.samples,
+        write_text(out / "README.txt", README.format(out=out, w=args.size[0], h=args.size[1], samples=args.samples,
                                      scenes=", ".join(args.scenes), nseeds=args.unit_seeds, code=code_version(),
                                      date=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), fw=FULL_WELL_E,
                                      rn=READ_NOISE_E, nseeds_1=args.unit_seeds - 1))
-        tmp.replace(readme)
         print(f"{path}: built in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
 
     from bench.spatial_unwrap import score, table
@@ -196,13 +194,10 @@ def main(argv=None) -> int:
     print("\n### Bias of the set (unit phase, Cycles 4 bounces vs Cycles direct; lit, non-edge pixels)\n")
     print(bias_table(items48, contexts))
     if args.json:
-        outj = Path(args.json)
-        tmp = outj.with_name(outj.name + ".tmp")
-        tmp.write_text(json.dumps({"file": str(path), "params": params, "gate": gates, "contexts": {
+        write_text(Path(args.json), json.dumps({"file": str(path), "params": params, "gate": gates, "contexts": {
             str(k): v for k, v in contexts.items()}, "results": {
             k: {"rows": v["rows"], "curves": v["curves"], "ms": {r: float(np.median(m)) for r, m in v["ms"].items()},
                 "pixels": v["pixels"]} for k, v in results.items()}}, indent=1, default=float))
-        tmp.replace(outj)
     return 0
 
 

@@ -26,6 +26,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from unwrap.safe_output import write_text
 
 
 def main(argv=None) -> int:
@@ -42,10 +43,7 @@ def main(argv=None) -> int:
     model = fit_items(items)
     print("MODEL = " + json.dumps(model))
     if args.json:
-        out = Path(args.json)
-        tmp = out.with_name(out.name + ".tmp")
-        tmp.write_text(json.dumps(model, indent=1))
-        tmp.replace(out)
+        write_text(Path(args.json), json.dumps(model, indent=1))
     return 0
 
 

@@ -237,7 +237,7 @@ def main(argv=None) -> int:
         if a.write_reference and focus == FOCUS_MM:
             save_reference(a.write_reference, "ball-wall-dof", c["bias"], mask,
                            {"samples": a.samples, "seeds": a.seeds, "focus_mm": focus, "steps": 8,
-                            "noise_rms_per_seed": rows[0][4]})
+                            "noise_rms_per_seed": r[0][4]})
             _log(a.quiet, f"[defocus_bias] wrote {a.write_reference}")
     print("## Camera defocus: unit-phase bias, Cycles depth of field vs ours\n")
     print("| scene | pixels (mask) | Cycles bias RMS / p99 rad | Cycles noise / seed | model | correlation | "

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.spatial_unwrap import _pyramid_items, _skull_items, _sigmas
+from unwrap.safe_output import write_text
 
 
 def _dataset_items(path, freqs, methods, max_items=None):
@@ -169,7 +170,7 @@ def main(argv=None) -> int:
     res = score(items, models, not a.no_graph_cut)
     print(table(res, models))
     if a.json:
-        Path(a.json).write_text(json.dumps({"models": models, "results": res}, indent=1))
+        write_text(Path(a.json), json.dumps({"models": models, "results": res}, indent=1))
     return 0
 
 

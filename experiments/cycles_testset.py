@@ -221,9 +221,13 @@ def patterns_and_basis(system, frequencies=FREQUENCIES, steps: int = STEPS):
 
 
 def _cache_key(scene_name: str, system, **kw) -> str:
+    """The frame cache's file name: the scene's definition, the tilt, the whole system (camera and
+    projector: intrinsics, pose, sizes), the exposure and the render settings ``kw``."""
+    from calib.io.calibration_json import system_to_dict
+
     h = hashlib.sha1(json.dumps({"scene": SCENES[scene_name] if scene_name in SCENES else scene_name,
-                                 "tilt": TILT_DEG, "K": np.asarray(system.camera.K).round(6).tolist(),
-                                 "size": list(system.camera.size), **kw}, sort_keys=True, default=str).encode())
+                                 "tilt": TILT_DEG, "system": system_to_dict(system), "exposure": EXPOSURE, **kw},
+                                sort_keys=True, default=str).encode())
     return f"{scene_name}_{h.hexdigest()[:10]}.npz"
 
 
@@ -286,7 +290,7 @@ def cycles_stacks(scene: CyclesScene, system, coef, basis, *, samples: int, boun
     """Cycles' phase-shift stacks (K, H, W) with interreflection (``gi``; the unit frequency's
     basis averaged over ``unit_seeds``) and with direct light only (``direct``, 1 sample), the
     unit stack of each of the first two seeds (``unit_by_seed``) and the GI seconds per frame."""
-    gi = cycles_frames(scene, system, basis, samples=samples, bounces=bounces, seed=0, threads=threads,
+    gi = cycles_frames(scene, system, basis, samples=samples, bounces=bounces, seed=unit_seeds[0], threads=threads,
                        cache_dir=cache_dir)
     direct = cycles_frames(scene, system, basis, samples=1, bounces=0, seed=0, threads=threads, cache_dir=cache_dir)
     stack_gi = np.einsum("kb,bhw->khw", coef, gi["images"])

@@ -61,7 +61,7 @@ SCENES = ("ball-wall-dof",)
 
 
 def outline_band(geometry, width: int = 8) -> np.ndarray:
-    """(H, W) bool: pixels within ``width`` px (Chebyshev) of a pixel of another object (or of no
+    """(H, W) bool: pixels within ``width`` 4-neighbour steps (city-block distance) of a pixel of another object (or of no
     object) or of other lighting (a cast shadow's edge: lit next to unlit)."""
     W, H = geometry.size
     obj = geometry.object_id.reshape(H, W).numpy() * 2 + geometry.lit.reshape(H, W).numpy()

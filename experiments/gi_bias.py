@@ -142,10 +142,10 @@ def cached_cycles(path: Path | None, render) -> dict:
         return {"images": z["images"], "seconds_per_frame": z["seconds_per_frame"].tolist()}
     out = render()
     if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp.npz")
-        np.savez_compressed(tmp, images=out["images"], seconds_per_frame=np.asarray(out["seconds_per_frame"]))
-        os.replace(tmp, path)
+        from unwrap.safe_output import atomic_path
+
+        with atomic_path(path) as tmp:     # a unique temporary name: two runs may share a cache folder
+            np.savez_compressed(tmp, images=out["images"], seconds_per_frame=np.asarray(out["seconds_per_frame"]))
     return {"images": out["images"], "seconds_per_frame": list(out["seconds_per_frame"])}
 
 

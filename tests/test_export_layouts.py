@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from synth.export.config import ExportConfigError, config_from_dict, load_config
-from synth.export.layouts import extent_along
+from synth.export.layouts import TABLE_WALL_CLEARANCE_MM, extent_along
 from synth.export.scenes import draw_scene
 from synth.export.dataset import base_system
 
@@ -81,6 +81,12 @@ def test_table_layout_stands_every_object_on_the_top():
         assert n @ (system.camera.center_world - A) > 0 and "wall" in extra and "wall" in params["layout"]
         for obj in objects:
             assert float(n @ (obj.t.numpy() - A)) + extent_along(obj, n) == pytest.approx(0.0, abs=1e-6)
+        # no object reaches into the wall behind the table
+        wall = extra["wall"]
+        nw, P = wall.R[:, 2].numpy(), wall.t.numpy()
+        nw = nw if nw @ (system.camera.center_world - P) > 0 else -nw
+        for obj in objects:
+            assert float(nw @ (obj.t.numpy() - P)) + extent_along(obj, nw) >= TABLE_WALL_CLEARANCE_MM - 1e-6
 
 
 def test_layout_parameters_and_effects_are_recorded_and_reproducible_from_the_seed():

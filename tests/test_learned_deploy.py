@@ -187,8 +187,11 @@ def test_onnx_thread_pool_spins_only_on_an_idle_machine(onnx_model, monkeypatch)
     busy = OnnxPredictor(onnx_model)
     monkeypatch.setattr(os, "getloadavg", lambda: (0.0, 0.0, 0.0))
     idle = OnnxPredictor(onnx_model)
+    entry = "session.intra_op.allow_spinning"
     assert busy.spin is False and idle.spin is True
-    assert OnnxPredictor(onnx_model, spin=False).spin is False
+    assert busy.session.get_session_options().get_session_config_entry(entry) == "0"
+    assert idle.session.get_session_options().get_session_config_entry(entry) == "1"
+    assert OnnxPredictor(onnx_model, spin=False).session.get_session_options().get_session_config_entry(entry) == "0"
     x = np.random.default_rng(1).standard_normal((1, busy.session.get_inputs()[0].shape[1], 64, 64)).astype(np.float32)
     name = busy.session.get_inputs()[0].name
     np.testing.assert_allclose(busy.session.run(None, {name: x})[0], idle.session.run(None, {name: x})[0],

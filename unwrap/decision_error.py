@@ -87,11 +87,12 @@ def _check(p_noise, prior, valid, modulation_low, modulation_high):
 
 def local_bias(prior, valid, window: int = WINDOW) -> np.ndarray:
     """(H, W) float64 in [0, 1/2]: |arg(mean over the valid window pixels of exp(2 pi i r))| / 2 pi
-    (module docstring); 0 at invalid pixels and where the window's mean vector vanishes."""
+    (module docstring); 0 at invalid or non-finite pixels and where the window's mean vector vanishes."""
     from scipy.ndimage import uniform_filter
 
-    v = np.asarray(valid, dtype=bool)
-    r = np.where(v, np.nan_to_num(np.asarray(prior, dtype=np.float64)), 0.0)
+    prior = np.asarray(prior, dtype=np.float64)
+    v = np.asarray(valid, dtype=bool) & np.isfinite(prior)   # a non-finite prior is no vote, not a vote for 0
+    r = np.where(v, prior, 0.0)
     ang = 2 * math.pi * r
     c = uniform_filter(np.where(v, np.cos(ang), 0.0), window, mode="constant")
     s = uniform_filter(np.where(v, np.sin(ang), 0.0), window, mode="constant")

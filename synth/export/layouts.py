@@ -153,12 +153,19 @@ def place_on_table(objects, params, system, cfg, rng, facing_rotation) -> list:
         Rw = facing_rotation(back, 0.0, rng)
         Pw = _cam_to_world(system, [0.0, 0.0, far])
         Pw = Pw + n * float(n @ (A - Pw))                 # the wall's centre on the table plane
+        # the depth is drawn from object centres: move the wall back until no object reaches it
+        nearest = min(float(back @ (o.t.numpy() - Pw)) + extent_along(o, back) for o in objects)
+        Pw = Pw - back * max(0.0, TABLE_WALL_CLEARANCE_MM - nearest)
         wall = Plane("wall", Rw, Pw, cfg.wall_albedo.draw(rng))
-        layout["wall"] = {"t": Pw.tolist(), "R": Rw.tolist(), "albedo": wall.albedo_value, "depth_mm": far}
+        layout["wall"] = {"t": Pw.tolist(), "R": Rw.tolist(), "albedo": wall.albedo_value, "depth_mm": far,
+                          "clearance_mm": max(nearest, TABLE_WALL_CLEARANCE_MM)}
         extra.append(wall)
     params["layout"] = layout
     return extra
 
+
+#: least gap (mm) between the table's wall and the nearest object point (the wall of ``place_on_table``)
+TABLE_WALL_CLEARANCE_MM = 2.0
 
 #: layout name -> f(objects, params, system, cfg, rng, facing_rotation) -> extra objects (the caller,
 #: synth.export.scenes, passes its facing_rotation: no import back into it)

@@ -274,6 +274,9 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
     plan = PlanLog.of(log)
     eff = scene.effects
     if any(d is not None and d.samples for d in (eff.camera_defocus, eff.projector_defocus)):
+        if geometry is not None:
+            raise SynthError("render(geometry=...) cannot be reused with camera_defocus / projector_defocus "
+                             "samples: every aperture point needs its own geometry")
         return _thin_lens(scene, keep_linear, quantised, plan)
     timings: dict = {}
     t0 = time.perf_counter()

@@ -101,8 +101,8 @@ class OnnxPredictor:
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         opts.enable_cpu_mem_arena = False     # activations freed after each frame: the peak stays one forward's
         opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-        if spin is None:
-            spin = os.getloadavg()[0] < (os.cpu_count() or 1)
+        if spin is None:    # no load average (not POSIX): onnxruntime's own default, spinning
+            spin = os.getloadavg()[0] < (os.cpu_count() or 1) if hasattr(os, "getloadavg") else True
         self.spin = bool(spin)
         opts.add_session_config_entry("session.intra_op.allow_spinning", "1" if spin else "0")
         if threads:
