@@ -22,28 +22,12 @@ measured in the same run.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
 import tempfile
 from pathlib import Path
 
-from bench.deploy_speed import DP_TPU, ROOT, mrcal_anchor, run_cli
-
-
-def measure(argv, root: Path, out: Path, repeats: int) -> dict:
-    """Walls (each run), peak MB (max), the fastest run's stage profile and solve time, error."""
-    walls, peak, stages, solve, err = [], float("nan"), None, None, None
-    for _ in range(repeats):
-        (out / "calibration.json").unlink(missing_ok=True)     # a failed run must not read the last one's
-        r = run_cli([*argv, "-o", out], root, 1)
-        err = err or r["error"]
-        peak = r["peak_mb"] if peak != peak else max(peak, r["peak_mb"])
-        if (out / "calibration.json").is_file() and (not walls or r["wall_s"] < min(walls)):
-            cal = json.loads((out / "calibration.json").read_text())
-            stages, solve = (cal.get("run") or {}).get("stages_s"), cal["timings_s"].get("solve_s")
-        walls.append(r["wall_s"])
-    return {"walls": walls, "peak_mb": peak, "stages": stages, "solve_s": solve, "error": err}
+from bench.deploy_speed import DP_TPU, ROOT, measure, mrcal_anchor
 
 
 def _stages(stages) -> str:

@@ -103,3 +103,27 @@ def test_numpy_nnls_is_scipys():
         assert np.all(x >= 0) and rnorm <= wnorm + 1e-9 * np.linalg.norm(b)
         if m > n:                       # full column rank: one solution
             np.testing.assert_allclose(x, want, rtol=0, atol=1e-8 * max(np.abs(want).max(), 1e-12))
+
+
+def test_numpy_nnls_is_exactly_feasible_on_ill_scaled_systems():
+    """Solutions up to 1e10 and columns over six decades: the step to the boundary rounds, and a
+    variable leaving the passive set is set to exactly 0 (Lawson-Hanson), so x >= 0 holds exactly
+    (no -1e-17), the residual is that of x, and x is scipy's to rounding (full column rank)."""
+    import scipy.optimize
+
+    from calib.uncertainty.nnls import nnls
+
+    rng = np.random.default_rng(0)
+    bound = 0
+    for _ in range(1500):
+        m, n = rng.integers(3, 20), rng.integers(2, 14)
+        A = rng.normal(size=(m, n)) * 10.0 ** rng.uniform(-3, 3, size=n)
+        b = rng.normal(size=m) * 10.0 ** rng.uniform(-3, 8)
+        x, rnorm = nnls(A, b)
+        assert np.all(x >= 0.0) and rnorm == np.linalg.norm(A @ x - b)
+        bound += int(np.any(x == 0.0))
+        if m > n:
+            want, wnorm = scipy.optimize.nnls(A, b)
+            assert rnorm <= wnorm * (1 + 1e-9) + 1e-12 * np.linalg.norm(b)
+            np.testing.assert_allclose(x, want, rtol=0, atol=1e-9 * max(np.abs(want).max(), 1e-300))
+    assert bound > 500              # the constraint binds in most systems: the inner loop ran

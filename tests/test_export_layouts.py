@@ -89,6 +89,34 @@ def test_table_layout_stands_every_object_on_the_top():
             assert float(nw @ (obj.t.numpy() - P)) + extent_along(obj, nw) >= TABLE_WALL_CLEARANCE_MM - 1e-6
 
 
+def test_a_table_object_stands_on_the_true_ray_of_its_drawn_pixel():
+    """The foot point of a table object lies on the camera model's own ray through the drawn
+    pixel (skew and strong distortion here), so it projects back onto that pixel."""
+    import math
+    from dataclasses import replace
+
+    from calib.system import default_system
+    from synth.export.layouts import table_foot
+
+    system = default_system()
+    cam = system.camera
+    K = np.array(cam.K)
+    K[0, 1] = 4.0                                                   # skew, px
+    cam = cam.with_(K=K, distortion=np.array([-4.0, 10.0, 2e-3, -1.5e-3, 0.0]))   # ~8 % at the corners
+    system = replace(system, camera=cam)
+    e = math.radians(25.0)
+    n = cam.R.T @ np.array([0.0, -math.cos(e), -math.sin(e)])
+    A = cam.R.T @ (np.array([0.0, 0.12 * 900.0, 900.0]) - cam.t)
+    uv = np.stack(np.meshgrid(np.linspace(0.2, 0.8, 5) * cam.width, np.linspace(0.35, 0.9, 4) * cam.height),
+                  -1).reshape(-1, 2)
+    feet = np.array([table_foot(system, u, v, n, A) for u, v in uv])
+    assert np.abs((feet - A) @ n).max() < 1e-6                      # on the table plane
+    assert np.abs(cam.project(feet) - uv).max() < 1e-6              # where they were drawn
+    # the pinhole ray would have put them tens of pixels off: the test sees a distortion-free ray
+    pin = cam.without_skew_and_distortion()
+    assert np.abs(pin.project(feet) - uv).max() > 5.0
+
+
 def test_layout_parameters_and_effects_are_recorded_and_reproducible_from_the_seed():
     cfg = _procedural(["wall", "table"])
     system, _ = base_system(cfg)

@@ -205,3 +205,37 @@ def test_the_sensor_runs_once_on_the_aperture_average_and_the_plan_says_so():
     assert not any(line.startswith("camera defocus: skipped") for line in t.plan)
     assert "camera response: skipped (gamma 1.0)" not in t.plan
     assert any(line.startswith("cast shadows: computed") for line in t.plan)  # the geometry's own lines stay
+
+
+def test_a_projector_only_lens_finds_the_camera_hits_once_and_renders_as_when_it_found_them_per_point(monkeypatch):
+    """Only the projector is sampled: the camera's rays and so their nearest hits are the same at
+    every aperture point, computed once (for the lens centre too); the images are those of a
+    per-point search (the route before), within float rounding."""
+    import synth.renderer.geometry as G
+    from experiments.defocus_bias import defocus_scene
+
+    system = parity_system(4)
+    W, H = system.camera.size
+    pats = phase_sequence(("v",), (1, 8), 4)
+    scene = Scene(system, defocus_scene().objects, pats,
+                  Effects(fringe_sampling="analytic", projector_defocus=Defocus(40.0, 760.0, 6, 6)))
+    calls = []
+    search = G.nearest_surface
+
+    def counting(objects, rays):
+        if rays.key == "camera" and rays.dirs.shape[0] == W * H:
+            calls.append(rays)
+        return search(objects, rays)
+
+    monkeypatch.setattr(G, "nearest_surface", counting)
+    once = render(scene, quantised=False)
+    assert any(line.startswith("projector defocus: thin lens, 6") for line in once.plan)
+    assert len(calls) == 1
+    # the route before: every aperture point's geometry searches the camera rays again
+    plain = G.compute_geometry
+    monkeypatch.setattr(G, "compute_geometry", lambda *a, hits=None, **k: plain(*a, **k))
+    calls.clear()
+    per_point = render(scene, quantised=False)
+    assert len(calls) == 2 + 6                  # the shared search (unused now), the centre's, one per point
+    assert float(once.images.std()) > 0.05
+    assert torch.allclose(once.images, per_point.images, rtol=0, atol=1e-6)

@@ -166,3 +166,23 @@ def test_a_small_session_with_shared_errors_says_its_sigmas_are_not_to_be_truste
     assert d["too_small_to_trust_sigmas"] is True and d["error_model"]["few_poses"]["sigma_inflation"]
     obs = _many_pose_session(16, 3)
     assert not assess_uncertainty(run_calibration(obs, CONFIG), obs).too_small
+
+
+def test_point_ids_are_the_loop_over_views_on_a_random_layout():
+    """calib.adjustment.jacobian._point_ids (one gather over every view's ids) gives what a loop
+    over the views gives, for views of different sizes, unsorted ids, points in any order."""
+    from types import SimpleNamespace
+
+    from calib.adjustment.jacobian import _point_ids
+
+    rng = np.random.default_rng(4)
+    views = [SimpleNamespace(ids=rng.permutation(200)[:rng.integers(0, 60)]) for _ in range(9)]
+    sized = [i for i, v in enumerate(views) if len(v.ids)]
+    view = rng.choice(sized, size=500)
+    index = np.array([rng.integers(len(views[i].ids)) for i in view])
+    loop = np.empty(len(view), dtype=np.int64)
+    for i, v in enumerate(views):
+        loop[view == i] = v.ids[index[view == i]]
+    got = _point_ids(SimpleNamespace(views=views), view, index)
+    assert got.dtype == np.int64 and np.array_equal(got, loop)
+    assert _point_ids(SimpleNamespace(views=views), np.zeros(0, int), np.zeros(0, int)).shape == (0,)

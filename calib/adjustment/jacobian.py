@@ -167,11 +167,13 @@ def point_order(obs):
 
 
 def _point_ids(obs, view, index) -> np.ndarray:
-    """(P,) board feature id of each point of :func:`point_order`."""
-    ids = np.empty(len(view), dtype=np.int64)
-    for i, v in enumerate(obs.views):
-        ids[view == i] = v.ids[index[view == i]]
-    return ids
+    """(P,) board feature id of each point of :func:`point_order` (``index`` into its view's ids)."""
+    if len(view) == 0:
+        return np.zeros(0, dtype=np.int64)
+    sizes = [len(v.ids) for v in obs.views]
+    start = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+    every = np.concatenate([np.asarray(v.ids, dtype=np.int64) for v in obs.views])
+    return every[start[np.asarray(view)] + np.asarray(index)]
 
 
 def _step(name: str, value: float) -> float:

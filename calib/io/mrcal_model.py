@@ -66,6 +66,11 @@ def cameramodel_text(device: DeviceModel, note: str, *, skew_tol_px: float = SKE
     """(the ``.cameramodel`` text of the device, report lines), as ``mrcal.cameramodel.write``
     writes it (10 significant digits, mrcal's key order and comments)."""
     report = _skew_report(device, skew_tol_px)
+    return _text(device, note), report
+
+
+def _text(device: DeviceModel, note: str) -> str:
+    """The ``.cameramodel`` text of :func:`cameramodel_text` (skew already checked by the caller)."""
     intrinsics = np.concatenate([[device.fx, device.fy, device.cx, device.cy], device.distortion])
     rt = np.concatenate([rotvec_from_matrix(device.R), device.t])
     if not (np.all(np.isfinite(intrinsics)) and np.all(np.isfinite(rt))):
@@ -77,15 +82,14 @@ def cameramodel_text(device: DeviceModel, note: str, *, skew_tol_px: float = SKE
               "    # extrinsics are rt_fromref",
               "    'extrinsics': [" + "".join(f" {v:.10g}," for v in rt) + "],", "",
               "    'imagersize': [" + "".join(f" {int(v):d}," for v in device.size) + "],", "", "", "}"]
-    return "\n".join(lines) + "\n", report
+    return "\n".join(lines) + "\n"
 
 
 def write_cameramodel(device: DeviceModel, path, *, skew_tol_px: float = SKEW_TOL_PX) -> list[str]:
     """Write the device as a mrcal ``.cameramodel`` (:func:`cameramodel_text`); return the report lines."""
     report = _skew_report(device, skew_tol_px)
     note = f"sltwin {device.kind}" + (f"; {'; '.join(report)}" if report else "")
-    text, _ = cameramodel_text(device, note, skew_tol_px=skew_tol_px)
-    write_text(path, text)              # atomic: a failed write leaves the previous file
+    write_text(path, _text(device, note))     # atomic: a failed write leaves the previous file
     return report
 
 

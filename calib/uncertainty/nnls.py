@@ -40,10 +40,15 @@ def nnls(A, b, max_iterations: int | None = None) -> tuple[np.ndarray, float]:
         while True:
             if np.all(z[passive] > tol):
                 break
-            # step from x towards z until the first passive variable reaches 0; it leaves the set
+            # step from x towards z until the first passive variable (the blocking one, k) reaches
+            # 0: it leaves the set at exactly 0, whatever the step's rounding left (Lawson-Hanson),
+            # and so does any other that the step brought within tol of 0
             hit = passive & (z <= tol)
-            alpha = np.min(x[hit] / np.maximum(x[hit] - z[hit], 1e-300))
-            x = x + alpha * (z - x)
+            ratio = np.full(n, np.inf)
+            np.divide(x, np.maximum(x - z, 1e-300), out=ratio, where=hit)
+            k = int(np.argmin(ratio))
+            x = x + ratio[k] * (z - x)
+            x[k] = 0.0
             passive &= x > tol
             x[~passive] = 0.0
             z = np.zeros(n)

@@ -27,6 +27,7 @@ average (and the PSF tail and response curve, synth.effects.response). The groun
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -118,20 +119,27 @@ def aperture_average(scene, render_fn, log=None):
     Both devices sampled: aperture point i of the camera goes with point n - 1 - i of the
     projector (inner with outer): each device's own average is exact, their joint integral is
     approximated by this pairing."""
-    from ..renderer.geometry import compute_geometry
+    from ..renderer.geometry import camera_rays, compute_geometry, nearest_surface
     from ..renderer.plan_log import PlanLog
 
     plan = PlanLog.of(log)
     eff = scene.effects
     cdof, pdof = eff.camera_defocus, eff.projector_defocus
     plain = without_sampling(scene)
-    centre = compute_geometry(plain, log=PlanLog.of(None))
+    cam, prj = scene.system.camera, scene.system.projector
+    cam_dist = eff.camera_distortion and bool(np.any(cam.distortion))
+    # the lens centre's (pinhole) rays and their hits: computed once, for the centre's geometry
+    # and for every aperture point of a projector-only lens (the camera does not move)
+    t0 = time.perf_counter()
+    pinhole = camera_rays(cam, cam_dist)
+    pinhole_hits = nearest_surface(scene.objects, pinhole[0])
+    timings = {"thin lens: ray hits": time.perf_counter() - t0}
+    centre = compute_geometry(plain, rays=pinhole, hits=pinhole_hits, log=PlanLog.of(None))
     lit = centre.lit
     cam_on = _active(cdof, None if centre.sigma_cam is None else centre.sigma_cam[centre.hit])
     prj_on = _active(pdof, None if centre.sigma_prj is None else centre.sigma_prj[lit])
     if not cam_on and not prj_on:
         return None
-    cam, prj = scene.system.camera, scene.system.projector
     n = max(cdof.samples if cam_on else 0, pdof.samples if prj_on else 0)
     unit = aperture_points(n)
     if cam_on:
@@ -145,17 +153,18 @@ def aperture_average(scene, render_fn, log=None):
                          projector_defocus=None if prj_on else plain.effects.projector_defocus,
                          noise=None, gain=1.0, saturation=1.0, camera_gamma=1.0, camera_psf_tail=None,
                          reference_distance_mm=d_ref)
-    cam_dist = eff.camera_distortion and bool(np.any(cam.distortion))
     acc = None
-    timings: dict = {}
     for i in range(n):
         sub = PlanLog.of(None)
         s_scene = replace(scene, effects=sample_eff)
         if prj_on:
             b = unit[n - 1 - i if cam_on else i] * (pdof.aperture_mm / 2.0)
             s_scene = replace(s_scene, system=replace(scene.system, projector=projector_at(prj, b, pdof.focus_mm)))
-        rays = aperture_rays(cam, cam_dist, unit[i] * (cdof.aperture_mm / 2.0), cdof.focus_mm) if cam_on else None
-        g = compute_geometry(s_scene, rays=rays, log=sub)
+        if cam_on:
+            g = compute_geometry(s_scene, rays=aperture_rays(cam, cam_dist, unit[i] * (cdof.aperture_mm / 2.0),
+                                                             cdof.focus_mm), log=sub)
+        else:
+            g = compute_geometry(s_scene, rays=pinhole, hits=pinhole_hits, log=sub)
         res = render_fn(s_scene, keep_linear=False, quantised=False, geometry=g, log=sub)
         if i == 0:  # the first point's stage decisions, less those the average makes itself
             for line in sub.lines:

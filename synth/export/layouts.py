@@ -44,11 +44,11 @@ def _dir_to_world(system, d_cam):
 
 
 def _ray(system, u, v):
-    """Unit world direction of the camera ray through pixel (u, v) (no distortion: placement only)."""
-    cam = system.camera
-    d = np.array([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1.0])
-    d = _dir_to_world(system, d)
-    return d / np.linalg.norm(d)
+    """Unit world direction of the camera ray through pixel (u, v): the camera model's own
+    (:meth:`calib.device.DeviceModel.rays_world`: skew and distortion included), so a point placed
+    along it projects back to (u, v)."""
+    _, d, _ = system.camera.rays_world(np.array([u, v], dtype=np.float64))
+    return d
 
 
 def support_offsets(obj) -> np.ndarray:
@@ -117,6 +117,15 @@ def place_before_wall(objects, params, system, cfg, rng, facing_rotation) -> lis
     return [wall]
 
 
+def table_foot(system, u, v, n, A) -> np.ndarray:
+    """(3,) world point where the camera ray through pixel (u, v) meets the table plane (normal
+    ``n``, through ``A``); ``A`` where the ray runs (nearly) parallel to it or away from it."""
+    C = system.camera.center_world
+    d = _ray(system, u, v)
+    dn = float(d @ n)
+    return C + d * (float(n @ (A - C)) / dn) if dn < -1e-3 else np.asarray(A, dtype=np.float64)
+
+
 def place_on_table(objects, params, system, cfg, rng, facing_rotation) -> list:
     """Layout ``table``: a table top (and with chance ``table_wall`` a wall behind it); every
     object re-placed on the top at a random visible point. Returns the extra objects."""
@@ -137,14 +146,10 @@ def place_on_table(objects, params, system, cfg, rng, facing_rotation) -> list:
     table = Plane("table", R, A, albedo, (TABLE_MM, TABLE_MM))
     layout = {"kind": "table", "z0": z0, "elevation_deg": math.degrees(elev), "v_anchor_px": v_anchor,
               "table": {"t": A.tolist(), "R": R.tolist(), "albedo": albedo, "size_mm": [TABLE_MM, TABLE_MM]}}
-    C = cam.center_world
     for obj, p in zip(objects, params["objects"]):
         u = rng.uniform(0.2, 0.8) * cam.width
         v = rng.uniform(0.35, 0.9) * cam.height
-        d = _ray(system, u, v)
-        dn = float(d @ n)
-        foot = C + d * (float(n @ (A - C)) / dn) if dn < -1e-3 else A
-        _move(obj, p, foot - extent_along(obj, n) * n)
+        _move(obj, p, table_foot(system, u, v, n, A) - extent_along(obj, n) * n)
     extra = [table]
     if rng.uniform() < cfg.table_wall:
         far = max(float(cam.R[2] @ o.t.numpy() + cam.t[2]) for o in objects) + cfg.wall_depth_mm.draw(rng)

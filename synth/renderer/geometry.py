@@ -254,12 +254,14 @@ def _defocus_sigmas(scene, in_field, z_prj, depth, hi, N):
     return sigma_prj, sigma_cam
 
 
-def compute_geometry(scene, *, shadows: bool | None = None, log=None, rays=None) -> Geometry:
+def compute_geometry(scene, *, shadows: bool | None = None, log=None, rays=None, hits=None) -> Geometry:
     """Run the geometry stage of ``scene`` (see the module docstring). ``shadows`` overrides
     the scene's choice (None: follow ``effects.shadows``). ``log``: where the stage decisions go
     (:class:`synth.renderer.plan_log.PlanLog`, or a ``logging.Logger`` they go to at DEBUG).
     ``rays``: (Rays, valid) replacing the camera's pinhole rays (one aperture point of
-    synth.effects.thin_lens); the buffers stay in the camera frame."""
+    synth.effects.thin_lens); the buffers stay in the camera frame. ``hits``: the
+    :func:`nearest_surface` of these rays (or of the pinhole rays) among ``scene.objects``, when
+    the caller already has it (the projector-only thin lens: one camera, many projectors)."""
     log = PlanLog.of(log)
     sysm, eff = scene.system, scene.effects
     cam, prj = sysm.camera, sysm.projector
@@ -273,9 +275,11 @@ def compute_geometry(scene, *, shadows: bool | None = None, log=None, rays=None)
         rays, ray_ok = camera_rays(cam, cam_dist) if rays is None else rays
     if not cam_dist:
         log.info("camera distortion: skipped (%s)", "zero coefficients" if eff.camera_distortion else "turned off")
-    with clock("ray hits"):
-        t_all, obj_all, n_all, local_all = nearest_surface(scene.objects, rays)
-        hit = torch.isfinite(t_all) & ray_ok
+    if hits is None:
+        with clock("ray hits"):
+            hits = nearest_surface(scene.objects, rays)
+    t_all, obj_all, n_all, local_all = hits
+    hit = torch.isfinite(t_all) & ray_ok
     # from here on only the M pixels that see a surface are computed, then scattered into (N,)
     # buffers at the end (a ball fills ~5 % of the image)
     hi = torch.nonzero(hit).squeeze(1)

@@ -4,7 +4,7 @@ inference runs (torch or onnxruntime); training keeps :mod:`unwrap.learned.featu
 The same quantities as :func:`unwrap.learned.features.make_inputs` / :func:`~unwrap.learned.features.decode`
 (channel table there), computed in one pass:
 
-- the local plane fits of the coarse phase at both boxes (:data:`features.SMOOTH_WINDOWS`, 7 and
+- the local plane fits of the coarse phase at each box (:data:`channels.SMOOTH_WINDOWS`, 7 and
   15 px): with numba, one compiled kernel per box (:mod:`unwrap.learned._plane_kernel`: two
   separable passes, moments about each box's centre, the plane solved in the same pass); without
   it, both boxes share one product stack (valid, phase, and their x / y / x^2 / y^2 / xy moments:
@@ -38,11 +38,8 @@ import math
 import numpy as np
 
 from .._xp import TIE_BAND, wrap
+from .channels import METHOD_INDEX, MODULATION_GAIN, SMOOTH_WINDOWS, channel_slices
 
-KINDS = ("physics", "prior_free")
-METHOD_INDEX = {"mf": 0, "mw": 1, "nt": 2}
-MODULATION_GAIN = 4.0
-SMOOTH_WINDOWS = (7, 15)
 _F32 = np.float32
 
 
@@ -150,16 +147,16 @@ def smoothed_priors(method: str, phi_l, phi_h, f_l: float, f_h: float, valid, wi
 
 
 def make_inputs(kind: str, method: str, prior, phase_low, phase_high, modulation_low, modulation_high,
-                order_traditional, valid, frequencies) -> tuple[np.ndarray, np.ndarray]:
-    """(x (1, C, H, W) float32, ok (H, W) bool): the network input of one frame.
+                order_traditional, valid, frequencies, windows=SMOOTH_WINDOWS) -> tuple[np.ndarray, np.ndarray]:
+    """(x (1, C, H, W) float32, ok (H, W) bool): the network input of one frame, channels as
+    :func:`unwrap.learned.channels.channel_slices` (``windows``: the smoothing boxes, px).
 
     ARGUMENTS as the torch batch of :func:`unwrap.learned.infer.unwrap_learned`: prior, wrapped phases
     (rad) and modulations (fraction of full scale) (H, W), NaN allowed where not valid;
     order_traditional (H, W) int; valid (H, W) bool; frequencies (low, high).
     ``ok``: ``valid`` and every input finite."""
     valid = np.asarray(valid, dtype=bool)
-    if kind not in KINDS:
-        raise ValueError(f"model kind {kind!r}: expected one of {KINDS}")
+    at = channel_slices(kind, windows)          # raises on an unknown kind
 
     def f32(a):
         # the torch batch's map: NaN -> 0 and every value outside ``valid`` 0, rounded to float32
@@ -173,47 +170,49 @@ def make_inputs(kind: str, method: str, prior, phase_low, phase_high, modulation
     v = ok.astype(_F32)
     for a in (pr, pl, ph, ml, mh):               # clean: 0 where not ok, in place (the maps are ours)
         a[~ok] = zero
-    C = 11 if kind == "physics" else 12
+    C = max(s.stop for s in at.values())
     x = np.empty((1, C, *ok.shape), dtype=_F32)   # channels written in place, no stacking copy
     X = x[0]
     phi_h = ph
-    n_tail = 0
     if kind == "physics":
         p = pr
-        np.subtract(p, _round_order32(p), out=X[0])
-        X[0] *= _F32(2.0)
+        c = at["prior"].start
+        np.subtract(p, _round_order32(p), out=X[c])
+        X[c] *= _F32(2.0)
         trad = np.asarray(order_traditional).astype(_F32)
         f_l, f_h = (float(f) for f in frequencies)
-        priors, usable = smoothed_priors(method, pl.astype(np.float64), ph.astype(np.float64), f_l, f_h, ok)
-        for i, w in enumerate(SMOOTH_WINDOWS):
-            ps = (priors[w] if usable else p.astype(np.float64)).astype(_F32)
+        priors, usable = smoothed_priors(method, pl.astype(np.float64), ph.astype(np.float64), f_l, f_h, ok,
+                                         windows)
+        for i, w in enumerate(windows):
+            s, d = at["smoothed"].start + i, at["disagreement"].start + i
+            ps = (priors[int(w) | 1] if usable else p.astype(np.float64)).astype(_F32)
             ps[~ok] = zero
             rs = _round_order32(ps)
-            np.subtract(ps, rs, out=X[1 + i])
-            X[1 + i] *= _F32(2.0)
+            np.subtract(ps, rs, out=X[s])
+            X[s] *= _F32(2.0)
             if usable:
                 rs -= trad
                 rs /= _F32(2.0)
-                np.clip(rs, _F32(-1.0), _F32(1.0), out=X[3 + i])
-                X[3 + i][~ok] = zero
+                np.clip(rs, _F32(-1.0), _F32(1.0), out=X[d])
+                X[d][~ok] = zero
             else:
-                X[3 + i] = zero
-        c = 5
+                X[d] = zero
     else:
-        np.multiply(np.sin(pl), v, out=X[0])
-        np.multiply(np.cos(pl), v, out=X[1])
-        np.divide(pl, _F32(math.pi), out=X[2])
-        c = 3
-        n_tail = 3
+        c = at["phase_low"].start
+        np.multiply(np.sin(pl), v, out=X[c])
+        np.multiply(np.cos(pl), v, out=X[c + 1])
+        np.divide(pl, _F32(math.pi), out=X[c + 2])
+        c = at["method"].start
+        for i in range(at["method"].stop - c):      # the method's one-hot
+            X[c + i] = v * _F32(METHOD_INDEX[method] == i)
+    c = at["phase_high"].start
     np.multiply(np.sin(phi_h), v, out=X[c])
     np.multiply(np.cos(phi_h), v, out=X[c + 1])
     np.divide(phi_h, _F32(math.pi), out=X[c + 2])
     for j, m in enumerate((ml, mh)):
         m *= _F32(MODULATION_GAIN)
-        np.clip(m, zero, _F32(2.0), out=X[c + 3 + j])
-    X[c + 5] = v
-    for i in range(n_tail):                        # prior_free: the method's one-hot
-        X[c + 6 + i] = v * _F32(METHOD_INDEX[method] == i)
+        np.clip(m, zero, _F32(2.0), out=X[at["modulation"].start + j])
+    X[at["valid"].start] = v
     return x, ok
 
 

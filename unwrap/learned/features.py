@@ -57,26 +57,13 @@ import math
 import torch
 
 from .._xp import TIE_BAND
-from ..methods import PAIR_METHODS
+# the channel layout and its constants live in .channels (torch-free, shared with .fast_features)
+from .channels import KINDS, METHOD_INDEX, MODULATION_GAIN, SMOOTH_WINDOWS, input_channels  # noqa: F401
 from .errors import ModelError
 
-KINDS = ("physics", "prior_free")
-METHOD_INDEX = {m: i for i, m in enumerate(PAIR_METHODS)}   # the network's method channel
-MODULATION_GAIN = 4.0
 ORDER_SCALE = 64.0
 #: Order classes of the prior-free model: 0 ... ORDER_SCALE.
 ORDER_CLASSES = int(ORDER_SCALE) + 1
-#: Boxes (px) over which the smoothed priors filter the coarse phase.
-SMOOTH_WINDOWS = (7, 15)
-
-
-def input_channels(kind: str) -> int:
-    """Number of input channels of a model kind."""
-    if kind == "physics":
-        return 5 + 3 * len(SMOOTH_WINDOWS)
-    if kind == "prior_free":
-        return 12
-    raise ModelError(f"model kind {kind!r}: expected one of {KINDS}")
 
 
 def output_channels(kind: str, max_correction: int = 2) -> int:
@@ -117,8 +104,9 @@ def smoothed_prior(batch: dict, ok: torch.Tensor, window: int):
     return torch.where(usable, prior_s, batch["prior"].double()).to(torch.float32), usable
 
 
-def make_inputs(batch: dict, kind: str) -> tuple[torch.Tensor, torch.Tensor]:
-    """(x float32 (B, C, H, W), valid bool (B, H, W)) from a collated batch of items.
+def make_inputs(batch: dict, kind: str, windows=SMOOTH_WINDOWS) -> tuple[torch.Tensor, torch.Tensor]:
+    """(x float32 (B, C, H, W), valid bool (B, H, W)) from a collated batch of items; channels as
+    :func:`unwrap.learned.channels.channel_slices` (``windows``: the smoothing boxes, px).
 
     ``batch`` holds the contract's tensors with a leading batch axis (``prior`` (B,1,H,W), ...);
     ``method`` (B,) int64 (0 mf, 1 mw, 2 nt) is needed by ``prior_free`` only.
@@ -139,7 +127,7 @@ def make_inputs(batch: dict, kind: str) -> tuple[torch.Tensor, torch.Tensor]:
         r = prior - _round_order(prior)
         trad = batch["order_traditional"][:, None].to(torch.float32)
         r_s, d = [], []
-        for w in SMOOTH_WINDOWS:
+        for w in windows:
             prior_s, usable = smoothed_prior(batch, ok, w)
             prior_s = torch.where(okc, prior_s, zero)
             r_s.append(2.0 * (prior_s - _round_order(prior_s)))
