@@ -195,6 +195,10 @@ def run(args) -> int:
     from unwrap.pipeline import write_results
 
     claim(args.output, "dir", inputs=[*args.capture_dir, args.model])
+    if args.model is not None:          # the network's peak on top of the maps: keep freed blocks unmapped
+        from unwrap.memory import fix_mmap_threshold
+
+        fix_mmap_threshold()
     decode = decoder(args)
     one = Path(args.capture_dir[0])
     if len(args.capture_dir) > 1 or (one.is_dir() and not is_capture(one)
