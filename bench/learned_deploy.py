@@ -131,8 +131,11 @@ def main(argv=None) -> int:
                 if root is None:
                     continue
                 trad = None
-                for label, extra in (("traditional (anchor)", []), ("--model model.onnx", ["--model", onnx_path]),
-                                     ("--model learned (torch)", ["--model", "learned"])):
+                rows = [("traditional (anchor)", []), ("--model model.onnx", ["--model", onnx_path]),
+                        ("--model learned (torch)", ["--model", "learned"])]
+                if tag == "after":     # an option of this checkout
+                    rows.insert(2, ("--model model.onnx --low-memory", ["--model", onnx_path, "--low-memory"]))
+                for label, extra in rows:
                     r = run_cli(["unwrap", cap, *extra, "-o", tmp / f"out_{tag}_{len(extra)}_{label[8:12]}", "-q"],
                                 root, args.repeats)
                     trad = trad or r["wall_s"]

@@ -161,3 +161,31 @@ def test_onnx_predictor_pads_once_and_crops_back(tmp_path):
     assert np.array_equal(p[..., :37, :53], x) and not p[..., 37:, :].any() and not p[..., 53:].any()
     assert pred.prepare(p) is p or np.array_equal(pred.prepare(p), p)
     np.testing.assert_array_equal(pred.logits(p)[..., :37, :53], pred.logits(x))
+
+
+def test_low_memory_gives_the_same_unwrap_h5(tmp_path):
+    """``calib unwrap --low-memory`` (a fixed glibc mmap threshold, set in its own process here)
+    writes the maps the default command writes."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from bench.deploy_speed import write_capture
+    from sltwin.cli import main
+
+    root = Path(__file__).resolve().parent.parent
+    cap = write_capture(tmp_path / "cap", (96, 64), seed=5)
+    assert main(["unwrap", str(cap), "-o", str(tmp_path / "a"), "--no-previews", "-q"]) == 0
+    code = ("import sys\nfrom sltwin.cli import main\nfrom unwrap.memory import fix_mmap_threshold\n"
+            "assert fix_mmap_threshold() == sys.platform.startswith('linux')\n"
+            f"sys.exit(main(['unwrap', {str(cap)!r}, '-o', {str(tmp_path / 'b')!r}, '--low-memory', '--no-previews', "
+            "'-q']))\n")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, timeout=600,
+                       env={**os.environ, "PYTHONPATH": str(root)})
+    assert p.returncode == 0, p.stderr[-2000:]
+    with h5py.File(tmp_path / "a" / "unwrap.h5") as a, h5py.File(tmp_path / "b" / "unwrap.h5") as b:
+        for o in ("v", "h"):
+            assert set(a[o]) == set(b[o])
+            for name in a[o]:
+                assert a[o][name][()].tobytes() == b[o][name][()].tobytes(), (o, name)

@@ -6,13 +6,14 @@ resident. The threshold is dynamic: freeing a mapped block raises it to that blo
 32 MiB), so after the first few image-sized arrays are freed every later map-sized temporary
 (5 MB for a 900 x 700 float64 map) comes from the heap, and the peak resident memory becomes what
 the heap has ever held, not what is alive. Fixing the threshold (``mallopt(M_MMAP_THRESHOLD)``, which
-also turns the dynamic rule off) keeps large blocks mapped: measured on ``calib unwrap --model
-model.onnx`` at 900 x 700, peak 520 -> 440 MB with every map bitwise the same (docs/speed.md). The
-price is a fresh mapping, page faults included, for each large temporary (a few per cent of the
-command's time).
+also turns the dynamic rule off) keeps large blocks mapped. Measured on ``calib unwrap --model
+model.onnx`` at 900 x 700 (docs/speed.md): peak 510 -> 420 MB with every map bitwise the same, for
++0.75 s of system time (a fresh mapping, page faults included, for every large temporary and
+every buffer of the network's forward: ~15 % of the command's CPU time); at 4 MiB 430 MB for
++0.45 s, at 16 MiB 487 MB for +0.07 s.
 
-It is a setting of the whole process: the command line sets it for a command whose peak matters
-(``calib unwrap --model``), library code does not.
+It is a setting of the whole process: ``calib unwrap --low-memory`` asks for it; library code does
+not set it.
 """
 from __future__ import annotations
 

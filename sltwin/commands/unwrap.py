@@ -68,6 +68,9 @@ def add_arguments(parser):
                         help="with --spatial: keep every correction (default: only where the traditional order "
                              "is unreliable and, with --model, the network is sure)")
     parser.add_argument("--no-previews", action="store_true", help="skip the PNG previews")
+    parser.add_argument("--low-memory", action="store_true",
+                        help="return freed memory to the system at once (glibc): a lower peak (900x700 with --model: "
+                             "~510 -> ~420 MB) for ~15 %% more CPU time (docs/speed.md)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress messages")
 
 
@@ -195,7 +198,7 @@ def run(args) -> int:
     from unwrap.pipeline import write_results
 
     claim(args.output, "dir", inputs=[*args.capture_dir, args.model])
-    if args.model is not None:          # the network's peak on top of the maps: keep freed blocks unmapped
+    if args.low_memory:
         from unwrap.memory import fix_mmap_threshold
 
         fix_mmap_threshold()
