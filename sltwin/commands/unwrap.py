@@ -110,9 +110,10 @@ def decoder(args):
         if args.spatial is None and (args.max_error_rate is not None or args.noise_sigma is not None):
             raise CommandError("--max-error-rate / --noise-sigma set the threshold from the traditional decoders' "
                                "reliability model; with --model give --min-modulation instead")
-        from unwrap import warmup
+        if args.spatial is None:        # (the learned capture path waits for it before its features)
+            from unwrap import warmup
 
-        warmup.plane_filter()           # the features' compiled kernel loads while the model and the frames are read
+            warmup.plane_filter()       # the features' compiled kernel loads while the model and the frames are read
         model = load_predictor(args.model)
         kind = model.arch.get("kind")
         if kind != "physics":           # the prior-free baseline has no traditional prior to correct
