@@ -12,8 +12,9 @@ the anchor measured in the same process):
    learned path on each and without its forward), for this checkout and, with ``--baseline DIR`` (an older checkout:
    ``git archive REV | tar -x -C DIR``), for that one in a subprocess of the same run;
 2. ``calib unwrap`` on a 900 x 700 capture (:func:`bench.deploy_speed.write_capture`), fresh
-   process each: traditional (the anchor), ``--model model.onnx`` and ``--model learned`` (torch):
-   wall time and peak resident memory, for both checkouts;
+   process each: traditional (the anchor), ``--model model.onnx`` (and with ``--low-memory``, this
+   checkout only) and ``--model learned`` (torch): wall time and peak resident memory, for both
+   checkouts, the runs of the two interleaved;
 3. ``--arch``: multiply-adds (:func:`unwrap.learned.network.count_macs`), parameters and forward ms
    (onnxruntime and torch, untrained weights: the time does not depend on the values) of the
    shipped architecture (the anchor) and of lighter ``[model]`` options, at 640 x 480.
@@ -125,19 +126,31 @@ def main(argv=None) -> int:
         if not args.no_cli:
             cap = write_capture(tmp / "cap", (900, 700), seed=0)
             print("\n## calib unwrap on a 900x700 capture (fresh process each; min wall / max peak of "
-                  f"{args.repeats} runs)\n")
+                  f"{args.repeats} runs, the checkouts and commands interleaved)\n")
             print("| command | checkout | wall s | x traditional | peak MB | error |\n|---|---|---:|---:|---:|---|")
-            for tag, root in (("after", ROOT), ("before", base)):
-                if root is None:
-                    continue
+            rows = [("traditional (anchor)", []), ("--model model.onnx", ["--model", onnx_path]),
+                    ("--model model.onnx --low-memory", ["--model", onnx_path, "--low-memory"]),
+                    ("--model learned (torch)", ["--model", "learned"])]
+            checkouts = [(tag, root) for tag, root in (("after", ROOT), ("before", base)) if root is not None]
+            runs = {}
+            for rep in range(args.repeats):     # interleaved: a change of load hits both checkouts alike
+                for label, extra in rows:
+                    for tag, root in (checkouts if rep % 2 == 0 else checkouts[::-1]):
+                        if tag == "before" and "--low-memory" in extra:     # an option of this checkout
+                            continue
+                        runs.setdefault((tag, label), []).append(run_cli(
+                            ["unwrap", cap, *extra, "-o", tmp / f"out_{tag}_{len(extra)}_{label[8:12]}", "-q"], root, 1))
+            for tag, _ in checkouts:
                 trad = None
-                for label, extra in (("traditional (anchor)", []), ("--model model.onnx", ["--model", onnx_path]),
-                                     ("--model learned (torch)", ["--model", "learned"])):
-                    r = run_cli(["unwrap", cap, *extra, "-o", tmp / f"out_{tag}_{len(extra)}_{label[8:12]}", "-q"],
-                                root, args.repeats)
-                    trad = trad or r["wall_s"]
-                    print(f"| {label} | {tag} | {_f(r['wall_s'], '.2f')} | {_f(r['wall_s'] / trad, '.2f')} | "
-                          f"{_f(r['peak_mb'], '.0f')} | {r['error'] or ''} |")
+                for label, _ in rows:
+                    if (tag, label) not in runs:
+                        continue
+                    rs = runs[(tag, label)]
+                    wall, peak = min(r["wall_s"] for r in rs), max(r["peak_mb"] for r in rs)
+                    err = next((r["error"] for r in rs if r["error"]), None)
+                    trad = trad or wall
+                    print(f"| {label} | {tag} | {_f(wall, '.2f')} | {_f(wall / trad, '.2f')} | {_f(peak, '.0f')} | "
+                          f"{err or ''} |")
         if args.arch:
             print("\n## Candidate architectures, 640x480 forward (untrained weights; onnxruntime and torch, "
                   "2 threads)\n")

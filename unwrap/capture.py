@@ -158,6 +158,21 @@ def check_distinct_frames(stack: np.ndarray, files) -> None:
                               "capture)")
 
 
+_POOL = None
+
+
+def read_images(files):
+    """:func:`read_image` of each of ``files``, decoded on a thread pool (OpenCV's decoders release
+    the GIL) and yielded in order; a frame that cannot be read raises when its turn comes."""
+    global _POOL
+    if _POOL is None:
+        import os
+        from concurrent.futures import ThreadPoolExecutor
+
+        _POOL = ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1), thread_name_prefix="read-frames")
+    return _POOL.map(read_image, files)
+
+
 class FrameReader:
     """Reads the frames of one capture, checking each against the first one read.
 
@@ -171,7 +186,10 @@ class FrameReader:
         self.first = None   # (path, dtype, shape) of the first frame read
 
     def image(self, path) -> np.ndarray:
-        img = read_image(path)
+        return self.check(path, read_image(path))
+
+    def check(self, path, img: np.ndarray) -> np.ndarray:
+        """``img`` (read from ``path``) checked against the first frame (class docstring)."""
         if self.first is None:
             self.first = (path, img.dtype, img.shape)
             if self.camera_size is not None and (img.shape[1], img.shape[0]) != self.camera_size:
@@ -188,8 +206,18 @@ class FrameReader:
         return img
 
     def stack(self, files) -> np.ndarray:
-        """(N, H, W) stack of ``files``, each checked."""
-        return np.stack([self.image(f) for f in files])
+        """(N, H, W) stack of ``files``, each checked in order (decoded on threads:
+        :func:`read_images`; the first bad frame in order is the one named)."""
+        files = list(files)
+        out = None
+        for i, (f, img) in enumerate(zip(files, read_images(files))):
+            img = self.check(f, img)
+            if out is None:
+                out = np.empty((len(files), *img.shape), img.dtype)
+            out[i] = img
+        if out is None:
+            raise UnwrapError("no frames to read")
+        return out
 
     def phase_stack(self, files) -> np.ndarray:
         """:meth:`stack` of a phase-shift set, whose frames must also differ

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import warmup
 from ._xp import wrap
 from .capture import Capture, FrameReader, OrientationCapture, load_capture
 from .consistency import check_priors, prior_check
@@ -179,6 +180,8 @@ def unwrap_orientation(oc: OrientationCapture, method: str, *, min_modulation=No
         _check_some_valid(out, out.min_modulation)
         return out
     sets = sorted(oc.sets, key=lambda s: s.frequency)
+    warm = (warmup.fused_mf_for(sets[0].files[0], len(sets), max(len(s.files) for s in sets))
+            if method == "mf" and len(sets) >= 2 else None)   # the kernel loads while the frames are read
     stacks = read_orientation(oc, reader, progress)
     model = _reliability_model(oc, method)
     sigma = _noise_sigma(stacks, sets, noise_sigma)
@@ -196,7 +199,7 @@ def unwrap_orientation(oc: OrientationCapture, method: str, *, min_modulation=No
                        f"a predicted error rate <= {max_error_rate:g} ({model})")
     else:
         mm = check_min_modulation(min_modulation, stacks[0].dtype)
-    out = _decode(oc, sets, stacks, reader, method, mm, gray_min_contrast, progress)
+    out = _decode(oc, sets, stacks, reader, method, mm, gray_min_contrast, progress, warm)
     _check_some_valid(out, mm)
     out.min_modulation, out.noise_sigma = mm, sigma
     out.prior_check = prior_check(out.result) if method != "gray" else []
@@ -218,13 +221,15 @@ def _check_some_valid(out: OrientationResult, mm: float) -> None:
                       "saturated frames, or too high a threshold")
 
 
-def _decode(oc, sets, stacks, reader, method, mm, gray_min_contrast, progress) -> OrientationResult:
+def _decode(oc, sets, stacks, reader, method, mm, gray_min_contrast, progress, warm=None) -> OrientationResult:
     freqs = [s.frequency for s in sets]
     if method == "mf" and len(sets) >= 2:
         # one fused pass (unwrap.fused_mf) for 8/16-bit frames, the reference otherwise
         if progress and _kernel_cold():
             _log(progress, f"  [{oc.orientation}] wrapped phase + MF: first use of the fused kernel on this "
                            "machine (compiled once and cached, ~15 s)")
+        if warm is not None:
+            warm.wait()
         r = mf_unwrap_stacks(stacks, freqs, shifts=[s.shifts for s in sets], width=oc.width,
                              min_modulation=mm, levels=True)
         return OrientationResult(oc.orientation, oc.width, r.result, r.modulation, r.background)

@@ -68,6 +68,9 @@ def add_arguments(parser):
                         help="with --spatial: keep every correction (default: only where the traditional order "
                              "is unreliable and, with --model, the network is sure)")
     parser.add_argument("--no-previews", action="store_true", help="skip the PNG previews")
+    parser.add_argument("--low-memory", action="store_true",
+                        help="return freed memory to the system at once (glibc): a lower peak (900x700 with --model: "
+                             "~510 -> ~420 MB) for ~15 %% more CPU time (docs/speed.md)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress messages")
 
 
@@ -107,6 +110,10 @@ def decoder(args):
         if args.spatial is None and (args.max_error_rate is not None or args.noise_sigma is not None):
             raise CommandError("--max-error-rate / --noise-sigma set the threshold from the traditional decoders' "
                                "reliability model; with --model give --min-modulation instead")
+        if args.spatial is None:        # (the learned capture path waits for it before its features)
+            from unwrap import warmup
+
+            warmup.plane_filter()       # the features' compiled kernel loads while the model and the frames are read
         model = load_predictor(args.model)
         kind = model.arch.get("kind")
         if kind != "physics":           # the prior-free baseline has no traditional prior to correct
@@ -195,6 +202,10 @@ def run(args) -> int:
     from unwrap.pipeline import write_results
 
     claim(args.output, "dir", inputs=[*args.capture_dir, args.model])
+    if args.low_memory:
+        from unwrap.memory import fix_mmap_threshold
+
+        fix_mmap_threshold()
     decode = decoder(args)
     one = Path(args.capture_dir[0])
     if len(args.capture_dir) > 1 or (one.is_dir() and not is_capture(one)

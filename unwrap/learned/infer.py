@@ -155,7 +155,11 @@ def unwrap_learned(method: str, phase_low, phase_high, modulation_low, modulatio
                                            float(width), valid)
     x, ok = FF.make_inputs(kind, method, prior, phi_lo, phi_hi, modulation_low, modulation_high, order_trad, valid,
                            (f_lo, f_hi))
-    logits = pred.logits(x)
+    del modulation_low, modulation_high        # freed before the forward where the caller passed temporaries
+    H, W = x.shape[-2:]
+    if hasattr(pred, "prepare"):       # padded for the graph: the unpadded input is freed before the forward
+        x = pred.prepare(x)
+    logits = pred.logits(x)[..., :H, :W]
     del x                                                            # the input (C x H x W float32) is not needed after
     order, conf = FF.decode(logits, order_trad, ok, f_hi, kind, K)
     if not log_probs:

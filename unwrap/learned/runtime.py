@@ -122,16 +122,22 @@ class OnnxPredictor:
         self.input_name = self.session.get_inputs()[0].name
         self.multiple = 2 ** (int(self.arch["depth"]) + 1)
 
-    def logits(self, x):
-        """The graph takes sizes that are multiples of 2**(depth+1): zeros are padded at the bottom
-        and right and the output cropped back, as :class:`~unwrap.learned.network.FringeUNet` does."""
+    def prepare(self, x):
+        """``x`` as the graph takes it: sizes that are multiples of 2**(depth+1), zeros padded at the
+        bottom and right (as :class:`~unwrap.learned.network.FringeUNet` pads), C-contiguous. A
+        caller that drops its own ``x`` for this one holds one copy of the input, not two."""
         import numpy as np
 
         H, W = x.shape[-2:]
         ph, pw = (-H) % self.multiple, (-W) % self.multiple
         if ph or pw:
             x = np.pad(x, ((0, 0), (0, 0), (0, ph), (0, pw)))
-        return self.session.run(None, {self.input_name: np.ascontiguousarray(x)})[0][..., :H, :W]
+        return np.ascontiguousarray(x)
+
+    def logits(self, x):
+        """Logits (1, K, H, W) of ``x`` (1, C, H, W), padded by :meth:`prepare` and cropped back."""
+        H, W = x.shape[-2:]
+        return self.session.run(None, {self.input_name: self.prepare(x)})[0][..., :H, :W]
 
 
 def load_predictor(model="learned", device: str = "cpu"):
