@@ -189,3 +189,37 @@ def test_low_memory_gives_the_same_unwrap_h5(tmp_path):
             assert set(a[o]) == set(b[o])
             for name in a[o]:
                 assert a[o][name][()].tobytes() == b[o][name][()].tobytes(), (o, name)
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="no fork on this platform")
+def test_a_child_forked_after_the_pools_ran_decodes_and_writes(tmp_path):
+    """A process forked after frames were decoded and a file deflated on the pools (a DataLoader or
+    multiprocessing worker) decodes and writes too: the inherited pools have no threads in the
+    child, so it makes its own instead of waiting forever. Run in a fresh interpreter that forks
+    (the child is stopped by an alarm after 30 s, which fails the test)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    files = _frames(tmp_path / "f", 6)
+    code = f"""
+import os, signal, numpy as np
+from unwrap.capture import FrameReader
+from unwrap.phase_io import read_phase, write_phase_file
+files = {[str(f) for f in files]!r}
+maps = {{"v": {{"phase": np.arange(1.0, 12001.0).reshape(120, 100)}}}}
+FrameReader().stack(files); write_phase_file({str(tmp_path / 'parent.h5')!r}, maps)
+pid = os.fork()
+if pid == 0:
+    signal.alarm(30)
+    s = FrameReader().stack(files)
+    p = write_phase_file({str(tmp_path / 'child.h5')!r}, maps)
+    os._exit(0 if s.shape == (6, 30, 40) and np.array_equal(read_phase(p), maps["v"]["phase"]) else 3)
+_, status = os.waitpid(pid, 0)
+raise SystemExit(f"child: {{status}}" if status else 0)
+"""
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, timeout=120,
+                       env={**os.environ, "PYTHONPATH": str(root)})
+    assert p.returncode == 0, (p.stdout + p.stderr)[-2000:]

@@ -26,7 +26,6 @@ SYNOPSIS
 """
 from __future__ import annotations
 
-import os
 import zlib
 from pathlib import Path
 
@@ -163,17 +162,13 @@ def _codec(compression) -> dict:
 
 #: about this many bytes per chunk of a dataset written by the threaded deflate (whole rows)
 CHUNK_BYTES = 1 << 19
-_POOL = None
 
 
 def _pool():
-    """The writer's thread pool (zlib releases the GIL while it compresses), made once per process."""
-    global _POOL
-    if _POOL is None:
-        from concurrent.futures import ThreadPoolExecutor
+    """The writer's thread pool (zlib releases the GIL while it compresses; :mod:`unwrap._threads`)."""
+    from ._threads import pool
 
-        _POOL = ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1), thread_name_prefix="h5-deflate")
-    return _POOL
+    return pool("h5-deflate")
 
 
 def deflate_chunk(block: np.ndarray) -> bytes:
