@@ -223,3 +223,17 @@ raise SystemExit(f"child: {{status}}" if status else 0)
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, timeout=120,
                        env={**os.environ, "PYTHONPATH": str(root)})
     assert p.returncode == 0, (p.stdout + p.stderr)[-2000:]
+
+
+def test_low_memory_says_when_it_cannot_act(tmp_path, monkeypatch, capsys):
+    """Where the C library is not glibc (``fix_mmap_threshold`` False) ``--low-memory`` says it has
+    no effect instead of passing in silence; the command still runs."""
+    from bench.deploy_speed import write_capture
+    from sltwin.cli import main
+    from unwrap import memory
+
+    monkeypatch.setattr(memory, "fix_mmap_threshold", lambda nbytes=memory.DEFAULT_THRESHOLD: False)
+    cap = write_capture(tmp_path / "cap", (64, 48), seed=3)
+    assert main(["unwrap", str(cap), "-o", str(tmp_path / "out"), "--low-memory", "--no-previews"]) == 0
+    assert "--low-memory has no effect here" in capsys.readouterr().err
+    assert (tmp_path / "out" / "unwrap.h5").is_file()

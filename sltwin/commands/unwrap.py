@@ -203,9 +203,12 @@ def run(args) -> int:
 
     claim(args.output, "dir", inputs=[*args.capture_dir, args.model])
     if args.low_memory:
+        import sys
+
         from unwrap.memory import fix_mmap_threshold
 
-        fix_mmap_threshold()
+        if not fix_mmap_threshold() and not args.quiet:
+            print("calib unwrap: --low-memory has no effect here (it needs glibc's malloc)", file=sys.stderr)
     decode = decoder(args)
     one = Path(args.capture_dir[0])
     if len(args.capture_dir) > 1 or (one.is_dir() and not is_capture(one)
