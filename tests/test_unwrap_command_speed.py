@@ -254,3 +254,25 @@ def test_a_gzip_level_other_than_1_is_written_by_h5py_at_that_level(tmp_path, mo
         with h5py.File(tmp_path / f"l{level}.h5") as f:
             assert f["v/phase"].compression_opts == level and np.array_equal(f["v/phase"][()], phase)
         assert bool(calls) == (level == 1), level
+
+
+def test_the_plane_fit_warm_up_runs_for_a_physics_model_only(tmp_path, monkeypatch):
+    """unwrap_capture_learned loads the plane-fit kernel early for a physics-aware model, whose
+    features fit planes; a prior-free model's do not, and nothing (numba's ~100 MB) is loaded for it."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench.deploy_speed import write_capture
+    from test_learned_use import constant_model
+    from unwrap import warmup
+    from unwrap.learned.capture import unwrap_capture_learned
+
+    started = []
+    plane_filter = warmup.plane_filter
+    monkeypatch.setattr(warmup, "plane_filter", lambda: started.append(1) or plane_filter())
+    cap = write_capture(tmp_path / "cap", (64, 48), seed=4)
+    for kind in ("prior_free", "physics"):
+        started.clear()
+        out = unwrap_capture_learned(cap, "mf", constant_model(tmp_path / f"{kind}.pt", kind=kind))
+        assert set(out) == {"v", "h"} and started == ([1] if kind == "physics" else []), kind
