@@ -177,8 +177,8 @@ def test_low_memory_gives_the_same_unwrap_h5(tmp_path):
     root = Path(__file__).resolve().parent.parent
     cap = write_capture(tmp_path / "cap", (96, 64), seed=5)
     assert main(["unwrap", str(cap), "-o", str(tmp_path / "a"), "--no-previews", "-q"]) == 0
-    code = ("import sys\nfrom sltwin.cli import main\nfrom unwrap.memory import fix_mmap_threshold\n"
-            "assert fix_mmap_threshold() == sys.platform.startswith('linux')\n"
+    code = ("import platform, sys\nfrom sltwin.cli import main\nfrom unwrap.memory import fix_mmap_threshold\n"
+            "assert fix_mmap_threshold() == (platform.libc_ver()[0] == 'glibc')\n"
             f"sys.exit(main(['unwrap', {str(cap)!r}, '-o', {str(tmp_path / 'b')!r}, '--low-memory', '--no-previews', "
             "'-q']))\n")
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, timeout=600,
@@ -189,3 +189,90 @@ def test_low_memory_gives_the_same_unwrap_h5(tmp_path):
             assert set(a[o]) == set(b[o])
             for name in a[o]:
                 assert a[o][name][()].tobytes() == b[o][name][()].tobytes(), (o, name)
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="no fork on this platform")
+def test_a_child_forked_after_the_pools_ran_decodes_and_writes(tmp_path):
+    """A process forked after frames were decoded and a file deflated on the pools (a DataLoader or
+    multiprocessing worker) decodes and writes too: the inherited pools have no threads in the
+    child, so it makes its own instead of waiting forever. Run in a fresh interpreter that forks
+    (the child is stopped by an alarm after 30 s, which fails the test)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    files = _frames(tmp_path / "f", 6)
+    code = f"""
+import os, signal, numpy as np
+from unwrap.capture import FrameReader
+from unwrap.phase_io import read_phase, write_phase_file
+files = {[str(f) for f in files]!r}
+maps = {{"v": {{"phase": np.arange(1.0, 12001.0).reshape(120, 100)}}}}
+FrameReader().stack(files); write_phase_file({str(tmp_path / 'parent.h5')!r}, maps)
+pid = os.fork()
+if pid == 0:
+    signal.alarm(30)
+    s = FrameReader().stack(files)
+    p = write_phase_file({str(tmp_path / 'child.h5')!r}, maps)
+    os._exit(0 if s.shape == (6, 30, 40) and np.array_equal(read_phase(p), maps["v"]["phase"]) else 3)
+_, status = os.waitpid(pid, 0)
+raise SystemExit(f"child: {{status}}" if status else 0)
+"""
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, timeout=120,
+                       env={**os.environ, "PYTHONPATH": str(root)})
+    assert p.returncode == 0, (p.stdout + p.stderr)[-2000:]
+
+
+def test_low_memory_says_when_it_cannot_act(tmp_path, monkeypatch, capsys):
+    """Where the C library is not glibc (``fix_mmap_threshold`` False) ``--low-memory`` says it has
+    no effect instead of passing in silence; the command still runs."""
+    from bench.deploy_speed import write_capture
+    from sltwin.cli import main
+    from unwrap import memory
+
+    monkeypatch.setattr(memory, "fix_mmap_threshold", lambda nbytes=memory.DEFAULT_THRESHOLD: False)
+    cap = write_capture(tmp_path / "cap", (64, 48), seed=3)
+    assert main(["unwrap", str(cap), "-o", str(tmp_path / "out"), "--low-memory", "--no-previews"]) == 0
+    assert "--low-memory has no effect here" in capsys.readouterr().err
+    assert (tmp_path / "out" / "unwrap.h5").is_file()
+
+
+def test_a_gzip_level_other_than_1_is_written_by_h5py_at_that_level(tmp_path, monkeypatch):
+    """``write_phase_group(..., compression="gzip", compression_opts=9, shuffle=True)`` gets level 9
+    (h5py's writer), not the threaded writer's level 1 under a header that says 9; level 1 (what
+    ``write_phase_file`` asks for) takes the threaded writer."""
+    calls = []
+    deflate = phase_io.deflate_chunk
+    monkeypatch.setattr(phase_io, "deflate_chunk", lambda b: calls.append(b.shape) or deflate(b))
+    phase = np.random.default_rng(0).uniform(0, 300, (64, 80))
+    for level in (9, 1):
+        calls.clear()
+        with h5py.File(tmp_path / f"l{level}.h5", "w") as f:
+            phase_io.write_phase_group(f, "v", phase, compression="gzip", compression_opts=level, shuffle=True)
+        with h5py.File(tmp_path / f"l{level}.h5") as f:
+            assert f["v/phase"].compression_opts == level and np.array_equal(f["v/phase"][()], phase)
+        assert bool(calls) == (level == 1), level
+
+
+def test_the_plane_fit_warm_up_runs_for_a_physics_model_only(tmp_path, monkeypatch):
+    """unwrap_capture_learned loads the plane-fit kernel early for a physics-aware model, whose
+    features fit planes; a prior-free model's do not, and nothing (numba's ~100 MB) is loaded for it."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench.deploy_speed import write_capture
+    from test_learned_use import constant_model
+    from unwrap import warmup
+    from unwrap.learned.capture import unwrap_capture_learned
+
+    started = []
+    plane_filter = warmup.plane_filter
+    monkeypatch.setattr(warmup, "plane_filter", lambda: started.append(1) or plane_filter())
+    cap = write_capture(tmp_path / "cap", (64, 48), seed=4)
+    for kind in ("prior_free", "physics"):
+        started.clear()
+        out = unwrap_capture_learned(cap, "mf", constant_model(tmp_path / f"{kind}.pt", kind=kind))
+        assert set(out) == {"v", "h"} and started == ([1] if kind == "physics" else []), kind

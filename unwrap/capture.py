@@ -158,19 +158,13 @@ def check_distinct_frames(stack: np.ndarray, files) -> None:
                               "capture)")
 
 
-_POOL = None
-
-
 def read_images(files):
     """:func:`read_image` of each of ``files``, decoded on a thread pool (OpenCV's decoders release
-    the GIL) and yielded in order; a frame that cannot be read raises when its turn comes."""
-    global _POOL
-    if _POOL is None:
-        import os
-        from concurrent.futures import ThreadPoolExecutor
+    the GIL; :mod:`unwrap._threads`) and yielded in order; a frame that cannot be read raises when
+    its turn comes."""
+    from ._threads import pool
 
-        _POOL = ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1), thread_name_prefix="read-frames")
-    return _POOL.map(read_image, files)
+    return pool("read-frames").map(read_image, files)
 
 
 class FrameReader:

@@ -13,7 +13,8 @@ every buffer of the network's forward: ~15 % of the command's CPU time); at 4 Mi
 +0.45 s, at 16 MiB 487 MB for +0.07 s.
 
 It is a setting of the whole process: ``calib unwrap --low-memory`` asks for it; library code does
-not set it.
+not set it. It outlasts the command in a Python process that runs it in-process
+(``sltwin.cli.main([... "--low-memory"])``): glibc has no call that restores the dynamic threshold.
 """
 from __future__ import annotations
 

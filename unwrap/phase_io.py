@@ -26,7 +26,6 @@ SYNOPSIS
 """
 from __future__ import annotations
 
-import os
 import zlib
 from pathlib import Path
 
@@ -163,17 +162,13 @@ def _codec(compression) -> dict:
 
 #: about this many bytes per chunk of a dataset written by the threaded deflate (whole rows)
 CHUNK_BYTES = 1 << 19
-_POOL = None
 
 
 def _pool():
-    """The writer's thread pool (zlib releases the GIL while it compresses), made once per process."""
-    global _POOL
-    if _POOL is None:
-        from concurrent.futures import ThreadPoolExecutor
+    """The writer's thread pool (zlib releases the GIL while it compresses; :mod:`unwrap._threads`)."""
+    from ._threads import pool
 
-        _POOL = ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1), thread_name_prefix="h5-deflate")
-    return _POOL
+    return pool("h5-deflate")
 
 
 def deflate_chunk(block: np.ndarray) -> bytes:
@@ -192,14 +187,14 @@ def deflate_chunk(block: np.ndarray) -> bytes:
 
 
 def _create_dataset(g, name: str, data: np.ndarray, options: dict) -> None:
-    """``g.create_dataset(name, data=data, **options)``; when ``options`` ask for gzip behind the
-    shuffle (:func:`_codec`) and ``data`` is a non-empty array of plain numbers (bool, integer,
-    float; native byte order), the chunks (whole rows, :data:`CHUNK_BYTES`) are shuffled and
+    """``g.create_dataset(name, data=data, **options)``; when ``options`` ask for gzip level 1 behind
+    the shuffle (:func:`_codec`; another level is h5py's to honour) and ``data`` is a non-empty
+    array of plain numbers (bool, integer, float; native byte order), the chunks (whole rows, :data:`CHUNK_BYTES`) are shuffled and
     deflated on threads (:func:`deflate_chunk`) and stored as they are (HDF5 direct chunk writes):
-    the same filters, the same values read back, ~2 x 2 times faster than h5py's own writer on
-    2 cores (docs/speed.md)."""
-    plain = (options.get("compression") == "gzip" and options.get("shuffle") and set(options) <= {
-        "compression", "compression_opts", "shuffle"} and data.ndim >= 1 and data.size > 0
+    the same filters, the same values read back; the 16 maps of a 900 x 700 ``calib unwrap --model``
+    in 0.40 s of wall against h5py's 0.75 s on 2 shared cores (docs/speed.md)."""
+    plain = (options.get("compression") == "gzip" and options.get("compression_opts") == 1 and options.get("shuffle")
+        and set(options) <= {"compression", "compression_opts", "shuffle"} and data.ndim >= 1 and data.size > 0
         and data.dtype.kind in "biuf" and data.dtype.byteorder in "=|<" and data.dtype.isnative)
     if not plain:
         g.create_dataset(name, data=data, **options)

@@ -70,7 +70,7 @@ def add_arguments(parser):
     parser.add_argument("--no-previews", action="store_true", help="skip the PNG previews")
     parser.add_argument("--low-memory", action="store_true",
                         help="return freed memory to the system at once (glibc): a lower peak (900x700 with --model: "
-                             "~510 -> ~420 MB) for ~15 %% more CPU time (docs/speed.md)")
+                             "~510 -> ~420 MB) for 10-30 %% more CPU time (docs/speed.md)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress messages")
 
 
@@ -203,9 +203,12 @@ def run(args) -> int:
 
     claim(args.output, "dir", inputs=[*args.capture_dir, args.model])
     if args.low_memory:
+        import sys
+
         from unwrap.memory import fix_mmap_threshold
 
-        fix_mmap_threshold()
+        if not fix_mmap_threshold() and not args.quiet:
+            print("calib unwrap: --low-memory has no effect here (it needs glibc's malloc)", file=sys.stderr)
     decode = decoder(args)
     one = Path(args.capture_dir[0])
     if len(args.capture_dir) > 1 or (one.is_dir() and not is_capture(one)

@@ -92,8 +92,10 @@ def unwrap_capture_learned(folder, method: str = "mf", model="learned", *, prese
                            progress: bool = False) -> dict:
     """Every orientation of a capture folder by the network: {"v": OrientationResult, ...}."""
     cap = load_capture(folder, preset, pose)
-    warm = warmup.plane_filter()         # the features' compiled kernel loads while the frames are read
     net = load_predictor(model)          # loaded once (cached per process), shared by the orientations
+    # the physics features' compiled kernel loads while the frames are read (a prior-free model's
+    # features have no plane fit: no numba loaded for it)
+    warm = warmup.plane_filter() if net.arch.get("kind") == "physics" else None
     return each_orientation(cap, f"{method} + learned", lambda oc: learned_orientation(
         oc, method, net, min_modulation=min_modulation, on_outside=on_outside, check_prior=check_prior,
         camera_size=cap.camera_size, progress=progress, warm=warm), progress)
