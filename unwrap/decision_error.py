@@ -156,7 +156,8 @@ def fit(X, wrong, *, note: str = "", l2: float = 1e-3) -> dict:
     standardised for the optimiser and the coefficients returned in the raw units.
 
     RETURNED VALUE: a model dict like :data:`MODEL` (``version``, ``intercept``, ``coef``,
-    ``fitted_on``, plus ``log_loss`` per pixel and ``pixels``)."""
+    ``fitted_on``, plus ``log_loss``: the plain log loss per pixel at the fitted coefficients,
+    ``objective``: the ridge-penalised value the optimiser minimised, and ``pixels``)."""
     from scipy.optimize import minimize
 
     X = np.asarray(X, dtype=np.float64)
@@ -174,12 +175,15 @@ def fit(X, wrong, *, note: str = "", l2: float = 1e-3) -> dict:
     Z = (F - mu) / sd
     n = y.size
 
-    def loss(theta):
-        z = theta[0] + Z @ theta[1:]
-        s = _sigmoid(z)
+    def plain(theta):
+        s = _sigmoid(theta[0] + Z @ theta[1:])
         p = np.clip(1.0 - (1.0 - pn) * (1.0 - s), 1e-15, 1.0)
         log1mp = np.log(np.clip(1.0 - pn, 1e-300, 1.0)) + np.log(np.clip(1.0 - s, 1e-300, 1.0))
-        L = -(y * np.log(p) + (1 - y) * log1mp).sum() / n + l2 * (theta[1:] ** 2).sum()
+        return -(y * np.log(p) + (1 - y) * log1mp).sum() / n, s, p
+
+    def loss(theta):
+        L, s, p = plain(theta)
+        L += l2 * (theta[1:] ** 2).sum()
         dz = (-y * (1.0 - pn) * s * (1.0 - s) / p + (1 - y) * s) / n
         g = np.concatenate([[dz.sum()], Z.T @ dz + 2 * l2 * theta[1:]])
         return L, g
@@ -193,7 +197,7 @@ def fit(X, wrong, *, note: str = "", l2: float = 1e-3) -> dict:
     intercept = float(t[0] - (coef * mu).sum())
     return {"version": MODEL["version"], "intercept": round(intercept, 6),
             "coef": {k: round(float(c), 6) for k, c in zip(FEATURES, coef)},
-            "fitted_on": note, "log_loss": float(r.fun), "pixels": int(n)}
+            "fitted_on": note, "log_loss": float(plain(t)[0]), "objective": float(r.fun), "pixels": int(n)}
 
 
 __all__ = ["FEATURES", "MAX_DISTANCE", "MODEL", "SIGNS", "WIDE_WINDOW", "WINDOW", "edge_distance", "error_probability",

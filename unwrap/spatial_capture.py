@@ -100,9 +100,10 @@ def spatial_orientation(oc, method: str = "mf", *, model=None, use_gate: bool = 
     extras, cost, conf, label = {}, None, None, f"{method}+graphcut"
     full = [float(np.iinfo(stacks[i].dtype).max) if np.issubdtype(stacks[i].dtype, np.integer) else 1.0
             for i in (i_lo, i_hi)]
+    m_lo, m_hi = lo.B / full[0], hi.B / full[1]          # modulations as fractions of full scale
     if model is not None:
         from .learned.infer import unwrap_learned
-        r = unwrap_learned(method, phi_lo, phi_hi, lo.B / full[0], hi.B / full[1], valid, pair, width=oc.width,
+        r = unwrap_learned(method, phi_lo, phi_hi, m_lo, m_hi, valid, pair, width=oc.width,
                            model=model, on_outside=on_outside, log_probs=True)
         cost, label = -r.log_probs, f"{method}+learned+graphcut"
     res = graphcut_orders(method, phi_lo, phi_hi, pair, valid, s_lo, s_hi, width=oc.width, cost=cost,
@@ -114,7 +115,7 @@ def spatial_orientation(oc, method: str = "mf", *, model=None, use_gate: bool = 
         conf = np.where(res.valid, np.exp(np.take_along_axis(r.log_probs, c[None], 0)[0]), 0.0)
         extras["confidence"] = conf.astype(np.float32)
     # the traditional decision's error probability, bias included (unwrap.decision_error)
-    p_wrong = error_probability(res.p_wrong_traditional, res.prior, res.valid, lo.B / full[0], hi.B / full[1])
+    p_wrong = error_probability(res.p_wrong_traditional, res.prior, res.valid, m_lo, m_hi)
     if use_gate:
         g = GATE["Learned + graph cut" if model is not None else "Graph cut"]
         order = gate(order, res.order_traditional, res.valid, p_wrong, confidence=conf,
