@@ -146,3 +146,27 @@ def test_the_bound_lets_the_surface_bring_back_a_biased_band_the_shipped_term_ke
     r1 = graphcut_orders("mf", lo, hi, freqs, valid, 0.01, 0.01, width=width, bias_bound=bound, bias_scale=1.0)
     assert (r1.order != k_true)[valid].mean() < 0.001     # the band joins its surface
     assert np.array_equal(r0.order_traditional, r1.order_traditional)
+
+
+def test_calib_unwrap_spatial_global_bound_on_a_clean_capture(tmp_path):
+    """``--global-bound`` on a clean rendered capture (tests/test_cli_bad_inputs.py's): the global /
+    direct ratio is written, and with little global light the graph cut keeps the (right)
+    traditional orders; the flag is refused where it does not apply."""
+    import h5py
+
+    from sltwin.cli import main
+    from test_cli_bad_inputs import _write_capture
+
+    _write_capture(tmp_path / "cap")
+    assert main(["unwrap", str(tmp_path / "cap"), "--spatial", "graphcut", "--global-bound", "--no-gate",
+                 "-o", str(tmp_path / "gb"), "--no-previews", "-q"]) == 0
+    with h5py.File(tmp_path / "gb" / "unwrap.h5") as b:
+        for o in ("v", "h"):
+            g = b[o]
+            assert g.attrs["method"] == "mf+graphcut+global"
+            ok = g["valid"][()]
+            assert ok.mean() > 0.9 and np.all(g["global_ratio"][()][ok] >= 0)
+            assert np.array_equal(g["order"][()], g["order_traditional"][()])
+    for bad in (["--global-bound"], ["--spatial", "graphcut", "--global-bound", "--model", "learned"],
+                ["--spatial", "graphcut", "--global-bound", "--method", "nt"]):
+        assert main(["unwrap", str(tmp_path / "cap"), *bad, "-o", str(tmp_path / "x"), "--no-previews", "-q"]) == 2

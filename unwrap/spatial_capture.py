@@ -11,7 +11,8 @@ is an :class:`unwrap.pipeline.OrientationResult` like the other paths' (``write_
 the same ``unwrap.h5``) with the extra maps ``order_traditional``, ``p_wrong_traditional`` (the
 reliability model's error probability of the traditional order, noise only), ``p_wrong_decision``
 (:func:`unwrap.decision_error.error_probability`, bias included: what the gate thresholds) and,
-with a model, ``confidence``. The checks of the other paths hold: one :class:`unwrap.capture.FrameReader`,
+with a model, ``confidence``; with the global-light bound (:func:`global_bias_bound`, MF and the
+prior's data term) ``global_ratio``, the global / direct ratio of :mod:`unwrap.global_light`. The checks of the other paths hold: one :class:`unwrap.capture.FrameReader`,
 the traditional prior near integers (:mod:`unwrap.consistency`), the pattern range.
 """
 from __future__ import annotations
@@ -66,10 +67,33 @@ def noise_from_phase(phase_abs, valid, modulation, steps: int) -> float:
                  * math.sqrt(steps / 2.0))
 
 
+def global_bias_bound(lo, hi, valid, method: str, pair, orientation: str = "?"):
+    """The bound on the prior's bias from global light (fringes of the high frequency, (H, W)) and
+    the global / direct ratio (:mod:`unwrap.global_light`, the pattern's offset / amplitude
+    estimated from the capture, black level 0) of an MF pair's wrapped phases ``lo``, ``hi``
+    (:class:`unwrap.phase_shift.WrappedPhase`); (None, None) for MW / NT (the bound is the coarse
+    phase's) or where the separation is refused (logged as a warning: the shipped data term is used)."""
+    from .global_light import GlobalLightError, bias_bound
+
+    if method != "mf":
+        return None, None
+    try:
+        g = bias_bound(hi.A, hi.B, valid, offset_low=lo.A)
+    except GlobalLightError as e:
+        log.warning("orientation %s: no global-light bound (%s); the graph cut uses the prior's plain likelihood",
+                    orientation, e)
+        return None, None
+    for n in g.notes:
+        log.warning("orientation %s: %s", orientation, n)
+    return g.fringes(*pair), g.ratio
+
+
 def spatial_orientation(oc, method: str = "mf", *, model=None, use_gate: bool = True, min_modulation=None,
                         noise_sigma=None, check_prior: bool = True, camera_size=None, on_outside: str = "raise",
-                        progress: bool = False) -> OrientationResult:
-    """One orientation (:class:`unwrap.capture.OrientationCapture`) by the graph cut (module docstring)."""
+                        progress: bool = False, global_bound: bool = False) -> OrientationResult:
+    """One orientation (:class:`unwrap.capture.OrientationCapture`) by the graph cut (module docstring).
+    ``global_bound``: widen the prior's likelihood by the bound of :func:`global_bias_bound` (MF,
+    prior data term only; scale :data:`unwrap.spatial_orders.DEFAULTS` ``bias_scale``)."""
     reader = FrameReader(camera_size)
     sets = sorted(oc.sets, key=lambda s: s.frequency)
     freqs = [float(s.frequency) for s in sets]
@@ -106,9 +130,15 @@ def spatial_orientation(oc, method: str = "mf", *, model=None, use_gate: bool = 
         r = unwrap_learned(method, phi_lo, phi_hi, m_lo, m_hi, valid, pair, width=oc.width,
                            model=model, on_outside=on_outside, log_probs=True)
         cost, label = -r.log_probs, f"{method}+learned+graphcut"
+    bound = None
+    if model is None and global_bound:
+        bound, ratio = global_bias_bound(lo, hi, valid, method, pair, oc.orientation)
+        if bound is not None:
+            extras["global_ratio"] = ratio.astype(np.float32)
+            label += "+global"
     res = graphcut_orders(method, phi_lo, phi_hi, pair, valid, s_lo, s_hi, width=oc.width, cost=cost,
                           smoothness=DEFAULTS["smoothness_learned" if model is not None else "smoothness"],
-                          outlier=DEFAULTS["outlier"], sigma_floor=DEFAULTS["sigma_floor"])
+                          outlier=DEFAULTS["outlier"], sigma_floor=DEFAULTS["sigma_floor"], bias_bound=bound)
     order = res.order
     if model is not None:
         c = np.clip(res.correction + 2, 0, 4)
@@ -143,8 +173,9 @@ def spatial_orientation(oc, method: str = "mf", *, model=None, use_gate: bool = 
 
 def unwrap_capture_spatial(folder, method: str = "mf", *, model=None, use_gate: bool = True, preset=None, pose=None,
                            min_modulation=None, noise_sigma=None, check_prior: bool = True,
-                           on_outside: str = "raise", progress: bool = False) -> dict:
-    """Every orientation of a capture folder by the graph cut: {"v": OrientationResult, ...}."""
+                           on_outside: str = "raise", progress: bool = False, global_bound: bool = False) -> dict:
+    """Every orientation of a capture folder by the graph cut: {"v": OrientationResult, ...}
+    (``global_bound``: :func:`spatial_orientation`)."""
     cap = load_capture(folder, preset, pose)
     net = None
     if model is not None:
@@ -159,5 +190,5 @@ def unwrap_capture_spatial(folder, method: str = "mf", *, model=None, use_gate: 
                 cap.folder, cap.preset, o, method)
         out[o] = spatial_orientation(oc, method, model=net, use_gate=use_gate, min_modulation=min_modulation,
                                      noise_sigma=noise_sigma, check_prior=check_prior, camera_size=cap.camera_size,
-                                     on_outside=on_outside, progress=progress)
+                                     on_outside=on_outside, progress=progress, global_bound=global_bound)
     return out
