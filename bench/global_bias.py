@@ -150,10 +150,14 @@ def decode(it, scale: float, *, shipped=True):
                                                       s_hi, bias_bound=bf, bias_scale=scale, **kw)
     r0 = next(iter(res.values()))
     p_bias = error_probability(r0.p_wrong_traditional, r0.prior, ok, it["m_low"], it["m_high"])
+    from unwrap.decision_error import MODEL_GLOBAL
+    p_global = None if MODEL_GLOBAL is None else error_probability(r0.p_wrong_traditional, r0.prior, ok, it["m_low"],
+                                                                   it["m_high"], global_ratio=g.ratio)
     for k, r in res.items():
         out[k], ms[k] = r.order, 1e3 * r.seconds
         out[f"{k}, gated"] = gate(r.order, n, ok, p_bias, **GATE["Graph cut"])
-    extra = {"valid": ok, "prior": prior, "p_wrong": r0.p_wrong_traditional, "p_wrong_bias": p_bias, "rho": g.ratio,
+    extra = {"valid": ok, "prior": prior, "p_wrong": r0.p_wrong_traditional, "p_wrong_bias": p_bias,
+             "p_wrong_global": p_global, "rho": g.ratio,
              "bound_fringes": bf, "kappa": g.kappa, "notes": g.notes, "results": res}
     return out, ms, extra
 
@@ -179,10 +183,12 @@ def score(items, scale: float, *, analyse: bool = False):
         kappas.append(ex["kappa"])
         wrong = ~right_t[m]
         margin = 0.5 - np.abs(ex["prior"] - np.rint(ex["prior"]))
-        for name, sc in (("modulation", np.minimum(it["m_low"], it["m_high"])[m]),
-                         ("reliability model", -ex["p_wrong"][m]), ("decision error model", -ex["p_wrong_bias"][m]),
-                         ("global / direct ratio", -ex["rho"][m]),
-                         ("global bound minus margin", -(ex["bound_fringes"] - margin)[m])):
+        ranks = [("modulation", np.minimum(it["m_low"], it["m_high"])[m]), ("reliability model", -ex["p_wrong"][m]),
+                 ("decision error model", -ex["p_wrong_bias"][m]), ("global / direct ratio", -ex["rho"][m]),
+                 ("global bound minus margin", -(ex["bound_fringes"] - margin)[m])]
+        if ex["p_wrong_global"] is not None:
+            ranks.append(("decision error model with the global ratio", -ex["p_wrong_global"][m]))
+        for name, sc in ranks:
             c = curves.setdefault(name, [[], []])
             c[0].append(sc), c[1].append(wrong)
         if analyse:
@@ -263,6 +269,26 @@ def patch_analysis(it, res, order, min_patch: int = 100) -> dict:
             out[f"held_by_{key}"] += 1
             out[f"px_held_by_{key}"] += npx
     return out
+
+
+def fit_global(items) -> dict:
+    """The decision error model with the global / direct ratio as a sixth feature
+    (:data:`unwrap.decision_error.MODEL_GLOBAL`), pooled over the items (validation scenes only)."""
+    from bench.spatial_unwrap import item_features
+    from unwrap.decision_error import FEATURES, GLOBAL_FEATURE, fit
+    from unwrap.temporal import decode_pair
+
+    Xs, ys = [], []
+    for it in items:
+        X, y, _ = item_features(it)
+        _, _, ok = decode_pair("mf", it["phase_low"], it["phase_high"], *it["freqs"], it["width"], it["valid"])
+        g, _ = bound_fringes(it)
+        Xs.append(np.column_stack([X, np.log1p(g.ratio[ok & (it["ref"] >= 0)])])), ys.append(y)
+    X, y = np.concatenate(Xs), np.concatenate(ys)
+    n_bias = sum("bias-val" in it["name"] for it in items)
+    return fit(X, y, names=FEATURES + (GLOBAL_FEATURE,),
+               note=f"bench.decision_error_fit --global: {len(items)} validation scenes ({len(items) - n_bias} of "
+                    f"spatial_val.toml, {n_bias} of decision_error_val.toml with interreflection), {len(y)} pixels")
 
 
 # ---------------------------------------------------------------- calibration (validation only)

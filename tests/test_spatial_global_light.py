@@ -170,3 +170,24 @@ def test_calib_unwrap_spatial_global_bound_on_a_clean_capture(tmp_path):
     for bad in (["--global-bound"], ["--spatial", "graphcut", "--global-bound", "--model", "learned"],
                 ["--spatial", "graphcut", "--global-bound", "--method", "nt"]):
         assert main(["unwrap", str(tmp_path / "cap"), *bad, "-o", str(tmp_path / "x"), "--no-previews", "-q"]) == 2
+
+
+def test_the_decision_error_model_with_the_global_ratio_is_monotone_and_checked():
+    from unwrap.decision_error import MODEL, MODEL_GLOBAL, error_probability
+    from unwrap.errors import UnwrapError
+
+    H, W = 40, 60
+    valid = np.ones((H, W), bool)
+    valid[:, :3] = False
+    prior = np.full((H, W), 7.0)
+    args = (np.full((H, W), 1e-6), prior, valid, np.full((H, W), 0.3), np.full((H, W), 0.3))
+    p_lo = error_probability(*args, global_ratio=np.full((H, W), 0.05))
+    p_hi = error_probability(*args, global_ratio=np.full((H, W), 0.8))
+    assert np.all(p_hi[valid] >= p_lo[valid]) and (p_hi[valid] > p_lo[valid]).any()
+    assert np.all(p_lo[~valid] == 0)
+    with pytest.raises(UnwrapError, match="global_ratio exactly"):
+        error_probability(*args, model=MODEL, global_ratio=np.zeros((H, W)))
+    with pytest.raises(UnwrapError, match="global_ratio exactly"):
+        error_probability(*args, model=MODEL_GLOBAL)
+    with pytest.raises(UnwrapError, match="global_ratio"):
+        error_probability(*args, global_ratio=np.zeros((H, W + 1)))
