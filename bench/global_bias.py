@@ -126,7 +126,8 @@ def bound_fringes(it, kappa=None):
     """(GlobalBias, bound in fringes of the item's high frequency)."""
     from unwrap.global_light import bias_bound
 
-    g = bias_bound(it["a_high"], it["m_high"], it["valid"], kappa=kappa, offset_low=it["a_low"])
+    g = bias_bound(it["a_high"], it["m_high"], it["valid"], kappa=kappa, offset_low=it["a_low"],
+                   modulation_low=it["m_low"])
     return g, g.fringes(*it["freqs"])
 
 

@@ -49,6 +49,25 @@ def test_the_separation_recovers_the_planted_global_ratio_and_the_bound_holds():
     bias = np.abs(wrap(w1.phase[0] - phi_direct))
     assert np.all(bias <= g.bound_rad[0] + 0.02)          # never beyond the bound (+ the residual above)
     assert g.notes == []                                   # A_1 = A_h: the frequencies were captured alike
+    g1 = bias_bound(wh.A, wh.B, np.ones((1, 4000), bool), kappa=1.0, modulation_low=w1.B)
+    assert np.all(g1.bound_rad <= g.bound_rad + 1e-12) and np.all(bias <= g1.bound_rad[0] + 0.02)
+
+
+def test_the_unit_modulation_tightens_the_bound_under_blur_and_it_still_holds():
+    rng = np.random.default_rng(4)
+    stacks, phi_direct, _ = _capture(rng, 3000, global_max=0.4)
+    m = rng.uniform(0.3, 1.0, 3000)                       # blur keeps a fraction m of the high modulation
+    mean = stacks[48].mean(0)
+    stacks[48] = mean + m * (stacks[48] - mean)
+    w1, wh = (wrapped_phase(stacks[f][:, None, :], saturation=None) for f in (1, 48))
+    ones = np.ones((1, 3000), bool)
+    g0 = bias_bound(wh.A, wh.B, ones, kappa=1.0)
+    g1 = bias_bound(wh.A, wh.B, ones, kappa=1.0, modulation_low=w1.B)
+    bias = np.abs(wrap(w1.phase[0] - phi_direct))
+    assert np.all(bias <= g1.bound_rad[0] + 0.02)
+    assert np.median(g1.bound_rad) < 0.7 * np.median(g0.bound_rad)
+    # blurred pixels the high frequency alone calls "global >= direct" (bound pi) are mostly bounded
+    assert (g1.bound_rad == math.pi).mean() < 0.2 * (g0.bound_rad == math.pi).mean()
 
 
 def test_a_coherent_global_phasor_at_right_angles_reaches_the_bound():

@@ -25,7 +25,19 @@ The coarse phase is the argument of their sum, so its bias is bounded by
 
     |d phi_1| <= asin(rho)   (rho < 1),   pi otherwise
 
-(the extreme puts the global phasor at right angles to the sum). In fringes of the high frequency
+(the extreme puts the global phasor at right angles to the sum). The direct amplitude is only
+known to be at least ``B_h`` (defocus and the projector's and camera's blur lower the high
+frequency's modulation, and then ``rho`` counts the lost modulation as global light), so when the
+unit frequency's modulation ``B_1`` is given the bound also uses it: the global phasor's amplitude
+is at most ``gamma = (A_h - black) / kappa - B_h`` and the observed unit phasor (length ``B_1``)
+is direct + global, so ``sin |d phi_1| <= gamma / B_1`` whenever ``gamma < B_1`` (then the sum
+cannot point backwards: a phasor of length > gamma cannot come from one of length < gamma turned
+by more than pi / 2). Both hold; the bound is the smaller one,
+
+    |d phi_1| <= min(asin(gamma / B_h), asin(gamma / B_1)) = asin(gamma / max(B_h, B_1)),
+
+pi where ``gamma >= max(B_h, B_1)``: under pure blur (no global light, ``B_h = m B_1``) it is
+``asin(1 - m)`` instead of ``asin(1 / m - 1)``. In fringes of the high frequency
 of an MF pair (the prior ``r = (R Phi_1 - phi_h) / 2 pi``, ``R = f_h / f_1``) the bound is
 ``asin(rho) R / 2 pi``.
 
@@ -52,6 +64,9 @@ SYNOPSIS
     [[0.0, 0.201], [0.524, 3.142]]
     >>> float(r.fringes(1.0, 48.0)[0, 1].round(2))     # in fringes of f = 48 (MF 1 -> 48)
     1.54
+    >>> B1 = np.full((2, 2), 80.0)                     # the unit modulation twice the high one: B_h is blurred
+    >>> bias_bound(A, B, np.ones((2, 2), bool), kappa=1.0, modulation_low=B1).bound_rad.round(3).tolist()
+    [[0.0, 0.1], [0.253, 0.848]]
 """
 from __future__ import annotations
 
@@ -125,7 +140,7 @@ def _check(offset, modulation, valid):
 
 
 def bias_bound(offset_high, modulation_high, valid, *, kappa: float | None = None, black: float = 0.0,
-               offset_low=None) -> GlobalBias:
+               offset_low=None, modulation_low=None) -> GlobalBias:
     """Per-pixel global / direct ratio and the bound on the coarse phase's bias (module docstring).
 
     ARGUMENTS: offset_high ``A_h`` and modulation_high ``B_h`` (H, W) of the N-step fit of the
@@ -134,7 +149,9 @@ def bias_bound(offset_high, modulation_high, valid, *, kappa: float | None = Non
     ``black``: camera black level + ambient (default 0: counted as global, conservative);
     ``offset_low``: optional ``A`` of the unit frequency - the global offset does not depend on the
     frequency, so its median ratio to ``A_h`` must be ~1; a note is added when it is off by more
-    than 10 % (frames of different exposure or a response curve: the separation is then suspect).
+    than 10 % (frames of different exposure or a response curve: the separation is then suspect);
+    ``modulation_low``: optional ``B_1`` of the unit frequency (same units), which tightens the
+    bound where the high frequency's modulation is blurred (module docstring).
 
     RETURNED VALUE: :class:`GlobalBias`."""
     A, B, v = _check(offset_high, modulation_high, valid)
@@ -157,7 +174,12 @@ def bias_bound(offset_high, modulation_high, valid, *, kappa: float | None = Non
                              "not captured alike; the separation is suspect")
     ok = v & (B > 0)
     rho = np.where(ok, np.maximum((A - black) / (kappa * np.where(ok, B, 1.0)) - 1.0, 0.0), 0.0)
-    bound = np.where(rho < 1.0, np.arcsin(np.minimum(rho, 1.0)), math.pi)
+    ref = B
+    if modulation_low is not None:
+        _, B1, _ = _check(offset_high, modulation_low, valid)
+        ref = np.maximum(B, B1)
+    s = np.where(ok, rho * B / np.where(ok, ref, 1.0), 1.0)      # gamma / max(B_h, B_1)
+    bound = np.where(s < 1.0, np.arcsin(np.minimum(s, 1.0)), math.pi)
     bound = np.where(v, np.where(ok, bound, math.pi), 0.0)
     return GlobalBias(rho, bound, float(kappa), source, notes)
 

@@ -78,7 +78,7 @@ def global_bias_bound(lo, hi, valid, method: str, pair, orientation: str = "?"):
     if method != "mf":
         return None, None
     try:
-        g = bias_bound(hi.A, hi.B, valid, offset_low=lo.A)
+        g = bias_bound(hi.A, hi.B, valid, offset_low=lo.A, modulation_low=lo.B)
     except GlobalLightError as e:
         log.warning("orientation %s: no global-light bound (%s); the graph cut uses the prior's plain likelihood",
                     orientation, e)
