@@ -1,6 +1,7 @@
 """The global-light bound on the coarse phase's bias in the graph cut's data term (issue 21).
 
-    python -m bench.global_bias [--cycles-dir DIR] [--work DIR] [--json OUT.json] [--calibrate] [--no-twin]
+    python -m bench.global_bias [--cycles-dir DIR] [--work DIR] [--json OUT.json] [--calibrate [--tight]] [--no-twin]
+                                [--quick]
 
 :mod:`unwrap.global_light` separates direct and global light from the high frequency's offset and
 modulation and bounds the bias of the coarse phase; ``graphcut_orders(..., bias_bound=...)``
@@ -21,7 +22,8 @@ twin test set (offsets re-rendered per scene, checked against the export's phase
 ``bench/data/decision_error_val.toml`` and the 6 noise-dominated ones of ``spatial_val.toml``,
 rendered into ``--work``): the least error on their pooled pixels such that no scene gets more
 wrong orders than traditional (:func:`calibrate_scale`).
-The Cycles rows also get the failure analysis of :func:`patch_analysis`.
+The Cycles rows also get the failure analysis of :func:`patch_analysis`. ``--quick``: the
+pyramid's vertical orientation only, shipped scale.
 """
 from __future__ import annotations
 
@@ -122,17 +124,19 @@ def twin_items(work: Path, which: str = "test"):
 
 
 # ---------------------------------------------------------------- decoding
-def bound_fringes(it, kappa=None):
-    """(GlobalBias, bound in fringes of the item's high frequency)."""
+def bound_fringes(it, kappa=None, *, unit_modulation: bool = False):
+    """(GlobalBias, bound in fringes of the item's high frequency); ``unit_modulation``: tighten it
+    with the unit frequency's modulation (``bias_bound(modulation_low=)``)."""
     from unwrap.global_light import bias_bound
 
     g = bias_bound(it["a_high"], it["m_high"], it["valid"], kappa=kappa, offset_low=it["a_low"],
-                   modulation_low=it["m_low"])
+                   modulation_low=it["m_low"] if unit_modulation else None)
     return g, g.fringes(*it["freqs"])
 
 
-def decode(it, scale: float, *, shipped=True):
-    """{row: orders}, extra maps; the shipped graph cut and the graph cut with the bound."""
+def decode(it, scale: float, *, shipped=True, tight=True, loose=True):
+    """{row: orders}, extra maps; the shipped graph cut and the graph cut with the bound (``loose``:
+    from the high frequency alone, the shipped choice; ``tight``: with the unit modulation too)."""
     from bench.spatial_unwrap import _sigmas
     from unwrap.decision_error import error_probability
     from unwrap.spatial_orders import DEFAULTS, GATE, gate, graphcut_orders
@@ -141,14 +145,20 @@ def decode(it, scale: float, *, shipped=True):
     s_lo, s_hi = _sigmas(it)
     prior, n, ok = decode_pair("mf", it["phase_low"], it["phase_high"], *it["freqs"], it["width"], it["valid"])
     g, bf = bound_fringes(it)
+    _, bf_tight = bound_fringes(it, unit_modulation=True)
     out, ms = {"Traditional": n}, {}
     kw = dict(width=it["width"], smoothness=DEFAULTS["smoothness"], outlier=DEFAULTS["outlier"],
               sigma_floor=DEFAULTS["sigma_floor"])
     res = {}
     if shipped:
         res["Graph cut"] = graphcut_orders("mf", it["phase_low"], it["phase_high"], it["freqs"], ok, s_lo, s_hi, **kw)
-    res["Graph cut + global bound"] = graphcut_orders("mf", it["phase_low"], it["phase_high"], it["freqs"], ok, s_lo,
-                                                      s_hi, bias_bound=bf, bias_scale=scale, **kw)
+    if loose:
+        res["Graph cut + global bound"] = graphcut_orders("mf", it["phase_low"], it["phase_high"], it["freqs"], ok,
+                                                          s_lo, s_hi, bias_bound=bf, bias_scale=scale, **kw)
+    if tight:
+        res["Graph cut + global bound (B_1)"] = graphcut_orders("mf", it["phase_low"], it["phase_high"], it["freqs"],
+                                                                ok, s_lo, s_hi, bias_bound=bf_tight, bias_scale=scale,
+                                                                **kw)
     r0 = next(iter(res.values()))
     p_bias = error_probability(r0.p_wrong_traditional, r0.prior, ok, it["m_low"], it["m_high"])
     from unwrap.decision_error import MODEL_GLOBAL
@@ -193,7 +203,7 @@ def score(items, scale: float, *, analyse: bool = False):
             c = curves.setdefault(name, [[], []])
             c[0].append(sc), c[1].append(wrong)
         if analyse:
-            for row in ("Graph cut", "Graph cut + global bound"):
+            for row in ("Graph cut", "Graph cut + global bound", "Graph cut + global bound (B_1)"):
                 a = patch_analysis(it, ex["results"][row], out[row])
                 acc = ana.setdefault(row, {})
                 for k, v in a.items():
@@ -293,7 +303,7 @@ def fit_global(items) -> dict:
 
 
 # ---------------------------------------------------------------- calibration (validation only)
-def calibrate_scale(items, grid=SCALE_GRID):
+def calibrate_scale(items, grid=SCALE_GRID, *, tight: bool = False):
     """The bias scale with the least pooled error on the validation items such that no item gets
     more wrong orders than traditional (the rule of the energy's other constants: least validation
     error; scale 0 is the shipped term); prints the grid, per item."""
@@ -308,9 +318,10 @@ def calibrate_scale(items, grid=SCALE_GRID):
     for s in grid:
         per = []
         for it in items:
-            out, _, ex = decode(it, s, shipped=False)
+            out, _, ex = decode(it, s, shipped=False, tight=tight, loose=not tight)
             m = ex["valid"] & (it["ref"] >= 0)
-            per.append(int((out["Graph cut + global bound"] != it["ref"])[m].sum()))
+            row = "Graph cut + global bound" + (" (B_1)" if tight else "")
+            per.append(int((out[row] != it["ref"])[m].sum()))
         ok = all(p <= t for p, t in zip(per, trad))
         print(f"  bias scale {s:g}: {sum(per)} wrong (per scene {per}){'' if ok else ' - worse than traditional'}",
               file=sys.stderr, flush=True)
@@ -353,24 +364,28 @@ def main(argv=None) -> int:
     ap.add_argument("--cycles-dir", default=None, help="folder of cycles_test.h5 and its frames/ cache")
     ap.add_argument("--work", default="/tmp/sltwin_bench_spatial", help="cache of exports / renders")
     ap.add_argument("--calibrate", action="store_true", help="choose the bias scale on the validation scenes")
+    ap.add_argument("--tight", action="store_true", help="with --calibrate: for the bound tightened by the unit "
+                                                        "frequency's modulation")
     ap.add_argument("--scale", type=float, default=None, help="bias scale (default: the shipped DEFAULTS)")
     ap.add_argument("--no-twin", action="store_true")
+    ap.add_argument("--quick", action="store_true", help="the pyramid's vertical orientation only")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     scale = DEFAULTS["bias_scale"] if args.scale is None else args.scale
     if args.calibrate:
-        scale = calibrate_scale(bias_items(work) + twin_items(work, "val"))
+        scale = calibrate_scale(bias_items(work) + twin_items(work, "val"), tight=args.tight)
         print(f"calibrated bias scale (validation scenes): {scale:g}", flush=True)
     print(f"bias scale {scale:g}; graph cut smoothness {DEFAULTS['smoothness']:g}, outlier {DEFAULTS['outlier']:g}")
     sources = []
     if args.cycles_dir:
         d = Path(args.cycles_dir)
         sources += [(f"Cycles set, f = {f:g}", lambda f=f: cycles_items(d, f), True) for f in (48.0, 96.0)]
-    sources += [("pyramid v", lambda: _pyramid_items(("v",)), False), ("pyramid h", lambda: _pyramid_items(("h",)), False),
-                ("skull", lambda: skull_items(work), False)]
-    if not args.no_twin:
+    sources += [("pyramid v", lambda: _pyramid_items(("v",)), False)]
+    if not args.quick:
+        sources += [("pyramid h", lambda: _pyramid_items(("h",)), False), ("skull", lambda: skull_items(work), False)]
+    if not (args.no_twin or args.quick):
         sources.append(("twin test", lambda: twin_items(work, "test"), False))
     results = {}
     for name, load, analyse in sources:

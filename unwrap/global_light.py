@@ -75,7 +75,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import UnwrapError
+from .errors import GlobalLightError
 
 #: Percentile of ``A_h / B_h`` (over valid pixels with B_h at or above its median) that estimates
 #: the pattern's offset / amplitude ratio when it is not given.
@@ -84,10 +84,6 @@ KAPPA_PERCENTILE = 1.0
 #: (saturation, a non-sinusoidal response, frames of different exposure).
 KAPPA_RANGE = (0.3, 10.0)
 MIN_PIXELS = 500
-
-
-class GlobalLightError(UnwrapError):
-    """A capture on which the direct / global separation cannot be trusted (names the problem)."""
 
 
 @dataclass

@@ -67,6 +67,20 @@ def noise_from_phase(phase_abs, valid, modulation, steps: int) -> float:
                  * math.sqrt(steps / 2.0))
 
 
+def _noise_sigma(noise_sigma, method, stack_hi, shifts_hi, phi_lo, phi_hi, pair, width, valid, B_hi):
+    """(sigma, how): the intensity noise per frame - given, from the high stack's fit residuals (N >= 4)
+    or from the phase residual of the traditional decode (3 steps: :func:`noise_from_phase`)."""
+    if noise_sigma is not None:
+        if not (math.isfinite(noise_sigma) and noise_sigma > 0):
+            raise UnwrapError(f"noise_sigma must be finite and > 0 (grey levels), got {noise_sigma!r}")
+        return float(noise_sigma), "given"
+    if len(stack_hi) >= 4:
+        return fit_noise_sigma(stack_hi, shifts_hi, valid), "fit residuals"
+    from .temporal import decode_pair as traditional
+    _, n0, ok0 = traditional(method, phi_lo, phi_hi, *pair, float(width), valid)
+    return noise_from_phase(np.where(ok0, phi_hi + TWO_PI * n0, np.nan), ok0, B_hi, len(stack_hi)), "phase residual"
+
+
 def global_bias_bound(lo, hi, valid, method: str, pair, orientation: str = "?"):
     """The bound on the prior's bias from global light (fringes of the high frequency, (H, W)) and
     the global / direct ratio (:mod:`unwrap.global_light`, the pattern's offset / amplitude
@@ -78,7 +92,7 @@ def global_bias_bound(lo, hi, valid, method: str, pair, orientation: str = "?"):
     if method != "mf":
         return None, None
     try:
-        g = bias_bound(hi.A, hi.B, valid, offset_low=lo.A, modulation_low=lo.B)
+        g = bias_bound(hi.A, hi.B, valid, offset_low=lo.A)     # the variant chosen on validation (docs/learned.md)
     except GlobalLightError as e:
         log.warning("orientation %s: no global-light bound (%s); the graph cut uses the prior's plain likelihood",
                     orientation, e)
@@ -110,16 +124,8 @@ def spatial_orientation(oc, method: str = "mf", *, model=None, use_gate: bool = 
     steps = (len(sets[i_lo].files), len(sets[i_hi].files))
     pair = (freqs[i_lo], freqs[i_hi])
     phi_lo, phi_hi = np.nan_to_num(lo.phase), np.nan_to_num(hi.phase)
-    if noise_sigma is not None:
-        if not (math.isfinite(noise_sigma) and noise_sigma > 0):
-            raise UnwrapError(f"noise_sigma must be finite and > 0 (grey levels), got {noise_sigma!r}")
-        sigma, how = float(noise_sigma), "given"
-    elif steps[1] >= 4:
-        sigma, how = fit_noise_sigma(stacks[i_hi], sets[i_hi].shifts, valid), "fit residuals"
-    else:
-        from .temporal import decode_pair as traditional
-        _, n0, ok0 = traditional(method, phi_lo, phi_hi, *pair, float(oc.width), valid)
-        sigma, how = noise_from_phase(np.where(ok0, phi_hi + TWO_PI * n0, np.nan), ok0, hi.B, steps[1]), "phase residual"
+    sigma, how = _noise_sigma(noise_sigma, method, stacks[i_hi], sets[i_hi].shifts, phi_lo, phi_hi, pair, oc.width,
+                              valid, hi.B)
     s_lo, s_hi = phase_noise(lo.B, steps[0], sigma), phase_noise(hi.B, steps[1], sigma)
     extras, cost, conf, label = {}, None, None, f"{method}+graphcut"
     full = [float(np.iinfo(stacks[i].dtype).max) if np.issubdtype(stacks[i].dtype, np.integer) else 1.0
