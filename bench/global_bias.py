@@ -134,7 +134,7 @@ def bound_fringes(it, kappa=None, *, unit_modulation: bool = False):
     return g, g.fringes(*it["freqs"])
 
 
-def decode(it, scale: float, *, shipped=True, tight=True, loose=True):
+def decode(it, scale: float, *, shipped=True, tight=True, loose=True, max_correction=None):
     """{row: orders}, extra maps; the shipped graph cut and the graph cut with the bound (``loose``:
     from the high frequency alone, the shipped choice; ``tight``: with the unit modulation too)."""
     from bench.spatial_unwrap import _sigmas
@@ -152,6 +152,7 @@ def decode(it, scale: float, *, shipped=True, tight=True, loose=True):
     res = {}
     if shipped:
         res["Graph cut"] = graphcut_orders("mf", it["phase_low"], it["phase_high"], it["freqs"], ok, s_lo, s_hi, **kw)
+    kw["max_correction"] = DEFAULTS["bias_max_correction"] if max_correction is None else max_correction
     if loose:
         res["Graph cut + global bound"] = graphcut_orders("mf", it["phase_low"], it["phase_high"], it["freqs"], ok,
                                                           s_lo, s_hi, bias_bound=bf, bias_scale=scale, **kw)
@@ -173,14 +174,14 @@ def decode(it, scale: float, *, shipped=True, tight=True, loose=True):
     return out, ms, extra
 
 
-def score(items, scale: float, *, analyse: bool = False):
+def score(items, scale: float, *, analyse: bool = False, max_correction=None):
     """Pooled rows {row: [wrong, counted, fixed, broken]}, drop curves, kappas, and (``analyse``)
     the patch analysis of the remaining graph-cut errors."""
     from unwrap.learned.metrics import keep_drop_curve
 
     rows, curves, kappas, ana, ms = {}, {}, [], {}, {}
     for it in items:
-        out, t, ex = decode(it, scale)
+        out, t, ex = decode(it, scale, max_correction=max_correction)
         m = ex["valid"] & (it["ref"] >= 0)
         right_t = out["Traditional"] == it["ref"]
         for row, k in out.items():
@@ -303,7 +304,7 @@ def fit_global(items) -> dict:
 
 
 # ---------------------------------------------------------------- calibration (validation only)
-def calibrate_scale(items, grid=SCALE_GRID, *, tight: bool = False):
+def calibrate_scale(items, grid=SCALE_GRID, *, tight: bool = False, max_correction=None):
     """The bias scale with the least pooled error on the validation items such that no item gets
     more wrong orders than traditional (the rule of the energy's other constants: least validation
     error; scale 0 is the shipped term); prints the grid, per item."""
@@ -318,7 +319,7 @@ def calibrate_scale(items, grid=SCALE_GRID, *, tight: bool = False):
     for s in grid:
         per = []
         for it in items:
-            out, _, ex = decode(it, s, shipped=False, tight=tight, loose=not tight)
+            out, _, ex = decode(it, s, shipped=False, tight=tight, loose=not tight, max_correction=max_correction)
             m = ex["valid"] & (it["ref"] >= 0)
             row = "Graph cut + global bound" + (" (B_1)" if tight else "")
             per.append(int((out[row] != it["ref"])[m].sum()))
@@ -366,6 +367,8 @@ def main(argv=None) -> int:
     ap.add_argument("--calibrate", action="store_true", help="choose the bias scale on the validation scenes")
     ap.add_argument("--tight", action="store_true", help="with --calibrate: for the bound tightened by the unit "
                                                         "frequency's modulation")
+    ap.add_argument("--max-correction", type=int, default=None,
+                    help="label range K of the bound rows (default: the shipped DEFAULTS bias_max_correction)")
     ap.add_argument("--scale", type=float, default=None, help="bias scale (default: the shipped DEFAULTS)")
     ap.add_argument("--no-twin", action="store_true")
     ap.add_argument("--quick", action="store_true", help="the pyramid's vertical orientation only")
@@ -375,7 +378,8 @@ def main(argv=None) -> int:
     work.mkdir(parents=True, exist_ok=True)
     scale = DEFAULTS["bias_scale"] if args.scale is None else args.scale
     if args.calibrate:
-        scale = calibrate_scale(bias_items(work) + twin_items(work, "val"), tight=args.tight)
+        scale = calibrate_scale(bias_items(work) + twin_items(work, "val"), tight=args.tight,
+                                max_correction=args.max_correction)
         print(f"calibrated bias scale (validation scenes): {scale:g}", flush=True)
     print(f"bias scale {scale:g}; graph cut smoothness {DEFAULTS['smoothness']:g}, outlier {DEFAULTS['outlier']:g}")
     sources = []
@@ -394,7 +398,7 @@ def main(argv=None) -> int:
         if not items:
             print(f"\n({name}: not found, skipped)")
             continue
-        results[name] = score(items, scale, analyse=analyse)
+        results[name] = score(items, scale, analyse=analyse, max_correction=args.max_correction)
         print(table(name, results[name]) + f"\n({time.perf_counter() - t0:.0f} s)", flush=True)
     if args.json:
         write_text(Path(args.json), json.dumps({"scale": scale, "results": results}, indent=1, default=float))

@@ -144,7 +144,8 @@ def spatial_orientation(oc, method: str = "mf", *, model=None, use_gate: bool = 
             label += "+global"
     res = graphcut_orders(method, phi_lo, phi_hi, pair, valid, s_lo, s_hi, width=oc.width, cost=cost,
                           smoothness=DEFAULTS["smoothness_learned" if model is not None else "smoothness"],
-                          outlier=DEFAULTS["outlier"], sigma_floor=DEFAULTS["sigma_floor"], bias_bound=bound)
+                          outlier=DEFAULTS["outlier"], sigma_floor=DEFAULTS["sigma_floor"], bias_bound=bound,
+                          max_correction=DEFAULTS["bias_max_correction"] if bound is not None else 2)
     order = res.order
     if model is not None:
         c = np.clip(res.correction + 2, 0, 4)
