@@ -224,12 +224,14 @@ def patch_analysis(it, res, order, min_patch: int = 100) -> dict:
     exact change of the shipped energy if the patch alone took its true orders: data (nats, > 0:
     the data prefer the wrong orders) and smoothness (> 0: the true orders make more 2 pi jumps
     across the boundary than the wrong ones - the patch is wrap-consistent with its surroundings,
-    the high phase itself jumps there). The solution being the exact minimum, data + smoothness
-    >= 0 for every patch; which of the two holds the patch is what is missing."""
+    the high phase itself jumps there - or its wrong neighbours stay wrong). The solution being the
+    exact minimum, data + smoothness >= 0 for every patch. Over the image: the wrong pixels whose
+    true order is beyond the shipped label range, and the 2 pi jumps on live edges of the true and
+    of the row's orders (pixels with a reference)."""
     import cv2
 
     from bench.spatial_unwrap import _sigmas
-    from unwrap.spatial_orders import DEFAULTS, edge_weights, prior_data_cost, prior_sigma
+    from unwrap.spatial_orders import DEFAULTS, MAX_CORRECTION, edge_weights, prior_data_cost, prior_sigma
 
     lam = DEFAULTS["smoothness"]
     v = res.valid & (it["ref"] >= 0)
@@ -245,9 +247,17 @@ def patch_analysis(it, res, order, min_patch: int = 100) -> dict:
         Phi = phi + 2 * math.pi * o
         return sum((w * np.abs(np.rint(np.diff(Phi, axis=ax) / (2 * math.pi)))).sum() for ax, w in ((1, wx), (0, wy)))
 
+    def jumps(o):        # 2 pi jumps on live edges between pixels that both have a reference
+        Phi = phi + 2 * math.pi * np.where(v, o, 0)
+        both = {1: v[:, :-1] & v[:, 1:], 0: v[:-1] & v[1:]}
+        return int(sum(np.abs(np.rint(np.diff(Phi, axis=ax) / (2 * math.pi)))[(w > 0) & both[ax]].sum()
+                       for ax, w in ((1, wx), (0, wy))))
+
     out = {"patches": 0, "wrong_in_patches": 0, "wrong": int((err != 0).sum()), "b_invalid": 0, "b_cut": 0,
            "b_live_right": 0, "b_live_wrong": 0, "data_nats": 0.0, "smooth_nats": 0.0, "held_by_data": 0,
-           "held_by_smoothness": 0, "px_held_by_data": 0, "px_held_by_smoothness": 0}
+           "held_by_smoothness": 0, "px_held_by_data": 0, "px_held_by_smoothness": 0,
+           "beyond_labels": int(((err != 0) & (np.abs(it["ref"] - res.order_traditional) > MAX_CORRECTION)).sum()),
+           "jumps_true": jumps(it["ref"]), "jumps_now": jumps(order)}
     base_s = smooth(np.where(res.valid, order, 0))
     for e in np.unique(err[err != 0]):
         n, lab, st, _ = cv2.connectedComponentsWithStats((err == e).astype(np.uint8), connectivity=4)
@@ -353,7 +363,8 @@ def table(name, R) -> str:
                  f"(shipped energy): data +{a['data_nats']:.0f} nats, smoothness {a['smooth_nats']:+.0f} nats in total; "
                  f"{a['held_by_smoothness']} patches ({a['px_held_by_smoothness']:,} px) are wrap-consistent with their "
                  f"surroundings (the true orders cost smoothness too), {a['held_by_data']} ({a['px_held_by_data']:,} px) "
-                 f"are held by the data alone")
+                 f"are held by the data alone. {a['beyond_labels']:,} wrong px need a correction beyond the shipped "
+                 f"+-2; the true orders make {a['jumps_true']:,} jumps on live edges, this row's {a['jumps_now']:,}")
     return "\n".join(L)
 
 
