@@ -10,7 +10,7 @@ import sys
 import time
 
 from . import (ba_scale, calib_accuracy, calib_captures, calib_speed, cycles_testset, decision_error_fit,
-               defocus_bias, deploy_speed, detect_accuracy, export_speed, finetune_real, gi_bias,
+               defocus_bias, deploy_speed, detect_accuracy, export_speed, finetune_real, gi_bias, global_bias,
                learned_deploy, learned_speed, outlier_rule, retrain_compare, spatial_unwrap, synth_speed,
                unwrap_speed)
 
@@ -29,6 +29,7 @@ BENCHMARKS = [
     ("export_speed", export_speed.main, ["--quick"]),
     ("learned_speed", learned_speed.main, ["--quick"]),
     ("spatial_unwrap", spatial_unwrap.main, ["--quick"]),
+    ("global_bias", global_bias.main, ["--quick"]),
     ("deploy_speed", deploy_speed.main, ["--quick"]),
     ("calib_speed", calib_speed.main, ["--quick"]),
     ("learned_deploy", learned_deploy.main, ["--quick"]),

@@ -1,6 +1,6 @@
 """Fit the traditional decision's error model (:mod:`unwrap.decision_error`) on twin validation scenes.
 
-    python -m bench.decision_error_fit [--work DIR] [--json OUT.json] [--quick]
+    python -m bench.decision_error_fit [--work DIR] [--json OUT.json] [--quick] [--global]
 
 Scenes (validation only, never a held-out mesh or a real capture):
 
@@ -36,12 +36,21 @@ def main(argv=None) -> int:
     ap.add_argument("--work", default="/tmp/sltwin_bench_spatial", help="cache of the renders")
     ap.add_argument("--json", default=None)
     ap.add_argument("--quick", action="store_true", help="one bias scene only (no export): a smoke run, not the fit")
+    ap.add_argument("--global", dest="global_", action="store_true",
+                    help="fit MODEL_GLOBAL: the global / direct ratio (unwrap.global_light) as a sixth feature (the "
+                         "scenes' offsets are rendered into --work; bench.global_bias)")
     args = ap.parse_args(argv)
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
-    items = bias_items(work, limit=1) if args.quick else _twin_items(work, "val") + bias_items(work)
-    model = fit_items(items)
-    print("MODEL = " + json.dumps(model))
+    if args.global_:
+        from bench.global_bias import fit_global, twin_items
+        items = bias_items(work, limit=1) if args.quick else bias_items(work) + twin_items(work, "val")
+        model = fit_global(items)
+        print("MODEL_GLOBAL = " + json.dumps(model))
+    else:
+        items = bias_items(work, limit=1) if args.quick else _twin_items(work, "val") + bias_items(work)
+        model = fit_items(items)
+        print("MODEL = " + json.dumps(model))
     if args.json:
         write_text(Path(args.json), json.dumps(model, indent=1))
     return 0

@@ -68,13 +68,15 @@ def _pyramid_items(orientations=("v", "h")):
                            for k in range(8)])
             stacks[f] = st
             ws[f] = wrapped_phase(st, shifts, min_modulation=0.02 * 255)
+        a_lo, a_hi = ws[1].A / 255.0, ws[16].A / 255.0   # offsets (unwrap.global_light)
         valid = ws[1].valid & ws[4].valid & ws[16].valid
         ref = mf_unwrap([np.nan_to_num(ws[f].phase) for f in (1, 4, 16)], (1, 4, 16), width=width, valid=valid)
         margin = np.abs(ref.prior - np.rint(np.nan_to_num(ref.prior)))
         ref_order = np.where(ref.valid & (margin < 0.25), ref.order, -1)
         sigma = fit_noise_sigma(stacks[16], shifts, valid) / 255.0
         items.append(dict(name=f"pyramid {o}", phase_low=np.nan_to_num(ws[1].phase), phase_high=np.nan_to_num(ws[16].phase),
-                          m_low=ws[1].B / 255.0, m_high=ws[16].B / 255.0, valid=valid, ref=ref_order.astype(np.int64),
+                          m_low=ws[1].B / 255.0, m_high=ws[16].B / 255.0, a_low=a_lo, a_high=a_hi, valid=valid,
+                          ref=ref_order.astype(np.int64),
                           freqs=(1.0, 16.0), width=width, steps=8, sigma_I=sigma))
     return items
 
@@ -136,10 +138,11 @@ def _twin_items(work: Path, which: str):
 BIAS_CONFIG = ROOT / "bench" / "data" / "decision_error_val.toml"
 
 
-def _render_bias_scene(cfg, system, index: int) -> dict:
-    """One bias scene of ``cfg`` (export config) with physical interreflection, reduced to a
-    bench item's arrays (the pair's wrapped phases, modulations in full scale, valid, the geometric
-    order of the high frequency)."""
+def _render_bias_scene(cfg, system, index: int, interreflection: bool = True) -> dict:
+    """One bias scene of ``cfg`` (export config) with physical interreflection (``interreflection``
+    False: the scene as ``calib export`` renders it), reduced to a bench item's arrays (the pair's
+    wrapped phases, modulations and offsets in full scale, valid, the geometric order of the high
+    frequency)."""
     from synth.effects.spec import Interreflection
     from synth.renderer.geometry import compute_geometry
     from synth.renderer.render import render
@@ -160,7 +163,8 @@ def _render_bias_scene(cfg, system, index: int) -> dict:
             break
     else:
         raise RuntimeError(f"bias scene {index}: objects cover too little of the image")
-    scene = replace(scene, effects=replace(scene.effects, interreflection=Interreflection()))
+    if interreflection:
+        scene = replace(scene, effects=replace(scene.effects, interreflection=Interreflection()))
     res = render(scene, geometry=geom)
     top = float((1 << res.bits) - 1)
     names = {n: k for k, n in enumerate(res.names)}
@@ -177,8 +181,8 @@ def _render_bias_scene(cfg, system, index: int) -> dict:
     ref = np.where(valid, round_order((Phi - phi_hi) / TWO_PI), -1).astype(np.int64)
     sigma = fit_noise_sigma(stacks[f_hi], None, valid) / top
     return dict(phase_low=np.nan_to_num(w[f_lo].phase), phase_high=phi_hi, m_low=w[f_lo].B / top,
-                m_high=w[f_hi].B / top, valid=valid, ref=ref, freqs=(float(f_lo), float(f_hi)), width=float(Wp),
-                steps=int(cfg.steps[-1]), sigma_I=float(sigma))
+                m_high=w[f_hi].B / top, a_low=w[f_lo].A / top, a_high=w[f_hi].A / top, valid=valid, ref=ref,
+                freqs=(float(f_lo), float(f_hi)), width=float(Wp), steps=int(cfg.steps[-1]), sigma_I=float(sigma))
 
 
 def bias_items(work: Path, *, progress: bool = True, limit: int | None = None) -> list:
@@ -346,7 +350,9 @@ def calibrate(items, *, gate_only: bool = False, gate_items=None):
     gate thresholds on that model's probability that minimise the validation error subject to
     :data:`BREAK_RATIO` on every validation scene (so never worse than traditional there, with a
     margin for the step from the twin to real captures). ``gate_items``: the scenes the gate is
-    calibrated on (default: ``items``)."""
+    calibrated on (default: ``items``); the smoothness / outlier grid uses the same scenes (the
+    noise-dominated ``spatial_val.toml`` by default, as the docs say: on the interreflection scenes
+    no constant of this energy helps, docs/learned.md), the error model all of ``items``."""
     from unwrap.spatial_orders import DEFAULTS, graphcut_orders
     from unwrap.temporal import decode_pair as traditional
 
@@ -355,6 +361,7 @@ def calibrate(items, *, gate_only: bool = False, gate_items=None):
     if gate_only:
         params = dict(DEFAULTS, decision_error=model)
         return params, _calibrate_gate(items if gate_items is None else gate_items, params)
+    items = items if gate_items is None else gate_items      # the energy's constants: the gate's scenes
     best = None
     wrong = counted = 0
     for it in items:

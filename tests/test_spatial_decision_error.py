@@ -25,9 +25,13 @@ def _plane(H=80, W=120, p_noise=1e-9, m=0.4):
 
 def test_the_shipped_coefficients_respect_the_sign_bounds():
     assert MODEL["version"] >= 1 and set(MODEL["coef"]) == set(FEATURES)
-    for k, s in SIGNS.items():
-        assert s * MODEL["coef"][k] >= 0, k
+    for k, c in MODEL["coef"].items():
+        assert SIGNS[k] * c >= 0, k
     assert "bench.decision_error_fit" in MODEL["fitted_on"]
+    from unwrap.decision_error import GLOBAL_FEATURE, MODEL_GLOBAL
+    assert set(MODEL_GLOBAL["coef"]) == set(FEATURES) | {GLOBAL_FEATURE}
+    for k, c in MODEL_GLOBAL["coef"].items():
+        assert SIGNS[k] * c >= 0, k
 
 
 def test_more_distance_from_invalid_pixels_never_raises_the_error_probability():

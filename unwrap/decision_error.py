@@ -62,6 +62,10 @@ from .errors import UnwrapError
 FEATURES = ("log_mod_low", "log_mod_high", "log_edge_distance", "local_bias", "local_bias_wide")
 #: Sign constraints of the coefficients (monotonicity): -1 <= 0, +1 >= 0.
 SIGNS = {"log_mod_low": -1, "log_mod_high": -1, "log_edge_distance": -1, "local_bias": +1, "local_bias_wide": +1}
+#: The optional feature of :data:`MODEL_GLOBAL`: ln(1 + rho), rho the global / direct ratio of
+#: :func:`unwrap.global_light.bias_bound` (more global light never lowers p).
+GLOBAL_FEATURE = "log_global_ratio"
+SIGNS[GLOBAL_FEATURE] = +1
 #: Windows (px) of the local bias; cap (px) of the distance to an invalid pixel; modulation floor.
 WINDOW = 7
 WIDE_WINDOW = 15
@@ -74,7 +78,23 @@ MODEL = {"version": 1, "intercept": -4.23902,
          "coef": {"log_mod_low": 0.0, "log_mod_high": -0.289728, "log_edge_distance": -0.606452,
                   "local_bias": 6.157083, "local_bias_wide": 6.367719},
          "fitted_on": "bench.decision_error_fit: 12 validation scenes (spatial_val.toml + decision_error_val.toml "
-                      "with interreflection), 3373676 pixels, 76769 traditional errors; log loss 0.0694 per pixel"}
+                      "with interreflection), 3373676 pixels, 76769 traditional errors; log loss 0.0687 per pixel "
+                      "(ridge-penalised objective 0.0694)"}
+
+
+#: The model with the global / direct ratio as a sixth feature (``python -m bench.decision_error_fit
+#: --global``; the same 12 validation scenes, whose offsets were re-rendered): used by
+#: :func:`error_probability` when ``global_ratio`` is given. Not yet behind any gate threshold.
+MODEL_GLOBAL = {"version": 1, "intercept": -5.336113,
+                "coef": {"log_mod_low": 0.0, "log_mod_high": 0.0, "log_edge_distance": -0.326919,
+                         "local_bias": 5.182544, "local_bias_wide": 6.274446, "log_global_ratio": 3.71464},
+                "fitted_on": "bench.decision_error_fit --global: 12 validation scenes (6 of spatial_val.toml, 6 of "
+                             "decision_error_val.toml with interreflection), 3373676 pixels; log loss 0.0645 per "
+                             "pixel (MODEL refitted on the same pixels: 0.0687)"}
+
+
+def _names(model: dict) -> tuple:
+    return FEATURES + ((GLOBAL_FEATURE,) if GLOBAL_FEATURE in model["coef"] else ())
 
 
 def _check(p_noise, prior, valid, modulation_low, modulation_high):
@@ -111,13 +131,17 @@ def edge_distance(valid) -> np.ndarray:
     return np.minimum(distance_transform_edt(v), MAX_DISTANCE)
 
 
-def features(p_noise, prior, valid, modulation_low, modulation_high) -> np.ndarray:
-    """(H, W, 1 + K) float64: ``p_noise`` then the :data:`FEATURES` (module docstring).
+def features(p_noise, prior, valid, modulation_low, modulation_high, global_ratio=None) -> np.ndarray:
+    """(H, W, 1 + K) float64: ``p_noise`` then the :data:`FEATURES` (module docstring), then
+    :data:`GLOBAL_FEATURE` when ``global_ratio`` is given.
 
     ARGUMENTS: p_noise (H, W) the noise model's error probability; prior (H, W) the temporal
     prior r (fringes of the high frequency); valid (H, W) bool; modulations (H, W) of the coarse
-    and high patterns as fractions of full scale (B / the sensor's maximum)."""
+    and high patterns as fractions of full scale (B / the sensor's maximum); global_ratio (H, W)
+    the global / direct ratio rho (:func:`unwrap.global_light.bias_bound`), optional."""
     p_noise, prior, valid, m_lo, m_hi = _check(p_noise, prior, valid, modulation_low, modulation_high)
+    if global_ratio is not None and np.shape(global_ratio) != prior.shape:
+        raise UnwrapError(f"decision error: global_ratio {np.shape(global_ratio)}, expected {prior.shape}")
     v = valid.astype(bool)
     cols = [np.clip(np.nan_to_num(p_noise.astype(np.float64)), 0.0, 1.0),
             np.log(np.maximum(np.nan_to_num(m_lo.astype(np.float64)), MIN_MODULATION)),
@@ -125,6 +149,8 @@ def features(p_noise, prior, valid, modulation_low, modulation_high) -> np.ndarr
             np.log1p(edge_distance(v)),
             local_bias(prior, v),
             local_bias(prior, v, WIDE_WINDOW)]
+    if global_ratio is not None:
+        cols.append(np.log1p(np.maximum(np.nan_to_num(np.asarray(global_ratio, dtype=np.float64)), 0.0)))
     return np.stack(cols, axis=-1)
 
 
@@ -136,33 +162,51 @@ def probability_from_features(X, model: dict | None = None) -> np.ndarray:
     """``p`` (X.shape[:-1]) from a feature array of :func:`features` (module docstring)."""
     model = MODEL if model is None else model
     X = np.asarray(X, dtype=np.float64)
-    coef = np.array([model["coef"][k] for k in FEATURES])
+    names = _names(model)
+    if X.shape[-1] != 1 + len(names):
+        raise UnwrapError(f"decision error: {X.shape[-1]} feature columns for a model of {1 + len(names)} "
+                          f"({', '.join(('p_noise',) + names)})")
+    coef = np.array([model["coef"][k] for k in names])
     s = _sigmoid(model["intercept"] + X[..., 1:] @ coef)
     return 1.0 - (1.0 - X[..., 0]) * (1.0 - s)
 
 
-def error_probability(p_noise, prior, valid, modulation_low, modulation_high, *, model: dict | None = None):
+def error_probability(p_noise, prior, valid, modulation_low, modulation_high, *, model: dict | None = None,
+                      global_ratio=None):
     """(H, W) float64 in [0, 1]: the probability that the traditional order is wrong (module
-    docstring); 0 at invalid pixels. ``model``: coefficients (default :data:`MODEL`)."""
-    X = features(p_noise, prior, valid, modulation_low, modulation_high)
+    docstring); 0 at invalid pixels. ``model``: coefficients (default :data:`MODEL`, or
+    :data:`MODEL_GLOBAL` when ``global_ratio`` is given)."""
+    if model is None:
+        model = MODEL if global_ratio is None else MODEL_GLOBAL
+        if model is None:
+            raise UnwrapError("decision error: no model with the global ratio has been fitted (MODEL_GLOBAL)")
+    if (GLOBAL_FEATURE in model["coef"]) != (global_ratio is not None):
+        raise UnwrapError("decision error: give global_ratio exactly when the model has the feature "
+                          f"{GLOBAL_FEATURE!r}")
+    X = features(p_noise, prior, valid, modulation_low, modulation_high, global_ratio)
     return np.where(np.asarray(valid, dtype=bool), probability_from_features(X, model), 0.0)
 
 
-def fit(X, wrong, *, note: str = "", l2: float = 1e-3) -> dict:
+def fit(X, wrong, *, note: str = "", l2: float = 1e-3, names: tuple = FEATURES) -> dict:
     """Maximum-likelihood coefficients (log loss, a small ridge ``l2`` on the coefficients) of the
     model on pooled pixels: ``X`` (N, 1 + K) of :func:`features`, ``wrong`` (N,) bool (the
     traditional order differs from the reference). The sign constraints :data:`SIGNS` are bounds
     of the optimiser (L-BFGS-B), so the fitted model is monotone by construction. Features are
-    standardised for the optimiser and the coefficients returned in the raw units.
+    standardised for the optimiser and the coefficients returned in the raw units. ``names``: the
+    feature columns after ``p_noise`` (:data:`FEATURES`, optionally + :data:`GLOBAL_FEATURE`).
 
     RETURNED VALUE: a model dict like :data:`MODEL` (``version``, ``intercept``, ``coef``,
-    ``fitted_on``, plus ``log_loss`` per pixel and ``pixels``)."""
+    ``fitted_on``, plus ``log_loss``: the plain log loss per pixel at the fitted coefficients,
+    ``objective``: the ridge-penalised value the optimiser minimised, and ``pixels``)."""
     from scipy.optimize import minimize
 
     X = np.asarray(X, dtype=np.float64)
     y = np.asarray(wrong, dtype=bool).astype(np.float64)
-    if X.ndim != 2 or X.shape[1] != 1 + len(FEATURES) or y.shape != X.shape[:1]:
-        raise UnwrapError(f"decision error fit: expected X (N, {1 + len(FEATURES)}) and wrong (N,), got "
+    names = tuple(names)
+    if any(k not in SIGNS for k in names):
+        raise UnwrapError(f"decision error fit: unknown features {[k for k in names if k not in SIGNS]}")
+    if X.ndim != 2 or X.shape[1] != 1 + len(names) or y.shape != X.shape[:1]:
+        raise UnwrapError(f"decision error fit: expected X (N, {1 + len(names)}) and wrong (N,), got "
                           f"{X.shape}, {y.shape}")
     if y.sum() < 10 or (1 - y).sum() < 10:
         raise UnwrapError(f"decision error fit: needs at least 10 right and 10 wrong pixels, got {int(y.sum())} wrong "
@@ -174,27 +218,30 @@ def fit(X, wrong, *, note: str = "", l2: float = 1e-3) -> dict:
     Z = (F - mu) / sd
     n = y.size
 
-    def loss(theta):
-        z = theta[0] + Z @ theta[1:]
-        s = _sigmoid(z)
+    def plain(theta):
+        s = _sigmoid(theta[0] + Z @ theta[1:])
         p = np.clip(1.0 - (1.0 - pn) * (1.0 - s), 1e-15, 1.0)
         log1mp = np.log(np.clip(1.0 - pn, 1e-300, 1.0)) + np.log(np.clip(1.0 - s, 1e-300, 1.0))
-        L = -(y * np.log(p) + (1 - y) * log1mp).sum() / n + l2 * (theta[1:] ** 2).sum()
+        return -(y * np.log(p) + (1 - y) * log1mp).sum() / n, s, p
+
+    def loss(theta):
+        L, s, p = plain(theta)
+        L += l2 * (theta[1:] ** 2).sum()
         dz = (-y * (1.0 - pn) * s * (1.0 - s) / p + (1 - y) * s) / n
         g = np.concatenate([[dz.sum()], Z.T @ dz + 2 * l2 * theta[1:]])
         return L, g
 
-    bounds = [(None, None)] + [((None, 0.0) if SIGNS[k] < 0 else (0.0, None)) for k in FEATURES]
-    theta0 = np.zeros(1 + len(FEATURES))
+    bounds = [(None, None)] + [((None, 0.0) if SIGNS[k] < 0 else (0.0, None)) for k in names]
+    theta0 = np.zeros(1 + len(names))
     theta0[0] = math.log(max(y.mean(), 1e-6))
     r = minimize(loss, theta0, jac=True, method="L-BFGS-B", bounds=bounds, options={"maxiter": 500})
     t = r.x
     coef = t[1:] / sd
     intercept = float(t[0] - (coef * mu).sum())
     return {"version": MODEL["version"], "intercept": round(intercept, 6),
-            "coef": {k: round(float(c), 6) for k, c in zip(FEATURES, coef)},
-            "fitted_on": note, "log_loss": float(r.fun), "pixels": int(n)}
+            "coef": {k: round(float(c), 6) for k, c in zip(names, coef)},
+            "fitted_on": note, "log_loss": float(plain(t)[0]), "objective": float(r.fun), "pixels": int(n)}
 
 
-__all__ = ["FEATURES", "MAX_DISTANCE", "MODEL", "SIGNS", "WIDE_WINDOW", "WINDOW", "edge_distance", "error_probability",
+__all__ = ["FEATURES", "GLOBAL_FEATURE", "MAX_DISTANCE", "MODEL", "MODEL_GLOBAL", "SIGNS", "WIDE_WINDOW", "WINDOW", "edge_distance", "error_probability",
            "features", "fit", "local_bias", "probability_from_features"]

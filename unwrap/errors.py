@@ -1,5 +1,5 @@
 """Exception and warning types of the unwrap package: ``UnwrapError``, its one error root (a
-``ValueError``), ``DatasetSchemaError``, ``OutputError`` and ``UnreliableFringesWarning``.
+``ValueError``), ``DatasetSchemaError``, ``OutputError``, ``GlobalLightError`` and ``UnreliableFringesWarning``.
 
 Every error names the input, the offending value and what was expected.
 """
@@ -16,6 +16,11 @@ class DatasetSchemaError(UnwrapError):
 class OutputError(UnwrapError):
     """An output that cannot be written safely: locked by another process, or also an input
     (:mod:`unwrap.safe_output`)."""
+
+
+class GlobalLightError(UnwrapError):
+    """A capture on which the direct / global separation (:mod:`unwrap.global_light`) cannot be
+    trusted (names the problem)."""
 
 
 class UnreliableFringesWarning(UserWarning):

@@ -11,7 +11,8 @@ is an :class:`unwrap.pipeline.OrientationResult` like the other paths' (``write_
 the same ``unwrap.h5``) with the extra maps ``order_traditional``, ``p_wrong_traditional`` (the
 reliability model's error probability of the traditional order, noise only), ``p_wrong_decision``
 (:func:`unwrap.decision_error.error_probability`, bias included: what the gate thresholds) and,
-with a model, ``confidence``. The checks of the other paths hold: one :class:`unwrap.capture.FrameReader`,
+with a model, ``confidence``; with the global-light bound (:func:`global_bias_bound`, MF and the
+prior's data term) ``global_ratio``, the global / direct ratio of :mod:`unwrap.global_light`. The checks of the other paths hold: one :class:`unwrap.capture.FrameReader`,
 the traditional prior near integers (:mod:`unwrap.consistency`), the pattern range.
 """
 from __future__ import annotations
@@ -66,10 +67,47 @@ def noise_from_phase(phase_abs, valid, modulation, steps: int) -> float:
                  * math.sqrt(steps / 2.0))
 
 
+def _noise_sigma(noise_sigma, method, stack_hi, shifts_hi, phi_lo, phi_hi, pair, width, valid, B_hi):
+    """(sigma, how): the intensity noise per frame - given, from the high stack's fit residuals (N >= 4)
+    or from the phase residual of the traditional decode (3 steps: :func:`noise_from_phase`)."""
+    if noise_sigma is not None:
+        if not (math.isfinite(noise_sigma) and noise_sigma > 0):
+            raise UnwrapError(f"noise_sigma must be finite and > 0 (grey levels), got {noise_sigma!r}")
+        return float(noise_sigma), "given"
+    if len(stack_hi) >= 4:
+        return fit_noise_sigma(stack_hi, shifts_hi, valid), "fit residuals"
+    from .temporal import decode_pair as traditional
+    _, n0, ok0 = traditional(method, phi_lo, phi_hi, *pair, float(width), valid)
+    return noise_from_phase(np.where(ok0, phi_hi + TWO_PI * n0, np.nan), ok0, B_hi, len(stack_hi)), "phase residual"
+
+
+def global_bias_bound(lo, hi, valid, method: str, pair, orientation: str = "?"):
+    """The bound on the prior's bias from global light (fringes of the high frequency, (H, W)) and
+    the global / direct ratio (:mod:`unwrap.global_light`, the pattern's offset / amplitude
+    estimated from the capture, black level 0) of an MF pair's wrapped phases ``lo``, ``hi``
+    (:class:`unwrap.phase_shift.WrappedPhase`); (None, None) for MW / NT (the bound is the coarse
+    phase's) or where the separation is refused (logged as a warning: the shipped data term is used)."""
+    from .global_light import GlobalLightError, bias_bound
+
+    if method != "mf":
+        return None, None
+    try:
+        g = bias_bound(hi.A, hi.B, valid, offset_low=lo.A)     # the variant chosen on validation (docs/learned.md)
+    except GlobalLightError as e:
+        log.warning("orientation %s: no global-light bound (%s); the graph cut uses the prior's plain likelihood",
+                    orientation, e)
+        return None, None
+    for n in g.notes:
+        log.warning("orientation %s: %s", orientation, n)
+    return g.fringes(*pair), g.ratio
+
+
 def spatial_orientation(oc, method: str = "mf", *, model=None, use_gate: bool = True, min_modulation=None,
                         noise_sigma=None, check_prior: bool = True, camera_size=None, on_outside: str = "raise",
-                        progress: bool = False) -> OrientationResult:
-    """One orientation (:class:`unwrap.capture.OrientationCapture`) by the graph cut (module docstring)."""
+                        progress: bool = False, global_bound: bool = False) -> OrientationResult:
+    """One orientation (:class:`unwrap.capture.OrientationCapture`) by the graph cut (module docstring).
+    ``global_bound``: widen the prior's likelihood by the bound of :func:`global_bias_bound` (MF,
+    prior data term only; scale :data:`unwrap.spatial_orders.DEFAULTS` ``bias_scale``)."""
     reader = FrameReader(camera_size)
     sets = sorted(oc.sets, key=lambda s: s.frequency)
     freqs = [float(s.frequency) for s in sets]
@@ -86,35 +124,35 @@ def spatial_orientation(oc, method: str = "mf", *, model=None, use_gate: bool = 
     steps = (len(sets[i_lo].files), len(sets[i_hi].files))
     pair = (freqs[i_lo], freqs[i_hi])
     phi_lo, phi_hi = np.nan_to_num(lo.phase), np.nan_to_num(hi.phase)
-    if noise_sigma is not None:
-        if not (math.isfinite(noise_sigma) and noise_sigma > 0):
-            raise UnwrapError(f"noise_sigma must be finite and > 0 (grey levels), got {noise_sigma!r}")
-        sigma, how = float(noise_sigma), "given"
-    elif steps[1] >= 4:
-        sigma, how = fit_noise_sigma(stacks[i_hi], sets[i_hi].shifts, valid), "fit residuals"
-    else:
-        from .temporal import decode_pair as traditional
-        _, n0, ok0 = traditional(method, phi_lo, phi_hi, *pair, float(oc.width), valid)
-        sigma, how = noise_from_phase(np.where(ok0, phi_hi + TWO_PI * n0, np.nan), ok0, hi.B, steps[1]), "phase residual"
+    sigma, how = _noise_sigma(noise_sigma, method, stacks[i_hi], sets[i_hi].shifts, phi_lo, phi_hi, pair, oc.width,
+                              valid, hi.B)
     s_lo, s_hi = phase_noise(lo.B, steps[0], sigma), phase_noise(hi.B, steps[1], sigma)
     extras, cost, conf, label = {}, None, None, f"{method}+graphcut"
     full = [float(np.iinfo(stacks[i].dtype).max) if np.issubdtype(stacks[i].dtype, np.integer) else 1.0
             for i in (i_lo, i_hi)]
+    m_lo, m_hi = lo.B / full[0], hi.B / full[1]          # modulations as fractions of full scale
     if model is not None:
         from .learned.infer import unwrap_learned
-        r = unwrap_learned(method, phi_lo, phi_hi, lo.B / full[0], hi.B / full[1], valid, pair, width=oc.width,
+        r = unwrap_learned(method, phi_lo, phi_hi, m_lo, m_hi, valid, pair, width=oc.width,
                            model=model, on_outside=on_outside, log_probs=True)
         cost, label = -r.log_probs, f"{method}+learned+graphcut"
+    bound = None
+    if model is None and global_bound:
+        bound, ratio = global_bias_bound(lo, hi, valid, method, pair, oc.orientation)
+        if bound is not None:
+            extras["global_ratio"] = ratio.astype(np.float32)
+            label += "+global"
     res = graphcut_orders(method, phi_lo, phi_hi, pair, valid, s_lo, s_hi, width=oc.width, cost=cost,
                           smoothness=DEFAULTS["smoothness_learned" if model is not None else "smoothness"],
-                          outlier=DEFAULTS["outlier"], sigma_floor=DEFAULTS["sigma_floor"])
+                          outlier=DEFAULTS["outlier"], sigma_floor=DEFAULTS["sigma_floor"], bias_bound=bound,
+                          max_correction=DEFAULTS["bias_max_correction"] if bound is not None else 2)
     order = res.order
     if model is not None:
         c = np.clip(res.correction + 2, 0, 4)
         conf = np.where(res.valid, np.exp(np.take_along_axis(r.log_probs, c[None], 0)[0]), 0.0)
         extras["confidence"] = conf.astype(np.float32)
     # the traditional decision's error probability, bias included (unwrap.decision_error)
-    p_wrong = error_probability(res.p_wrong_traditional, res.prior, res.valid, lo.B / full[0], hi.B / full[1])
+    p_wrong = error_probability(res.p_wrong_traditional, res.prior, res.valid, m_lo, m_hi)
     if use_gate:
         g = GATE["Learned + graph cut" if model is not None else "Graph cut"]
         order = gate(order, res.order_traditional, res.valid, p_wrong, confidence=conf,
@@ -142,8 +180,9 @@ def spatial_orientation(oc, method: str = "mf", *, model=None, use_gate: bool = 
 
 def unwrap_capture_spatial(folder, method: str = "mf", *, model=None, use_gate: bool = True, preset=None, pose=None,
                            min_modulation=None, noise_sigma=None, check_prior: bool = True,
-                           on_outside: str = "raise", progress: bool = False) -> dict:
-    """Every orientation of a capture folder by the graph cut: {"v": OrientationResult, ...}."""
+                           on_outside: str = "raise", progress: bool = False, global_bound: bool = False) -> dict:
+    """Every orientation of a capture folder by the graph cut: {"v": OrientationResult, ...}
+    (``global_bound``: :func:`spatial_orientation`)."""
     cap = load_capture(folder, preset, pose)
     net = None
     if model is not None:
@@ -158,5 +197,5 @@ def unwrap_capture_spatial(folder, method: str = "mf", *, model=None, use_gate: 
                 cap.folder, cap.preset, o, method)
         out[o] = spatial_orientation(oc, method, model=net, use_gate=use_gate, min_modulation=min_modulation,
                                      noise_sigma=noise_sigma, check_prior=check_prior, camera_size=cap.camera_size,
-                                     on_outside=on_outside, progress=progress)
+                                     on_outside=on_outside, progress=progress, global_bound=global_bound)
     return out

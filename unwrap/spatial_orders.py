@@ -58,7 +58,11 @@ _INF = 1e12
 #: the prior in fringes - 1/100 fringe, so that noise-free frames, whose fit residual is ~1e-14,
 #: still give a finite likelihood), set on the twin validation scenes by ``python -m bench.spatial_unwrap
 #: --calibrate`` (never on real captures).
-DEFAULTS = {"smoothness": 4.0, "outlier": 0.2, "sigma_floor": 0.01, "smoothness_learned": 32.0}
+DEFAULTS = {"smoothness": 4.0, "outlier": 0.2, "sigma_floor": 0.01, "smoothness_learned": 32.0, "bias_scale": 0.5,
+            "bias_max_correction": 4}
+#: ``bias_scale`` and ``bias_max_correction`` (the label range with the global-light bound: a bias
+#: of several fringes needs corrections beyond +-2) were chosen together on the 12 validation scenes
+#: (``python -m bench.global_bias --calibrate``; docs/learned.md, "A global-light bound").
 #: Never-worse gate thresholds per path (:func:`gate`), calibrated the same way: a correction is
 #: applied where the traditional decision's error probability - bias included, the model of
 #: :mod:`unwrap.decision_error` - is at least ``min_p_wrong`` and the network's probability of the
@@ -121,12 +125,14 @@ def _labels(max_correction: int) -> np.ndarray:
 
 
 def prior_data_cost(prior, order, sigma, valid, *, frequency_high: float, max_correction: int = MAX_CORRECTION,
-                    outlier: float = 0.05) -> np.ndarray:
+                    outlier: float = 0.05, bias_sigma=None) -> np.ndarray:
     """Data term (L, H, W) float64, nats: ``-log((1 - outlier) N(r; n + c, sigma) + outlier)`` per
     correction c (L = 2 K + 1, label index c + K), with the prior r, the traditional order n and
     sigma (fringes, (H, W) or scalar). An order outside [0, round(f_high)] costs
     :data:`OUT_OF_RANGE_COST`; invalid pixels cost 0. ``outlier`` in [0, 1): the weight of the
-    uniform part (per fringe); 0 gives the plain Gaussian."""
+    uniform part (per fringe); 0 gives the plain Gaussian. ``bias_sigma`` (fringes, (H, W) or
+    scalar, >= 0; None: none): the spread of the coarse phase's bias, added in quadrature to
+    ``sigma`` (:func:`graphcut_orders`' ``bias_bound``: a scale of :mod:`unwrap.global_light`'s bound)."""
     _check_maps({"prior": prior, "order": order, "valid": valid})
     if not 0 <= outlier < 1:
         raise UnwrapError(f"outlier must lie in [0, 1), got {outlier!r}")
@@ -134,6 +140,11 @@ def prior_data_cost(prior, order, sigma, valid, *, frequency_high: float, max_co
     valid = np.asarray(valid, dtype=bool)
     r = np.asarray(prior, dtype=np.float64)
     s = np.broadcast_to(np.asarray(sigma, dtype=np.float64), r.shape)
+    if bias_sigma is not None:
+        b = np.broadcast_to(np.nan_to_num(np.asarray(bias_sigma, dtype=np.float64), nan=np.inf), r.shape)
+        if np.any(valid & (b < 0)):
+            raise UnwrapError("prior_data_cost: bias_sigma must be >= 0 at every valid pixel")
+        s = np.sqrt(s * s + np.minimum(b, 1e6) ** 2)
     if np.any(valid & ~(np.isfinite(r) & np.isfinite(s))):
         raise UnwrapError("prior_data_cost: the prior or its sigma is not finite at pixels marked valid")
     if np.any(valid & ~(s > 0)):
@@ -362,7 +373,8 @@ def graphcut_orders(method: str, phase_low, phase_high, frequencies, valid, sigm
                     width: float, cost=None, smoothness: float | None = None, outlier: float | None = None,
                     sigma_floor: float | None = None, max_correction: int = MAX_CORRECTION, modulation=None,
                     min_modulation: float = 0.0, max_wrapped_step: float = math.pi / 2,
-                    max_prior_step: float = 1.5, bridge: bool = True) -> SpatialResult:
+                    max_prior_step: float = 1.5, bridge: bool = True, bias_bound=None,
+                    bias_scale: float | None = None) -> SpatialResult:
     """Fringe orders of the high frequency of one orientation by the spatial energy (module docstring).
 
     ARGUMENTS: method "mf" | "mw" | "nt"; wrapped phases (rad, (H, W), NaN allowed where invalid);
@@ -373,7 +385,11 @@ def graphcut_orders(method: str, phase_low, phase_high, frequencies, valid, sigm
     (fringes, added in quadrature to the prior's noise): the prior's likelihood (None: :data:`DEFAULTS`;
     the smoothness default is ``smoothness_learned`` when ``cost`` is given); the rest: see
     :func:`edge_weights` (``modulation``, ``min_modulation`` in the same units); ``bridge``: add
-    :func:`bridge_edges` for pixels with fewer than 2 valid 4-neighbours.
+    :func:`bridge_edges` for pixels with fewer than 2 valid 4-neighbours. ``bias_bound``: (H, W)
+    the bound on the prior's bias from global light (fringes of the high frequency,
+    :meth:`unwrap.global_light.GlobalBias.fringes`); the prior's likelihood then gets a bias spread
+    ``bias_scale * bias_bound`` (None: :data:`DEFAULTS` ``bias_scale``) in quadrature with its noise
+    (``prior_data_cost``'s ``bias_sigma``). None (default): the data term without it, as before.
     """
     from .temporal import decode_pair as traditional
 
@@ -397,7 +413,15 @@ def graphcut_orders(method: str, phase_low, phase_high, frequencies, valid, sigm
         raise UnwrapError("graphcut_orders: the phase noise must be finite and > 0 at valid pixels")
     p_wrong = traditional_error_probability(prior, n, sig, ok, max_correction=max_correction)
     if cost is None:
-        cost = prior_data_cost(prior, n, sig, ok, frequency_high=f_hi, max_correction=max_correction, outlier=outlier)
+        bias_sigma = None
+        if bias_bound is not None:
+            _check_maps({"phase_low": phase_low, "bias_bound": bias_bound})
+            scale = DEFAULTS["bias_scale"] if bias_scale is None else float(bias_scale)
+            if not (math.isfinite(scale) and scale >= 0):
+                raise UnwrapError(f"bias_scale must be finite and >= 0, got {bias_scale!r}")
+            bias_sigma = scale * np.asarray(bias_bound, dtype=np.float64)
+        cost = prior_data_cost(prior, n, sig, ok, frequency_high=f_hi, max_correction=max_correction, outlier=outlier,
+                               bias_sigma=bias_sigma)
     else:
         cost = np.asarray(cost, dtype=np.float64)
         if cost.shape != (2 * max_correction + 1, H, W):

@@ -67,6 +67,10 @@ def add_arguments(parser):
     parser.add_argument("--no-gate", action="store_true",
                         help="with --spatial: keep every correction (default: only where the traditional order "
                              "is unreliable and, with --model, the network is sure)")
+    parser.add_argument("--global-bound", action="store_true",
+                        help="with --spatial graphcut (MF, no --model): widen the prior's likelihood by the bound on "
+                             "the coarse phase's bias from global light (unwrap.global_light; helps bias-dominated "
+                             "scenes, costs some accuracy on clean ones: docs/learned.md)")
     parser.add_argument("--no-previews", action="store_true", help="skip the PNG previews")
     parser.add_argument("--low-memory", action="store_true",
                         help="return freed memory to the system at once (glibc): a lower peak (900x700 with --model: "
@@ -98,6 +102,8 @@ def decoder(args):
     model (if any) is loaded once, before any capture, so a bad model fails at once."""
     if args.no_gate and args.spatial is None:
         raise CommandError("--no-gate belongs to --spatial graphcut")
+    if args.global_bound and (args.spatial is None or args.model is not None or args.method not in (None, "mf")):
+        raise CommandError("--global-bound belongs to --spatial graphcut with the prior's data term: MF, no --model")
     model = None
     if args.model is not None:
         from unwrap.learned.runtime import load_predictor
@@ -131,7 +137,8 @@ def decoder(args):
         return lambda folder, progress=True: unwrap_capture_spatial(
             folder, args.method or "mf", model=model, use_gate=not args.no_gate, preset=args.preset,
             pose=args.pose, min_modulation=args.min_modulation, noise_sigma=args.noise_sigma,
-            check_prior=not args.no_prior_check, on_outside=args.outside, progress=progress)
+            check_prior=not args.no_prior_check, on_outside=args.outside, progress=progress,
+            global_bound=args.global_bound)
     if model is not None:
         from unwrap.learned.capture import unwrap_capture_learned
 
