@@ -210,3 +210,18 @@ def test_the_decision_error_model_with_the_global_ratio_is_monotone_and_checked(
         error_probability(*args, model=MODEL_GLOBAL)
     with pytest.raises(UnwrapError, match="global_ratio"):
         error_probability(*args, global_ratio=np.zeros((H, W + 1)))
+
+
+def test_a_nan_or_inf_offset_or_modulation_at_a_valid_pixel_gets_the_bound_pi_not_zero():
+    A, B = np.full((30, 30), 50.0), np.full((30, 30), 50.0)      # no global light: bound 0
+    A[0, 0], B[0, 1], B[0, 2], A[0, 3] = np.nan, np.inf, np.nan, np.inf
+    B1 = np.full((30, 30), 50.0)
+    B1[1, 0] = np.inf                                             # a non-finite unit modulation: B_h alone
+    ones = np.ones((30, 30), bool)
+    for g in (bias_bound(A, B, ones, kappa=1.0), bias_bound(A, B, ones, kappa=1.0, modulation_low=B1),
+              bias_bound(A, B, ones)):                            # kappa estimated from the finite pixels
+        assert np.all(g.bound_rad[0, :4] == pytest.approx(math.pi)) and np.all(np.isfinite(g.ratio))
+        assert g.bound_rad[1, 0] == 0.0 and g.bound_rad[5, 5] == 0.0
+    A[0, 5] = 70.0                                                # rho 0.4 with B_1 at inf: asin(0.4), not 0
+    B1[0, 5] = np.inf
+    assert bias_bound(A, B, ones, kappa=1.0, modulation_low=B1).bound_rad[0, 5] == pytest.approx(math.asin(0.4))
