@@ -225,3 +225,18 @@ def test_a_nan_or_inf_offset_or_modulation_at_a_valid_pixel_gets_the_bound_pi_no
     A[0, 5] = 70.0                                                # rho 0.4 with B_1 at inf: asin(0.4), not 0
     B1[0, 5] = np.inf
     assert bias_bound(A, B, ones, kappa=1.0, modulation_low=B1).bound_rad[0, 5] == pytest.approx(math.asin(0.4))
+
+
+def test_the_bound_is_refused_where_it_cannot_act_instead_of_being_ignored(tmp_path):
+    from test_cli_bad_inputs import _write_capture
+
+    from unwrap.errors import UnwrapError
+    from unwrap.spatial_capture import unwrap_capture_spatial
+
+    lo, hi, _, _, valid, bound, freqs, width = _band_scene()
+    cost = np.zeros((5,) + lo.shape)
+    with pytest.raises(UnwrapError, match="given cost"):
+        graphcut_orders("mf", lo, hi, freqs, valid, 0.01, 0.01, width=width, cost=cost, bias_bound=bound)
+    _write_capture(tmp_path / "cap")
+    with pytest.raises(UnwrapError, match="method 'nt'"):
+        unwrap_capture_spatial(tmp_path / "cap", "nt", global_bound=True)

@@ -107,7 +107,10 @@ def spatial_orientation(oc, method: str = "mf", *, model=None, use_gate: bool = 
                         progress: bool = False, global_bound: bool = False) -> OrientationResult:
     """One orientation (:class:`unwrap.capture.OrientationCapture`) by the graph cut (module docstring).
     ``global_bound``: widen the prior's likelihood by the bound of :func:`global_bias_bound` (MF,
-    prior data term only; scale :data:`unwrap.spatial_orders.DEFAULTS` ``bias_scale``)."""
+    prior data term only, else :class:`UnwrapError`; scale :data:`unwrap.spatial_orders.DEFAULTS` ``bias_scale``)."""
+    if global_bound and (model is not None or method != "mf"):
+        raise UnwrapError(f"global_bound: the bound widens the prior's data term of an MF pair; not with "
+                          f"{'a model' if model is not None else f'method {method!r}'}")
     reader = FrameReader(camera_size)
     sets = sorted(oc.sets, key=lambda s: s.frequency)
     freqs = [float(s.frequency) for s in sets]

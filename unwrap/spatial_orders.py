@@ -412,6 +412,8 @@ def graphcut_orders(method: str, phase_low, phase_high, frequencies, valid, sigm
     if np.any(ok & ~(np.isfinite(sig) & (sig > 0))):
         raise UnwrapError("graphcut_orders: the phase noise must be finite and > 0 at valid pixels")
     p_wrong = traditional_error_probability(prior, n, sig, ok, max_correction=max_correction)
+    if cost is not None and bias_bound is not None:
+        raise UnwrapError("graphcut_orders: bias_bound widens the prior's data term; it cannot act on a given cost")
     if cost is None:
         bias_sigma = None
         if bias_bound is not None:
