@@ -167,7 +167,7 @@ def test_the_bound_lets_the_surface_bring_back_a_biased_band_the_shipped_term_ke
     assert np.array_equal(r0.order_traditional, r1.order_traditional)
 
 
-def test_calib_unwrap_spatial_global_bound_on_a_clean_capture(tmp_path):
+def test_calib_unwrap_spatial_global_bound_on_a_clean_capture(tmp_path, capsys):
     """``--global-bound`` on a clean rendered capture (tests/test_cli_bad_inputs.py's): the global /
     direct ratio is written, and with little global light the graph cut keeps the (right)
     traditional orders; the flag is refused where it does not apply."""
@@ -187,8 +187,14 @@ def test_calib_unwrap_spatial_global_bound_on_a_clean_capture(tmp_path):
             assert ok.mean() > 0.9 and np.all(g["global_ratio"][()][ok] >= 0)
             assert np.array_equal(g["order"][()], g["order_traditional"][()])
     for bad in (["--global-bound"], ["--spatial", "graphcut", "--global-bound", "--model", "learned"],
-                ["--spatial", "graphcut", "--global-bound", "--method", "nt"]):
+                ["--spatial", "graphcut", "--global-bound", "--method", "nt"],
+                ["--spatial", "graphcut", "--global-bound", "--method", "mw"],
+                ["--spatial", "graphcut", "--global-bound", "--method", "gray"]):
+        capsys.readouterr()
         assert main(["unwrap", str(tmp_path / "cap"), *bad, "-o", str(tmp_path / "x"), "--no-previews", "-q"]) == 2
+        err = capsys.readouterr().err
+        assert "--global-bound belongs to --spatial graphcut" in err and "Traceback" not in err, bad
+    assert not (tmp_path / "x").exists()
 
 
 def test_the_decision_error_model_with_the_global_ratio_is_monotone_and_checked():
