@@ -42,8 +42,11 @@ of an MF pair (the prior ``r = (R Phi_1 - phi_h) / 2 pi``, ``R = f_h / f_1``) th
 ``asin(rho) R / 2 pi``.
 
 Assumptions, each on the conservative side (the bound gets larger, never smaller) unless said:
-the direct modulation does not depend on the frequency (defocus or the camera's MTF lowering
-``B_h`` only raise ``rho``); ``black`` (camera black level + ambient light, the units of A) is
+the global light's sinusoid averages out at the high frequency (not conservative where it does
+not: a residual global phasor ``g_h`` in phase with the direct one raises ``B_h`` and lowers
+``gamma`` by up to ``|g_h|``; the tests' scenes stay within 0.02 rad of the bound); the direct
+modulation does not depend on the frequency (defocus or the camera's MTF lowering ``B_h`` only
+raise ``rho``); ``black`` (camera black level + ambient light, the units of A) is
 known or taken as 0 (ambient then counts as global); ``kappa`` is the pattern's - when it is not
 given it is estimated from the capture as a low percentile of ``A_h / B_h`` over well-modulated
 pixels (:func:`pattern_offset_ratio`): global light only raises that ratio, so the estimate is

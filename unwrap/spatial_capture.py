@@ -12,8 +12,9 @@ the same ``unwrap.h5``) with the extra maps ``order_traditional``, ``p_wrong_tra
 reliability model's error probability of the traditional order, noise only), ``p_wrong_decision``
 (:func:`unwrap.decision_error.error_probability`, bias included: what the gate thresholds) and,
 with a model, ``confidence``; with the global-light bound (:func:`global_bias_bound`, MF and the
-prior's data term) ``global_ratio``, the global / direct ratio of :mod:`unwrap.global_light`. The checks of the other paths hold: one :class:`unwrap.capture.FrameReader`,
-the traditional prior near integers (:mod:`unwrap.consistency`), the pattern range.
+prior's data term) ``global_ratio``, the global / direct ratio of :mod:`unwrap.global_light`. The
+checks of the other paths hold: one :class:`unwrap.capture.FrameReader`, the traditional prior near
+integers (:mod:`unwrap.consistency`), the pattern range.
 """
 from __future__ import annotations
 
