@@ -246,3 +246,21 @@ def test_the_bound_is_refused_where_it_cannot_act_instead_of_being_ignored(tmp_p
     _write_capture(tmp_path / "cap")
     with pytest.raises(UnwrapError, match="method 'nt'"):
         unwrap_capture_spatial(tmp_path / "cap", "nt", global_bound=True)
+
+
+def test_the_bias_spread_adds_to_the_prior_sigma_in_quadrature_and_a_zero_bound_changes_no_order():
+    rng = np.random.default_rng(5)
+    prior = rng.uniform(2, 40, (20, 30))
+    order = np.rint(prior).astype(np.int64)
+    valid = rng.uniform(size=prior.shape) > 0.1
+    sigma, b = rng.uniform(0.02, 0.2, prior.shape), rng.uniform(0.0, 1.5, prior.shape)
+    c = prior_data_cost(prior, order, sigma, valid, frequency_high=48, outlier=0.2, bias_sigma=b)
+    ref = prior_data_cost(prior, order, np.hypot(sigma, b), valid, frequency_high=48, outlier=0.2)
+    assert np.allclose(c, ref, rtol=1e-12, atol=1e-12)
+    lo, hi, _, _, valid, bound, freqs, width = _band_scene()
+    r0 = graphcut_orders("mf", lo, hi, freqs, valid, 0.01, 0.01, width=width)
+    rz = graphcut_orders("mf", lo, hi, freqs, valid, 0.01, 0.01, width=width, bias_bound=np.zeros_like(bound))
+    assert np.array_equal(r0.order, rz.order)
+    from unwrap.errors import UnwrapError
+    with pytest.raises(UnwrapError, match="bias_scale"):
+        graphcut_orders("mf", lo, hi, freqs, valid, 0.01, 0.01, width=width, bias_bound=bound, bias_scale=-1.0)
