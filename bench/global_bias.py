@@ -338,6 +338,8 @@ def calibrate_scale(items, grid=SCALE_GRID, *, tight: bool = False, max_correcti
               file=sys.stderr, flush=True)
         if ok and (best is None or sum(per) < best[0]):
             best = (sum(per), s)
+    if best is None:
+        raise RuntimeError(f"no bias scale of {grid} leaves every validation scene at or below traditional")
     return best[1]
 
 

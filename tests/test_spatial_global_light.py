@@ -264,3 +264,19 @@ def test_the_bias_spread_adds_to_the_prior_sigma_in_quadrature_and_a_zero_bound_
     from unwrap.errors import UnwrapError
     with pytest.raises(UnwrapError, match="bias_scale"):
         graphcut_orders("mf", lo, hi, freqs, valid, 0.01, 0.01, width=width, bias_bound=bound, bias_scale=-1.0)
+
+
+def test_a_refused_separation_falls_back_to_the_plain_term_with_a_warning(caplog):
+    from types import SimpleNamespace
+
+    from unwrap.spatial_capture import global_bias_bound
+
+    ones = np.ones((40, 40), bool)
+    lo = SimpleNamespace(A=np.full((40, 40), 1.0), B=np.full((40, 40), 50.0))
+    hi = SimpleNamespace(A=np.full((40, 40), 1.0), B=np.full((40, 40), 50.0))   # A << B: kappa 0.02, refused
+    with caplog.at_level("WARNING"):
+        assert global_bias_bound(lo, hi, ones, "mf", (1.0, 16.0), "v") == (None, None)
+    assert "no global-light bound" in caplog.text and "outside" in caplog.text
+    hi.A = np.full((40, 40), 60.0)                                                # kappa 1.2: a bound
+    bound, ratio = global_bias_bound(lo, hi, ones, "mf", (1.0, 16.0), "v")
+    assert bound.shape == (40, 40) and np.all(ratio == 0.0) and np.all(bound == 0.0)
