@@ -47,7 +47,10 @@ not: a residual global phasor ``g_h`` in phase with the direct one raises ``B_h`
 ``gamma`` by up to ``|g_h|``; the tests' scenes stay within 0.02 rad of the bound); the direct
 modulation does not depend on the frequency (defocus or the camera's MTF lowering ``B_h`` only
 raise ``rho``); ``black`` (camera black level + ambient light, the units of A) is
-known or taken as 0 (ambient then counts as global); ``kappa`` is the pattern's - when it is not
+known or taken as 0 (ambient then counts as global: conservative with a given ``kappa``; with an
+estimated one the unremoved black level raises the estimate as well, by ``black / B`` of the
+pixels that set it, which scales ``rho`` by ``kappa / (kappa + black / B)`` at pixels as bright);
+``kappa`` is the pattern's - when it is not
 given it is estimated from the capture as a low percentile of ``A_h / B_h`` over well-modulated
 pixels (:func:`pattern_offset_ratio`): global light only raises that ratio, so the estimate is
 right where some pixels receive almost none, and **too high** (the bound optimistic) where every
@@ -149,7 +152,8 @@ def bias_bound(offset_high, modulation_high, valid, *, kappa: float | None = Non
     ARGUMENTS: offset_high ``A_h`` and modulation_high ``B_h`` (H, W) of the N-step fit of the
     highest frequency (any intensity unit, the same for both and for ``black``); valid (H, W)
     bool; ``kappa``: the pattern's offset / amplitude ratio (None: :func:`pattern_offset_ratio`);
-    ``black``: camera black level + ambient (default 0: counted as global, conservative);
+    ``black``: camera black level + ambient (default 0: counted as global, conservative with a
+    given ``kappa``, module docstring);
     ``offset_low``: optional ``A`` of the unit frequency - the global offset does not depend on the
     frequency, so its median ratio to ``A_h`` must be ~1; a note is added when it is off by more
     than 10 % (frames of different exposure or a response curve: the separation is then suspect);
