@@ -167,7 +167,7 @@ def test_the_bound_lets_the_surface_bring_back_a_biased_band_the_shipped_term_ke
     assert np.array_equal(r0.order_traditional, r1.order_traditional)
 
 
-def test_calib_unwrap_spatial_global_bound_on_a_clean_capture(tmp_path):
+def test_calib_unwrap_spatial_global_bound_on_a_clean_capture(tmp_path, capsys):
     """``--global-bound`` on a clean rendered capture (tests/test_cli_bad_inputs.py's): the global /
     direct ratio is written, and with little global light the graph cut keeps the (right)
     traditional orders; the flag is refused where it does not apply."""
@@ -187,8 +187,14 @@ def test_calib_unwrap_spatial_global_bound_on_a_clean_capture(tmp_path):
             assert ok.mean() > 0.9 and np.all(g["global_ratio"][()][ok] >= 0)
             assert np.array_equal(g["order"][()], g["order_traditional"][()])
     for bad in (["--global-bound"], ["--spatial", "graphcut", "--global-bound", "--model", "learned"],
-                ["--spatial", "graphcut", "--global-bound", "--method", "nt"]):
+                ["--spatial", "graphcut", "--global-bound", "--method", "nt"],
+                ["--spatial", "graphcut", "--global-bound", "--method", "mw"],
+                ["--spatial", "graphcut", "--global-bound", "--method", "gray"]):
+        capsys.readouterr()
         assert main(["unwrap", str(tmp_path / "cap"), *bad, "-o", str(tmp_path / "x"), "--no-previews", "-q"]) == 2
+        err = capsys.readouterr().err
+        assert "--global-bound belongs to --spatial graphcut" in err and "Traceback" not in err, bad
+    assert not (tmp_path / "x").exists()
 
 
 def test_the_decision_error_model_with_the_global_ratio_is_monotone_and_checked():
@@ -210,3 +216,67 @@ def test_the_decision_error_model_with_the_global_ratio_is_monotone_and_checked(
         error_probability(*args, model=MODEL_GLOBAL)
     with pytest.raises(UnwrapError, match="global_ratio"):
         error_probability(*args, global_ratio=np.zeros((H, W + 1)))
+
+
+def test_a_nan_or_inf_offset_or_modulation_at_a_valid_pixel_gets_the_bound_pi_not_zero():
+    A, B = np.full((30, 30), 50.0), np.full((30, 30), 50.0)      # no global light: bound 0
+    A[0, 0], B[0, 1], B[0, 2], A[0, 3] = np.nan, np.inf, np.nan, np.inf
+    B1 = np.full((30, 30), 50.0)
+    B1[1, 0] = np.inf                                             # a non-finite unit modulation: B_h alone
+    ones = np.ones((30, 30), bool)
+    for g in (bias_bound(A, B, ones, kappa=1.0), bias_bound(A, B, ones, kappa=1.0, modulation_low=B1),
+              bias_bound(A, B, ones)):                            # kappa estimated from the finite pixels
+        assert np.all(g.bound_rad[0, :4] == pytest.approx(math.pi)) and np.all(np.isfinite(g.ratio))
+        assert g.bound_rad[1, 0] == 0.0 and g.bound_rad[5, 5] == 0.0
+    A[0, 5] = 70.0                                                # rho 0.4 with B_1 at inf: asin(0.4), not 0
+    B1[0, 5] = np.inf
+    assert bias_bound(A, B, ones, kappa=1.0, modulation_low=B1).bound_rad[0, 5] == pytest.approx(math.asin(0.4))
+
+
+def test_the_bound_is_refused_where_it_cannot_act_instead_of_being_ignored(tmp_path):
+    from test_cli_bad_inputs import _write_capture
+
+    from unwrap.errors import UnwrapError
+    from unwrap.spatial_capture import unwrap_capture_spatial
+
+    lo, hi, _, _, valid, bound, freqs, width = _band_scene()
+    cost = np.zeros((5,) + lo.shape)
+    with pytest.raises(UnwrapError, match="given cost"):
+        graphcut_orders("mf", lo, hi, freqs, valid, 0.01, 0.01, width=width, cost=cost, bias_bound=bound)
+    _write_capture(tmp_path / "cap")
+    with pytest.raises(UnwrapError, match="method 'nt'"):
+        unwrap_capture_spatial(tmp_path / "cap", "nt", global_bound=True)
+
+
+def test_the_bias_spread_adds_to_the_prior_sigma_in_quadrature_and_a_zero_bound_changes_no_order():
+    rng = np.random.default_rng(5)
+    prior = rng.uniform(2, 40, (20, 30))
+    order = np.rint(prior).astype(np.int64)
+    valid = rng.uniform(size=prior.shape) > 0.1
+    sigma, b = rng.uniform(0.02, 0.2, prior.shape), rng.uniform(0.0, 1.5, prior.shape)
+    c = prior_data_cost(prior, order, sigma, valid, frequency_high=48, outlier=0.2, bias_sigma=b)
+    ref = prior_data_cost(prior, order, np.hypot(sigma, b), valid, frequency_high=48, outlier=0.2)
+    assert np.allclose(c, ref, rtol=1e-12, atol=1e-12)
+    lo, hi, _, _, valid, bound, freqs, width = _band_scene()
+    r0 = graphcut_orders("mf", lo, hi, freqs, valid, 0.01, 0.01, width=width)
+    rz = graphcut_orders("mf", lo, hi, freqs, valid, 0.01, 0.01, width=width, bias_bound=np.zeros_like(bound))
+    assert np.array_equal(r0.order, rz.order)
+    from unwrap.errors import UnwrapError
+    with pytest.raises(UnwrapError, match="bias_scale"):
+        graphcut_orders("mf", lo, hi, freqs, valid, 0.01, 0.01, width=width, bias_bound=bound, bias_scale=-1.0)
+
+
+def test_a_refused_separation_falls_back_to_the_plain_term_with_a_warning(caplog):
+    from types import SimpleNamespace
+
+    from unwrap.spatial_capture import global_bias_bound
+
+    ones = np.ones((40, 40), bool)
+    lo = SimpleNamespace(A=np.full((40, 40), 1.0), B=np.full((40, 40), 50.0))
+    hi = SimpleNamespace(A=np.full((40, 40), 1.0), B=np.full((40, 40), 50.0))   # A << B: kappa 0.02, refused
+    with caplog.at_level("WARNING"):
+        assert global_bias_bound(lo, hi, ones, "mf", (1.0, 16.0), "v") == (None, None)
+    assert "no global-light bound" in caplog.text and "outside" in caplog.text
+    hi.A = np.full((40, 40), 60.0)                                                # kappa 1.2: a bound
+    bound, ratio = global_bias_bound(lo, hi, ones, "mf", (1.0, 16.0), "v")
+    assert bound.shape == (40, 40) and np.all(ratio == 0.0) and np.all(bound == 0.0)

@@ -178,8 +178,6 @@ def error_probability(p_noise, prior, valid, modulation_low, modulation_high, *,
     :data:`MODEL_GLOBAL` when ``global_ratio`` is given)."""
     if model is None:
         model = MODEL if global_ratio is None else MODEL_GLOBAL
-        if model is None:
-            raise UnwrapError("decision error: no model with the global ratio has been fitted (MODEL_GLOBAL)")
     if (GLOBAL_FEATURE in model["coef"]) != (global_ratio is not None):
         raise UnwrapError("decision error: give global_ratio exactly when the model has the feature "
                           f"{GLOBAL_FEATURE!r}")
@@ -243,5 +241,5 @@ def fit(X, wrong, *, note: str = "", l2: float = 1e-3, names: tuple = FEATURES) 
             "fitted_on": note, "log_loss": float(plain(t)[0]), "objective": float(r.fun), "pixels": int(n)}
 
 
-__all__ = ["FEATURES", "GLOBAL_FEATURE", "MAX_DISTANCE", "MODEL", "MODEL_GLOBAL", "SIGNS", "WIDE_WINDOW", "WINDOW", "edge_distance", "error_probability",
-           "features", "fit", "local_bias", "probability_from_features"]
+__all__ = ["FEATURES", "GLOBAL_FEATURE", "MAX_DISTANCE", "MODEL", "MODEL_GLOBAL", "SIGNS", "WIDE_WINDOW", "WINDOW",
+           "edge_distance", "error_probability", "features", "fit", "local_bias", "probability_from_features"]

@@ -42,9 +42,15 @@ of an MF pair (the prior ``r = (R Phi_1 - phi_h) / 2 pi``, ``R = f_h / f_1``) th
 ``asin(rho) R / 2 pi``.
 
 Assumptions, each on the conservative side (the bound gets larger, never smaller) unless said:
-the direct modulation does not depend on the frequency (defocus or the camera's MTF lowering
-``B_h`` only raise ``rho``); ``black`` (camera black level + ambient light, the units of A) is
-known or taken as 0 (ambient then counts as global); ``kappa`` is the pattern's - when it is not
+the global light's sinusoid averages out at the high frequency (not conservative where it does
+not: a residual global phasor ``g_h`` in phase with the direct one raises ``B_h`` and lowers
+``gamma`` by up to ``|g_h|``; the tests' scenes stay within 0.02 rad of the bound); the direct
+modulation does not depend on the frequency (defocus or the camera's MTF lowering ``B_h`` only
+raise ``rho``); ``black`` (camera black level + ambient light, the units of A) is
+known or taken as 0 (ambient then counts as global: conservative with a given ``kappa``; with an
+estimated one the unremoved black level raises the estimate as well, by ``black / B`` of the
+pixels that set it, which scales ``rho`` by ``kappa / (kappa + black / B)`` at pixels as bright);
+``kappa`` is the pattern's - when it is not
 given it is estimated from the capture as a low percentile of ``A_h / B_h`` over well-modulated
 pixels (:func:`pattern_offset_ratio`): global light only raises that ratio, so the estimate is
 right where some pixels receive almost none, and **too high** (the bound optimistic) where every
@@ -112,8 +118,8 @@ def pattern_offset_ratio(offset, modulation, valid, *, black: float = 0.0,
 
     Raises :class:`GlobalLightError` with fewer than :data:`MIN_PIXELS` such pixels or an
     estimate outside :data:`KAPPA_RANGE`."""
-    A, B, v = _check(offset, modulation, valid)
-    v = v & (B > 0)
+    A, B, v, fin = _check(offset, modulation, valid)
+    v = v & fin & (B > 0)
     if v.sum() < MIN_PIXELS:
         raise GlobalLightError(f"too few valid modulated pixels ({int(v.sum())} < {MIN_PIXELS}) to estimate the "
                                "pattern's offset / amplitude ratio; give kappa")
@@ -127,12 +133,16 @@ def pattern_offset_ratio(offset, modulation, valid, *, black: float = 0.0,
 
 
 def _check(offset, modulation, valid):
-    A, B = (np.nan_to_num(np.asarray(a, dtype=np.float64)) for a in (offset, modulation))
+    """(A, B, valid, finite): float64 copies with non-finite values set to 0 and the mask of pixels
+    where both were finite (a NaN / inf offset or modulation says nothing about global light: the
+    callers give such valid pixels the bound pi, never 0)."""
+    A, B = (np.asarray(a, dtype=np.float64) for a in (offset, modulation))
     v = np.asarray(valid, dtype=bool)
     if A.ndim != 2 or A.shape != B.shape or A.shape != v.shape:
         raise GlobalLightError(f"global light: expected one (H, W) shape for offset, modulation and valid, got "
                                f"{A.shape}, {B.shape}, {v.shape}")
-    return A, B, v
+    fin = np.isfinite(A) & np.isfinite(B)
+    return np.where(fin, A, 0.0), np.where(fin, B, 0.0), v, fin
 
 
 def bias_bound(offset_high, modulation_high, valid, *, kappa: float | None = None, black: float = 0.0,
@@ -142,7 +152,8 @@ def bias_bound(offset_high, modulation_high, valid, *, kappa: float | None = Non
     ARGUMENTS: offset_high ``A_h`` and modulation_high ``B_h`` (H, W) of the N-step fit of the
     highest frequency (any intensity unit, the same for both and for ``black``); valid (H, W)
     bool; ``kappa``: the pattern's offset / amplitude ratio (None: :func:`pattern_offset_ratio`);
-    ``black``: camera black level + ambient (default 0: counted as global, conservative);
+    ``black``: camera black level + ambient (default 0: counted as global, conservative with a
+    given ``kappa``, module docstring);
     ``offset_low``: optional ``A`` of the unit frequency - the global offset does not depend on the
     frequency, so its median ratio to ``A_h`` must be ~1; a note is added when it is off by more
     than 10 % (frames of different exposure or a response curve: the separation is then suspect);
@@ -150,29 +161,29 @@ def bias_bound(offset_high, modulation_high, valid, *, kappa: float | None = Non
     bound where the high frequency's modulation is blurred (module docstring).
 
     RETURNED VALUE: :class:`GlobalBias`."""
-    A, B, v = _check(offset_high, modulation_high, valid)
+    A, B, v, fin = _check(offset_high, modulation_high, valid)
     if not (math.isfinite(black) and black >= 0):
         raise GlobalLightError(f"black level must be finite and >= 0, got {black!r}")
     notes = []
     if kappa is None:
-        kappa, source = pattern_offset_ratio(A, B, v, black=black), f"estimated (p{KAPPA_PERCENTILE:g} of A/B)"
+        kappa, source = pattern_offset_ratio(A, B, v & fin, black=black), f"estimated (p{KAPPA_PERCENTILE:g} of A/B)"
     else:
         if not (math.isfinite(kappa) and KAPPA_RANGE[0] <= kappa <= KAPPA_RANGE[1]):
             raise GlobalLightError(f"kappa {kappa!r}: expected a finite offset / amplitude ratio in {KAPPA_RANGE}")
         source = "given"
     if offset_low is not None:
-        A1, _, _ = _check(offset_low, modulation_high, valid)
-        ok = v & (A > 0)
+        A1, _, _, fin1 = _check(offset_low, modulation_high, valid)
+        ok = v & fin1 & (A > 0)
         if ok.any():
             q = float(np.median(A1[ok] / A[ok]))
             if abs(q - 1.0) > 0.1:
                 notes.append(f"median offset ratio unit / high frequency is {q:.3f}, not 1: the frequencies were "
                              "not captured alike; the separation is suspect")
-    ok = v & (B > 0)
+    ok = v & fin & (B > 0)                                       # elsewhere in v: the bound pi
     rho = np.where(ok, np.maximum((A - black) / (kappa * np.where(ok, B, 1.0)) - 1.0, 0.0), 0.0)
     ref = B
     if modulation_low is not None:
-        _, B1, _ = _check(offset_high, modulation_low, valid)
+        _, B1, _, _ = _check(np.zeros_like(B), modulation_low, valid)   # a non-finite B_1: B_h alone
         ref = np.maximum(B, B1)
     s = np.where(ok, rho * B / np.where(ok, ref, 1.0), 1.0)      # gamma / max(B_h, B_1)
     bound = np.where(s < 1.0, np.arcsin(np.minimum(s, 1.0)), math.pi)

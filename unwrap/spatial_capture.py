@@ -12,8 +12,9 @@ the same ``unwrap.h5``) with the extra maps ``order_traditional``, ``p_wrong_tra
 reliability model's error probability of the traditional order, noise only), ``p_wrong_decision``
 (:func:`unwrap.decision_error.error_probability`, bias included: what the gate thresholds) and,
 with a model, ``confidence``; with the global-light bound (:func:`global_bias_bound`, MF and the
-prior's data term) ``global_ratio``, the global / direct ratio of :mod:`unwrap.global_light`. The checks of the other paths hold: one :class:`unwrap.capture.FrameReader`,
-the traditional prior near integers (:mod:`unwrap.consistency`), the pattern range.
+prior's data term) ``global_ratio``, the global / direct ratio of :mod:`unwrap.global_light`. The
+checks of the other paths hold: one :class:`unwrap.capture.FrameReader`, the traditional prior near
+integers (:mod:`unwrap.consistency`), the pattern range.
 """
 from __future__ import annotations
 
@@ -107,7 +108,10 @@ def spatial_orientation(oc, method: str = "mf", *, model=None, use_gate: bool = 
                         progress: bool = False, global_bound: bool = False) -> OrientationResult:
     """One orientation (:class:`unwrap.capture.OrientationCapture`) by the graph cut (module docstring).
     ``global_bound``: widen the prior's likelihood by the bound of :func:`global_bias_bound` (MF,
-    prior data term only; scale :data:`unwrap.spatial_orders.DEFAULTS` ``bias_scale``)."""
+    prior data term only, else :class:`UnwrapError`; scale :data:`unwrap.spatial_orders.DEFAULTS` ``bias_scale``)."""
+    if global_bound and (model is not None or method != "mf"):
+        raise UnwrapError(f"global_bound: the bound widens the prior's data term of an MF pair; not with "
+                          f"{'a model' if model is not None else f'method {method!r}'}")
     reader = FrameReader(camera_size)
     sets = sorted(oc.sets, key=lambda s: s.frequency)
     freqs = [float(s.frequency) for s in sets]

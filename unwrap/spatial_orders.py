@@ -57,12 +57,12 @@ _INF = 1e12
 #: Energy parameters (nats per 2 pi jump; the prior likelihood's outlier weight; a noise floor of
 #: the prior in fringes - 1/100 fringe, so that noise-free frames, whose fit residual is ~1e-14,
 #: still give a finite likelihood), set on the twin validation scenes by ``python -m bench.spatial_unwrap
-#: --calibrate`` (never on real captures).
+#: --calibrate`` (never on real captures). ``bias_scale`` (the bias spread per fringe of the
+#: global-light bound) and ``bias_max_correction`` (the label range with the bound: a bias of
+#: several fringes needs corrections beyond +-2) were chosen together on the 12 validation scenes
+#: (``python -m bench.global_bias --calibrate``; docs/learned.md, "A global-light bound").
 DEFAULTS = {"smoothness": 4.0, "outlier": 0.2, "sigma_floor": 0.01, "smoothness_learned": 32.0, "bias_scale": 0.5,
             "bias_max_correction": 4}
-#: ``bias_scale`` and ``bias_max_correction`` (the label range with the global-light bound: a bias
-#: of several fringes needs corrections beyond +-2) were chosen together on the 12 validation scenes
-#: (``python -m bench.global_bias --calibrate``; docs/learned.md, "A global-light bound").
 #: Never-worse gate thresholds per path (:func:`gate`), calibrated the same way: a correction is
 #: applied where the traditional decision's error probability - bias included, the model of
 #: :mod:`unwrap.decision_error` - is at least ``min_p_wrong`` and the network's probability of the
@@ -412,6 +412,8 @@ def graphcut_orders(method: str, phase_low, phase_high, frequencies, valid, sigm
     if np.any(ok & ~(np.isfinite(sig) & (sig > 0))):
         raise UnwrapError("graphcut_orders: the phase noise must be finite and > 0 at valid pixels")
     p_wrong = traditional_error_probability(prior, n, sig, ok, max_correction=max_correction)
+    if cost is not None and bias_bound is not None:
+        raise UnwrapError("graphcut_orders: bias_bound widens the prior's data term; it cannot act on a given cost")
     if cost is None:
         bias_sigma = None
         if bias_bound is not None:
