@@ -67,6 +67,8 @@ class ModelConfig:
     max_width: int = 64
     max_correction: int = 2
     conv: str = "full"                              # "separable": depthwise + pointwise (network.CONV_KINDS)
+    norm: str = "group"                             # "batch" / "none": no frame-wide op at inference (network.NORM_KINDS)
+    stem: str = "shuffle"                           # "strided": no pixel (un)shuffle in the graph (network.STEM_KINDS)
     init: str = ""                                  # fine-tune: start from this checkpoint's weights ("learned": shipped)
 
 
@@ -113,7 +115,7 @@ _POSITIVE_INT = {"data.synthetic_samples": 0, "data.val_samples": 1, "data.worke
                  "model.depth": 1, "model.max_width": 1, "model.max_correction": 1, "optim.batch_size": 1,
                  "optim.steps": 1, "optim.warmup_steps": 0, "run.log_every": 1, "run.val_every": 1,
                  "run.checkpoint_every": 1, "run.threads": 0}
-_CHOICES = {"optim.name": ("adamw", "sgd"), "model.kind": KINDS, "model.conv": ("full", "separable"), "loss.fourier_weighting": WEIGHTINGS, "optim.schedule": ("cosine", "constant"),
+_CHOICES = {"optim.name": ("adamw", "sgd"), "model.kind": KINDS, "model.conv": ("full", "separable"), "model.norm": ("group", "batch", "none"), "model.stem": ("shuffle", "strided"), "loss.fourier_weighting": WEIGHTINGS, "optim.schedule": ("cosine", "constant"),
             "run.device": ("auto", "cpu", "cuda")}
 
 
