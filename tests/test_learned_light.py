@@ -130,3 +130,23 @@ def test_a_batchnorm_strided_model_trains_and_its_checkpoint_round_trips(tmp_pat
     x = torch.zeros(1, ck["arch"]["in_channels"], 32, 32)
     with torch.inference_mode():
         assert torch.isfinite(net(x)).all()
+
+
+def test_fine_tuning_takes_the_architecture_of_the_checkpoint_it_starts_from(tmp_path):
+    """model.init set, [model] silent on the architecture: the run builds the checkpoint's network
+    (so ``--init learned`` fine-tunes whatever model ships); a key that is given wins, and a
+    differing one is refused when the weights are loaded."""
+    from unwrap.learned.checkpoint import FORMAT, FORMAT_VERSION, export_model
+    from unwrap.learned.errors import CheckpointError
+    from unwrap.learned.train import init_weights
+
+    arch = _arch(LIGHT)
+    path = export_model({"format": FORMAT, "format_version": FORMAT_VERSION, "arch": arch,
+                         "model": build_model(arch).state_dict(), "meta": {}}, tmp_path / "light.pt")
+    cfg = resolve_config(None, ["data.synthetic_samples=2", f"model.init={path}"])
+    assert arch_from_config(cfg.model) == arch
+    assert set(init_weights(str(path), arch_from_config(cfg.model))) == set(build_model(arch).state_dict())
+    given = resolve_config(None, ["data.synthetic_samples=2", f"model.init={path}", "model.norm=group"])
+    assert given.model.norm == "group" and given.model.width == 8
+    with pytest.raises(CheckpointError, match="norm: checkpoint batch, run None"):
+        init_weights(str(path), arch_from_config(given.model))
