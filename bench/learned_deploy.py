@@ -31,8 +31,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 #: ``[model]`` overrides of the candidate architectures (the first: the shipped one).
-ARCHS = ((), ("model.width=12",), ("model.width=8",), ("model.conv=separable",),
-         ("model.conv=separable", "model.width=24"), ("model.max_width=32",))
+ARCHS = ((), ("model.width=12",), ("model.width=8",), ("model.conv=separable",), ("model.max_width=32",),
+         ("model.width=8", "model.norm=batch"), ("model.width=8", "model.norm=batch", "model.stem=strided"),
+         ("model.width=8", "model.norm=batch", "model.stem=strided", "model.conv=separable"))
 _ROWS_CHILD = ("import json, sys\nfrom bench.deploy_speed import learned_rows\n"
                "print('ROWS ' + json.dumps(learned_rows(sys.argv[1], int(sys.argv[2]))))\n")
 

@@ -6,7 +6,7 @@ A checkpoint is a ``torch.save`` dict of plain types and tensors (loaded with
 - ``format`` (:data:`FORMAT`), ``format_version``;
 - ``arch``: the network's constructor arguments and model kind (``kind``, ``width``, ``depth``,
   ``max_width``, ``max_correction``, ``in_channels``, ``out_channels``; ``conv`` only where not
-  "full");
+  "full", ``norm`` only where not "group", ``stem`` only where not "shuffle");
 - ``model``: the state dict; ``meta``: what it was trained on (methods, frequency pairs, ...);
 - training checkpoints add ``optimizer``, ``scheduler``, ``step``, ``epoch``, ``batch_in_epoch``,
   ``rng`` (torch, numpy, python, CUDA states), ``config`` and ``best``.
@@ -39,6 +39,10 @@ def arch_from_config(model_cfg) -> dict:
             "in_channels": input_channels(kind), "out_channels": output_channels(kind, K)}
     if getattr(model_cfg, "conv", "full") != "full":     # only when set: older checkpoints' arch stays as it was
         arch["conv"] = model_cfg.conv
+    if getattr(model_cfg, "norm", "group") != "group":
+        arch["norm"] = model_cfg.norm
+    if getattr(model_cfg, "stem", "shuffle") != "shuffle":
+        arch["stem"] = model_cfg.stem
     return arch
 
 
@@ -58,7 +62,8 @@ def build_model(arch: dict) -> FringeUNet:
             f"version, the checkpoint says {arch['in_channels']} and {arch['out_channels']}")
     try:
         net = FringeUNet(want_in, want_out, width=arch["width"], depth=arch["depth"], max_width=arch["max_width"],
-                         conv=arch.get("conv", "full"))
+                         conv=arch.get("conv", "full"), norm=arch.get("norm", "group"),
+                         stem=arch.get("stem", "shuffle"))
     except ValueError as exc:
         raise CheckpointError(f"model architecture: {exc}") from None
     if kind == "physics":

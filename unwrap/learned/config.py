@@ -67,6 +67,8 @@ class ModelConfig:
     max_width: int = 64
     max_correction: int = 2
     conv: str = "full"                              # "separable": depthwise + pointwise (network.CONV_KINDS)
+    norm: str = "group"                             # "batch" / "none": no frame-wide op at inference (network.NORM_KINDS)
+    stem: str = "shuffle"                           # "strided": no pixel (un)shuffle in the graph (network.STEM_KINDS)
     init: str = ""                                  # fine-tune: start from this checkpoint's weights ("learned": shipped)
 
 
@@ -113,7 +115,7 @@ _POSITIVE_INT = {"data.synthetic_samples": 0, "data.val_samples": 1, "data.worke
                  "model.depth": 1, "model.max_width": 1, "model.max_correction": 1, "optim.batch_size": 1,
                  "optim.steps": 1, "optim.warmup_steps": 0, "run.log_every": 1, "run.val_every": 1,
                  "run.checkpoint_every": 1, "run.threads": 0}
-_CHOICES = {"optim.name": ("adamw", "sgd"), "model.kind": KINDS, "model.conv": ("full", "separable"), "loss.fourier_weighting": WEIGHTINGS, "optim.schedule": ("cosine", "constant"),
+_CHOICES = {"optim.name": ("adamw", "sgd"), "model.kind": KINDS, "model.conv": ("full", "separable"), "model.norm": ("group", "batch", "none"), "model.stem": ("shuffle", "strided"), "loss.fourier_weighting": WEIGHTINGS, "optim.schedule": ("cosine", "constant"),
             "run.device": ("auto", "cpu", "cuda")}
 
 
@@ -161,6 +163,24 @@ def _check(cfg: TrainConfig):
         raise ConfigError(f"optim: lr {o.lr} must be > 0, weight_decay and grad_clip >= 0")
 
 
+#: ``[model]`` keys that make the architecture; a fine-tuning run (``model.init``) takes the ones
+#: its file and overrides leave out from the checkpoint it starts from.
+ARCH_FIELDS = ("width", "depth", "max_width", "max_correction", "conv", "norm", "stem")
+
+
+def _inherit_architecture(cfg: TrainConfig, given: dict) -> TrainConfig:
+    """``model.init`` set: the architecture keys not in ``given`` (the merged ``[model]`` table)
+    are the init checkpoint's, so ``--init learned`` fine-tunes whatever model ships; keys that
+    are given and differ are refused when the weights are loaded (``train.init_weights``)."""
+    from .checkpoint import read_checkpoint
+    from .runtime import model_path
+
+    arch = read_checkpoint(model_path(cfg.model.init))["arch"]
+    default = ModelConfig()
+    fill = {k: type(getattr(default, k))(arch.get(k, getattr(default, k))) for k in ARCH_FIELDS if k not in given}
+    return replace(cfg, model=replace(cfg.model, **fill))
+
+
 def resolve_config(path=None, overrides=()) -> TrainConfig:
     """The resolved config: defaults <- TOML file ``path`` (optional) <- ``overrides``.
 
@@ -175,6 +195,8 @@ def resolve_config(path=None, overrides=()) -> TrainConfig:
         check_table(apply_overrides({}, [text], ConfigError), SCHEMA, "overrides", ConfigError)
     merged = apply_overrides(tree, overrides, ConfigError)
     cfg = from_table(TrainConfig, merged, "config", ConfigError)
+    if cfg.model.init:
+        cfg = _inherit_architecture(cfg, merged.get("model") or {})
     if cfg.model.init and "lr" not in (merged.get("optim") or {}):
         cfg = replace(cfg, optim=replace(cfg.optim, lr=FINETUNE_LR))
     _check(cfg)
