@@ -148,5 +148,16 @@ def test_fine_tuning_takes_the_architecture_of_the_checkpoint_it_starts_from(tmp
     assert set(init_weights(str(path), arch_from_config(cfg.model))) == set(build_model(arch).state_dict())
     given = resolve_config(None, ["data.synthetic_samples=2", f"model.init={path}", "model.norm=group"])
     assert given.model.norm == "group" and given.model.width == 8
-    with pytest.raises(CheckpointError, match="norm: checkpoint batch, run None"):
+    with pytest.raises(CheckpointError, match=r"model.init .*\(norm: checkpoint batch, run group\)"):
         init_weights(str(path), arch_from_config(given.model))
+
+
+@pytest.mark.parametrize("kernel, stride", [(2, 2), (3, 2), (4, 2), (3, 1)])
+def test_count_macs_of_a_transposed_convolution_is_its_scatter_count(kernel, stride):
+    """A transposed convolution does in_channels x out_channels x kernel taps per input pixel
+    (the 2x2 stride-2 head of the strided stem: exactly the 1x1 head + pixel-shuffle it replaces)."""
+    c_in, c_out, h, w = 6, 5, 7, 9
+    net = torch.nn.ConvTranspose2d(c_in, c_out, kernel, stride=stride)
+    assert count_macs(net, c_in, (h, w)) == h * w * c_in * c_out * kernel ** 2
+    if kernel == stride == 2:
+        assert count_macs(net, c_in, (h, w)) == count_macs(torch.nn.Conv2d(c_in, 4 * c_out, 1), c_in, (h, w))

@@ -166,9 +166,10 @@ def count_macs(model: nn.Module, in_channels: int, size) -> int:
 
     def hook(mod, inp, out):
         k = mod.kernel_size[0] * mod.kernel_size[1]
-        if isinstance(mod, nn.ConvTranspose2d):    # each output sees the taps that land on it
-            k //= mod.stride[0] * mod.stride[1]
-        total.append(out.numel() * (mod.in_channels // mod.groups) * k)
+        if isinstance(mod, nn.ConvTranspose2d):    # each input pixel scatters k taps into each output channel
+            total.append(inp[0].numel() * (mod.out_channels // mod.groups) * k)
+        else:
+            total.append(out.numel() * (mod.in_channels // mod.groups) * k)
 
     hs = [m.register_forward_hook(hook) for m in model.modules() if isinstance(m, (nn.Conv2d, nn.ConvTranspose2d))]
     try:
