@@ -161,3 +161,18 @@ def test_count_macs_of_a_transposed_convolution_is_its_scatter_count(kernel, str
     assert count_macs(net, c_in, (h, w)) == h * w * c_in * c_out * kernel ** 2
     if kernel == stride == 2:
         assert count_macs(net, c_in, (h, w)) == count_macs(torch.nn.Conv2d(c_in, 4 * c_out, 1), c_in, (h, w))
+
+
+def test_a_saved_fine_tuning_config_resolves_without_its_init_checkpoint(tmp_path):
+    """A run folder's config.toml names every architecture key: reading it back (``--resume``)
+    needs no init checkpoint, which may have moved since the run began."""
+    from unwrap.learned.checkpoint import FORMAT, FORMAT_VERSION, export_model
+    from unwrap.learned.config import to_toml
+
+    arch = _arch(LIGHT)
+    path = export_model({"format": FORMAT, "format_version": FORMAT_VERSION, "arch": arch,
+                         "model": build_model(arch).state_dict(), "meta": {}}, tmp_path / "light.pt")
+    cfg = resolve_config(None, ["data.synthetic_samples=2", f"model.init={path}"])
+    (tmp_path / "config.toml").write_text(to_toml(cfg))
+    path.unlink()
+    assert resolve_config(tmp_path / "config.toml") == cfg
