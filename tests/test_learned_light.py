@@ -176,3 +176,13 @@ def test_a_saved_fine_tuning_config_resolves_without_its_init_checkpoint(tmp_pat
     (tmp_path / "config.toml").write_text(to_toml(cfg))
     path.unlink()
     assert resolve_config(tmp_path / "config.toml") == cfg
+
+
+def test_count_macs_leaves_a_training_batchnorm_model_as_it_was():
+    """Counting runs one forward of zeros: a network in training mode keeps its BatchNorm running
+    statistics (and its mode)."""
+    net = FringeUNet(7, 5, width=8, depth=2, norm="batch", stem="strided")
+    before = {k: v.clone() for k, v in net.state_dict().items()}
+    assert count_macs(net, 7, (32, 32)) > 0
+    assert net.training
+    assert all(torch.equal(before[k], v) for k, v in net.state_dict().items())

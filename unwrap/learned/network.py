@@ -161,7 +161,8 @@ def count_parameters(model: nn.Module) -> int:
 
 def count_macs(model: nn.Module, in_channels: int, size) -> int:
     """Multiply-adds of the convolutions of one forward of a (1, in_channels, H, W) input, ``size``
-    = (H, W) (GroupNorm, SiLU, pooling and resampling not counted: a few per activation)."""
+    = (H, W) (normalisation, SiLU, pooling and resampling not counted: a few per activation); the
+    model is left as it was (mode, weights and BatchNorm statistics)."""
     total = []
 
     def hook(mod, inp, out):
@@ -172,10 +173,13 @@ def count_macs(model: nn.Module, in_channels: int, size) -> int:
             total.append(out.numel() * (mod.in_channels // mod.groups) * k)
 
     hs = [m.register_forward_hook(hook) for m in model.modules() if isinstance(m, (nn.Conv2d, nn.ConvTranspose2d))]
+    training = model.training
     try:
         with torch.inference_mode():
+            model.eval()                           # a training BatchNorm would update its running statistics
             model(torch.zeros(1, in_channels, *size))
     finally:
+        model.train(training)
         for h in hs:
             h.remove()
     return int(sum(total))
