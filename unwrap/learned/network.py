@@ -63,7 +63,9 @@ NORM_KINDS = ("group", "batch", "none")
 #: 3x3 convolution as one 6x6 convolution of stride 2 (it sees the same 6x6 input pixels per
 #: output), the head and the pixel-shuffle as one 2x2 transposed convolution of stride 2, and the
 #: refinement's first 1x1 convolution of the concatenation as the sum of a 1x1 convolution of the
-#: raw inputs and that transposed convolution (its bias per channel, not per sub-pixel).
+#: raw inputs and that transposed convolution (its bias per channel, not per sub-pixel). The 6x6
+#: convolution is a full one whatever ``conv`` says (with "separable", the first block's first
+#: convolution is the only full one).
 STEM_KINDS = ("shuffle", "strided")
 
 
