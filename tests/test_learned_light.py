@@ -18,6 +18,15 @@ def _arch(overrides=()):
     return arch_from_config(resolve_config(None, ["data.synthetic_samples=2", *overrides]).model)
 
 
+def _light_checkpoint(tmp_path):
+    """(arch, path) of an untrained LIGHT model's checkpoint."""
+    from unwrap.learned.checkpoint import FORMAT, FORMAT_VERSION, export_model
+
+    arch = _arch(LIGHT)
+    return arch, export_model({"format": FORMAT, "format_version": FORMAT_VERSION, "arch": arch,
+                               "model": build_model(arch).state_dict(), "meta": {}}, tmp_path / "light.pt")
+
+
 def test_only_non_default_options_enter_the_arch_and_bad_values_are_refused():
     shipped = _arch()
     assert "norm" not in shipped and "stem" not in shipped     # existing checkpoints keep their arch dict
@@ -136,13 +145,10 @@ def test_fine_tuning_takes_the_architecture_of_the_checkpoint_it_starts_from(tmp
     """model.init set, [model] silent on the architecture: the run builds the checkpoint's network
     (so ``--init learned`` fine-tunes whatever model ships); a key that is given wins, and a
     differing one is refused when the weights are loaded."""
-    from unwrap.learned.checkpoint import FORMAT, FORMAT_VERSION, export_model
     from unwrap.learned.errors import CheckpointError
     from unwrap.learned.train import init_weights
 
-    arch = _arch(LIGHT)
-    path = export_model({"format": FORMAT, "format_version": FORMAT_VERSION, "arch": arch,
-                         "model": build_model(arch).state_dict(), "meta": {}}, tmp_path / "light.pt")
+    arch, path = _light_checkpoint(tmp_path)
     cfg = resolve_config(None, ["data.synthetic_samples=2", f"model.init={path}"])
     assert arch_from_config(cfg.model) == arch
     assert set(init_weights(str(path), arch_from_config(cfg.model))) == set(build_model(arch).state_dict())
@@ -166,12 +172,9 @@ def test_count_macs_of_a_transposed_convolution_is_its_scatter_count(kernel, str
 def test_a_saved_fine_tuning_config_resolves_without_its_init_checkpoint(tmp_path):
     """A run folder's config.toml names every architecture key: reading it back (``--resume``)
     needs no init checkpoint, which may have moved since the run began."""
-    from unwrap.learned.checkpoint import FORMAT, FORMAT_VERSION, export_model
     from unwrap.learned.config import to_toml
 
-    arch = _arch(LIGHT)
-    path = export_model({"format": FORMAT, "format_version": FORMAT_VERSION, "arch": arch,
-                         "model": build_model(arch).state_dict(), "meta": {}}, tmp_path / "light.pt")
+    arch, path = _light_checkpoint(tmp_path)
     cfg = resolve_config(None, ["data.synthetic_samples=2", f"model.init={path}"])
     (tmp_path / "config.toml").write_text(to_toml(cfg))
     path.unlink()
