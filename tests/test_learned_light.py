@@ -18,6 +18,15 @@ def _arch(overrides=()):
     return arch_from_config(resolve_config(None, ["data.synthetic_samples=2", *overrides]).model)
 
 
+def _light_checkpoint(tmp_path):
+    """(arch, path) of an untrained LIGHT model's checkpoint."""
+    from unwrap.learned.checkpoint import FORMAT, FORMAT_VERSION, export_model
+
+    arch = _arch(LIGHT)
+    return arch, export_model({"format": FORMAT, "format_version": FORMAT_VERSION, "arch": arch,
+                               "model": build_model(arch).state_dict(), "meta": {}}, tmp_path / "light.pt")
+
+
 def test_only_non_default_options_enter_the_arch_and_bad_values_are_refused():
     shipped = _arch()
     assert "norm" not in shipped and "stem" not in shipped     # existing checkpoints keep their arch dict
@@ -136,17 +145,47 @@ def test_fine_tuning_takes_the_architecture_of_the_checkpoint_it_starts_from(tmp
     """model.init set, [model] silent on the architecture: the run builds the checkpoint's network
     (so ``--init learned`` fine-tunes whatever model ships); a key that is given wins, and a
     differing one is refused when the weights are loaded."""
-    from unwrap.learned.checkpoint import FORMAT, FORMAT_VERSION, export_model
     from unwrap.learned.errors import CheckpointError
     from unwrap.learned.train import init_weights
 
-    arch = _arch(LIGHT)
-    path = export_model({"format": FORMAT, "format_version": FORMAT_VERSION, "arch": arch,
-                         "model": build_model(arch).state_dict(), "meta": {}}, tmp_path / "light.pt")
+    arch, path = _light_checkpoint(tmp_path)
     cfg = resolve_config(None, ["data.synthetic_samples=2", f"model.init={path}"])
     assert arch_from_config(cfg.model) == arch
     assert set(init_weights(str(path), arch_from_config(cfg.model))) == set(build_model(arch).state_dict())
     given = resolve_config(None, ["data.synthetic_samples=2", f"model.init={path}", "model.norm=group"])
     assert given.model.norm == "group" and given.model.width == 8
-    with pytest.raises(CheckpointError, match="norm: checkpoint batch, run None"):
+    with pytest.raises(CheckpointError, match=r"model.init .*\(norm: checkpoint batch, run group\)"):
         init_weights(str(path), arch_from_config(given.model))
+
+
+@pytest.mark.parametrize("kernel, stride", [(2, 2), (3, 2), (4, 2), (3, 1)])
+def test_count_macs_of_a_transposed_convolution_is_its_scatter_count(kernel, stride):
+    """A transposed convolution does in_channels x out_channels x kernel taps per input pixel
+    (the 2x2 stride-2 head of the strided stem: exactly the 1x1 head + pixel-shuffle it replaces)."""
+    c_in, c_out, h, w = 6, 5, 7, 9
+    net = torch.nn.ConvTranspose2d(c_in, c_out, kernel, stride=stride)
+    assert count_macs(net, c_in, (h, w)) == h * w * c_in * c_out * kernel ** 2
+    if kernel == stride == 2:
+        assert count_macs(net, c_in, (h, w)) == count_macs(torch.nn.Conv2d(c_in, 4 * c_out, 1), c_in, (h, w))
+
+
+def test_a_saved_fine_tuning_config_resolves_without_its_init_checkpoint(tmp_path):
+    """A run folder's config.toml names every architecture key: reading it back (``--resume``)
+    needs no init checkpoint, which may have moved since the run began."""
+    from unwrap.learned.config import to_toml
+
+    arch, path = _light_checkpoint(tmp_path)
+    cfg = resolve_config(None, ["data.synthetic_samples=2", f"model.init={path}"])
+    (tmp_path / "config.toml").write_text(to_toml(cfg))
+    path.unlink()
+    assert resolve_config(tmp_path / "config.toml") == cfg
+
+
+def test_count_macs_leaves_a_training_batchnorm_model_as_it_was():
+    """Counting runs one forward of zeros: a network in training mode keeps its BatchNorm running
+    statistics (and its mode)."""
+    net = FringeUNet(7, 5, width=8, depth=2, norm="batch", stem="strided")
+    before = {k: v.clone() for k, v in net.state_dict().items()}
+    assert count_macs(net, 7, (32, 32)) > 0
+    assert net.training
+    assert all(torch.equal(before[k], v) for k, v in net.state_dict().items())

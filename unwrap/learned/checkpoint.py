@@ -28,6 +28,8 @@ from .network import FringeUNet
 FORMAT = "sltwin-unwrap-model"
 FORMAT_VERSION = 1
 ARCH_KEYS = ("kind", "width", "depth", "max_width", "max_correction", "in_channels", "out_channels")
+#: The optional ``arch`` keys and the value their absence means (the shipped model's).
+ARCH_OPTIONAL = {"conv": "full", "norm": "group", "stem": "shuffle"}
 
 
 def arch_from_config(model_cfg) -> dict:

@@ -175,6 +175,8 @@ def _inherit_architecture(cfg: TrainConfig, given: dict) -> TrainConfig:
     from .checkpoint import read_checkpoint
     from .runtime import model_path
 
+    if all(k in given for k in ARCH_FIELDS):       # a run folder's config.toml: nothing to read (the file may be gone)
+        return cfg
     arch = read_checkpoint(model_path(cfg.model.init))["arch"]
     default = ModelConfig()
     fill = {k: type(getattr(default, k))(arch.get(k, getattr(default, k))) for k in ARCH_FIELDS if k not in given}

@@ -63,7 +63,9 @@ NORM_KINDS = ("group", "batch", "none")
 #: 3x3 convolution as one 6x6 convolution of stride 2 (it sees the same 6x6 input pixels per
 #: output), the head and the pixel-shuffle as one 2x2 transposed convolution of stride 2, and the
 #: refinement's first 1x1 convolution of the concatenation as the sum of a 1x1 convolution of the
-#: raw inputs and that transposed convolution (its bias per channel, not per sub-pixel).
+#: raw inputs and that transposed convolution (its bias per channel, not per sub-pixel). The 6x6
+#: convolution is a full one whatever ``conv`` says (with "separable", the first block's first
+#: convolution is the only full one).
 STEM_KINDS = ("shuffle", "strided")
 
 
@@ -161,20 +163,25 @@ def count_parameters(model: nn.Module) -> int:
 
 def count_macs(model: nn.Module, in_channels: int, size) -> int:
     """Multiply-adds of the convolutions of one forward of a (1, in_channels, H, W) input, ``size``
-    = (H, W) (GroupNorm, SiLU, pooling and resampling not counted: a few per activation)."""
+    = (H, W) (normalisation, SiLU, pooling and resampling not counted: a few per activation); the
+    model is left as it was (mode, weights and BatchNorm statistics)."""
     total = []
 
     def hook(mod, inp, out):
         k = mod.kernel_size[0] * mod.kernel_size[1]
-        if isinstance(mod, nn.ConvTranspose2d):    # each output sees the taps that land on it
-            k //= mod.stride[0] * mod.stride[1]
-        total.append(out.numel() * (mod.in_channels // mod.groups) * k)
+        if isinstance(mod, nn.ConvTranspose2d):    # each input pixel scatters k taps into each output channel
+            total.append(inp[0].numel() * (mod.out_channels // mod.groups) * k)
+        else:
+            total.append(out.numel() * (mod.in_channels // mod.groups) * k)
 
     hs = [m.register_forward_hook(hook) for m in model.modules() if isinstance(m, (nn.Conv2d, nn.ConvTranspose2d))]
+    training = model.training
     try:
         with torch.inference_mode():
+            model.eval()                           # a training BatchNorm would update its running statistics
             model(torch.zeros(1, in_channels, *size))
     finally:
+        model.train(training)
         for h in hs:
             h.remove()
     return int(sum(total))

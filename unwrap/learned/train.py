@@ -132,7 +132,7 @@ def init_weights(model: str, arch: dict) -> dict:
     last.pt path) for a fine-tuning run of architecture ``arch``: weights only (the optimiser,
     scheduler and step start fresh). Refuses (CheckpointError) a checkpoint of another kind or
     architecture, naming the fields that differ."""
-    from .checkpoint import load_model
+    from .checkpoint import ARCH_OPTIONAL, load_model
     from .errors import CheckpointError
     from .infer import shipped_model_path
 
@@ -142,7 +142,8 @@ def init_weights(model: str, arch: dict) -> dict:
     if theirs.get("kind") != arch["kind"]:
         raise CheckpointError(f"model.init {path}: a {theirs.get('kind')!r} model, this run trains a "
                               f"{arch['kind']!r} model (model.kind): fine-tuning keeps the kind")
-    diff = {k: (theirs.get(k), arch.get(k)) for k in dict.fromkeys([*arch, *theirs]) if theirs.get(k) != arch.get(k)}
+    diff = {k: (theirs.get(k, ARCH_OPTIONAL.get(k)), arch.get(k, ARCH_OPTIONAL.get(k))) for k in dict.fromkeys([*arch, *theirs])}
+    diff = {k: ab for k, ab in diff.items() if ab[0] != ab[1]}         # an absent optional key is its default
     if diff:
         raise CheckpointError(f"model.init {path}: another architecture than this run's [model] ("
                               + ", ".join(f"{k}: checkpoint {a}, run {b}" for k, (a, b) in diff.items())
