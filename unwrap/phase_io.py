@@ -195,7 +195,7 @@ def _create_dataset(g, name: str, data: np.ndarray, options: dict) -> None:
     in 0.40 s of wall against h5py's 0.75 s on 2 shared cores (docs/speed.md)."""
     plain = (options.get("compression") == "gzip" and options.get("compression_opts") == 1 and options.get("shuffle")
         and set(options) <= {"compression", "compression_opts", "shuffle"} and data.ndim >= 1 and data.size > 0
-        and data.dtype.kind in "biuf" and data.dtype.byteorder in "=|<" and data.dtype.isnative)
+        and data.dtype.kind in "biuf" and data.dtype.isnative)
     if not plain:
         g.create_dataset(name, data=data, **options)
         return

@@ -31,7 +31,7 @@ from .phase_shift import wrapped_phase
 from .reliability import fit_noise_sigma
 from .pipeline import OrientationResult, check_min_modulation
 from .decision_error import error_probability
-from .spatial_orders import DEFAULTS, GATE, gate, graphcut_orders, phase_noise
+from .spatial_orders import DEFAULTS, GATE, MAX_CORRECTION, gate, graphcut_orders, phase_noise
 from .temporal import Unwrapped, constrain_to_pattern
 
 log = logging.getLogger("unwrap")
@@ -149,7 +149,7 @@ def spatial_orientation(oc, method: str = "mf", *, model=None, use_gate: bool = 
     res = graphcut_orders(method, phi_lo, phi_hi, pair, valid, s_lo, s_hi, width=oc.width, cost=cost,
                           smoothness=DEFAULTS["smoothness_learned" if model is not None else "smoothness"],
                           outlier=DEFAULTS["outlier"], sigma_floor=DEFAULTS["sigma_floor"], bias_bound=bound,
-                          max_correction=DEFAULTS["bias_max_correction"] if bound is not None else 2)
+                          max_correction=DEFAULTS["bias_max_correction"] if bound is not None else MAX_CORRECTION)
     order = res.order
     if model is not None:
         c = np.clip(res.correction + 2, 0, 4)
