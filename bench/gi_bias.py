@@ -39,6 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
+from unwrap.safe_output import save_figure
+
 REFERENCE = Path(__file__).resolve().parents[1] / "tests" / "data" / "gi_bias_ball_wall.npz"
 OLD_TERM = {"interreflection": 0.2, "interreflection_mm": 40.0}
 
@@ -111,11 +113,10 @@ def bias_figure(path, panels, mask, v, title):
         ax.set_yticks([])
     fig.colorbar(im, ax=axes, shrink=0.8, label="unit-phase bias (rad)")
     fig.suptitle(title)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=80)
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        save_figure(fig, path, dpi=80)
+    finally:
+        plt.close(fig)
 
 
 def _timings(rows):

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from unwrap.safe_output import write_text
+from unwrap.safe_output import atomic_path, write_text
 
 SCALE_GRID = (0.0, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 4.0)
 DROPS = (0.02, 0.10)
@@ -117,7 +117,8 @@ def twin_items(work: Path, which: str = "test"):
             print(f"rendering twin {which} scene {i + 1}/{len(items)} for its offsets -> {path}", file=sys.stderr,
                   flush=True)
             r = _render_bias_scene(cfg, system, i, interreflection=False)
-            np.savez_compressed(path, **{k: r[k] for k in ("a_low", "a_high", "phase_low", "phase_high")})
+            with atomic_path(path) as tmp:     # a killed run must not leave a truncated cache
+                np.savez_compressed(tmp, **{k: r[k] for k in ("a_low", "a_high", "phase_low", "phase_high")})
         z = np.load(path)
         _attach(it, z["a_low"], z["a_high"], z["phase_low"], z["phase_high"], f"twin {which} #{i}")
     return items

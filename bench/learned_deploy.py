@@ -77,16 +77,6 @@ def arch_rows(repeats: int, tmp: Path) -> list:
     return out
 
 
-_LABELS = (("traditional_from_frames_ms", "traditional TPU from frames (anchor)"),
-           ("filtered_ms", "filtered 15x15 baseline"),
-           ("features_ms", "input features (both plane fits, all channels)"),
-           ("forward_torch_ms", "network forward, torch"),
-           ("forward_ort_ms", "network forward, onnxruntime"),
-           ("whole_torch_ms", "whole learned path, torch"),
-           ("whole_ort_ms", "whole learned path, onnxruntime"),
-           ("whole_minus_forward_ms", "whole learned path without the forward (stored logits)"))
-
-
 def _f(v, spec=".1f"):
     return "-" if v is None or v != v else format(v, spec)
 
@@ -101,7 +91,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.quick:
         args.repeats, args.no_cli, args.arch = 1, True, False
-    from bench.deploy_speed import run_cli, write_capture
+    from bench.deploy_speed import _LEARNED_ROWS, run_cli, write_capture
     from unwrap.learned.runtime import export_onnx
 
     base = Path(args.baseline).resolve() if args.baseline else None
@@ -116,7 +106,7 @@ def main(argv=None) -> int:
               "same process)\n")
         print("| part | after ms | after x | before ms | before x |\n|---|---:|---:|---:|---:|")
         a0, b0 = after.get("traditional_from_frames_ms"), before.get("traditional_from_frames_ms")
-        for key, label in _LABELS:
+        for key, label, _ in _LEARNED_ROWS:     # the rows and labels of bench.deploy_speed
             a, b = after.get(key), before.get(key)
             print(f"| {label} | {_f(a)} | {_f(a / a0 if a and a0 else None, '.2f')} | {_f(b)} | "
                   f"{_f(b / b0 if b and b0 else None, '.2f')} |")

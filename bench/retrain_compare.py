@@ -45,11 +45,12 @@ def _dataset_items(path, freqs, methods, max_items=None):
     for o in a["orientations"]:
         width = float(widths[o]) if isinstance(widths, dict) and o in widths else 912.0
         for f in freqs:
+            noise = None            # the sensor's noise (an MF pair): read once per (orientation, f), not per method
             for m in methods:
                 pair = (1.0, float(f)) if m == "mf" else (float(f) - 1, float(f))
                 if not set(pair) <= have:
                     continue
-                noise = capture_noise(path, o, (min(have), float(f)))   # the sensor's noise (an MF pair)
+                noise = noise or capture_noise(path, o, (min(have), float(f)))
                 ds = FringeOrderDataset(path, method=m, frequencies=pair, orientation=o, crop=None, seed=0)
                 n = len(ds) if max_items is None else min(len(ds), max_items)
                 for i in range(n):

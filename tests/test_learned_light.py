@@ -189,3 +189,12 @@ def test_count_macs_leaves_a_training_batchnorm_model_as_it_was():
     assert count_macs(net, 7, (32, 32)) > 0
     assert net.training
     assert all(torch.equal(before[k], v) for k, v in net.state_dict().items())
+
+
+@pytest.mark.parametrize("options", [(), ("model.conv=separable",), ("model.width=8", "model.norm=none", "model.stem=strided")])
+def test_the_memory_plan_counts_the_parameters_of_the_model_as_built(options):
+    from unwrap.learned.memory import _parameters
+    from unwrap.learned.network import count_parameters
+
+    arch = arch_from_config(resolve_config(None, [*options, "data.synthetic_samples=1"]).model)
+    assert _parameters(arch) == count_parameters(build_model(arch))

@@ -39,12 +39,9 @@ def arch_from_config(model_cfg) -> dict:
     arch = {"kind": kind, "width": int(model_cfg.width), "depth": int(model_cfg.depth),
             "max_width": int(model_cfg.max_width), "max_correction": K,
             "in_channels": input_channels(kind), "out_channels": output_channels(kind, K)}
-    if getattr(model_cfg, "conv", "full") != "full":     # only when set: older checkpoints' arch stays as it was
-        arch["conv"] = model_cfg.conv
-    if getattr(model_cfg, "norm", "group") != "group":
-        arch["norm"] = model_cfg.norm
-    if getattr(model_cfg, "stem", "shuffle") != "shuffle":
-        arch["stem"] = model_cfg.stem
+    for k, default in ARCH_OPTIONAL.items():      # only when not the default: older checkpoints' arch stays as it was
+        if getattr(model_cfg, k, default) != default:
+            arch[k] = getattr(model_cfg, k)
     return arch
 
 
@@ -64,8 +61,7 @@ def build_model(arch: dict) -> FringeUNet:
             f"version, the checkpoint says {arch['in_channels']} and {arch['out_channels']}")
     try:
         net = FringeUNet(want_in, want_out, width=arch["width"], depth=arch["depth"], max_width=arch["max_width"],
-                         conv=arch.get("conv", "full"), norm=arch.get("norm", "group"),
-                         stem=arch.get("stem", "shuffle"))
+                         **{k: arch.get(k, default) for k, default in ARCH_OPTIONAL.items()})
     except ValueError as exc:
         raise CheckpointError(f"model architecture: {exc}") from None
     if kind == "physics":

@@ -32,6 +32,7 @@ from ..strict import apply_overrides, check_table, from_table, read_toml, schema
 from .errors import ConfigError
 from .features import KINDS
 from .losses import WEIGHTINGS, LossWeights
+from .network import CONV_KINDS, NORM_KINDS, STEM_KINDS
 
 @dataclass(frozen=True)
 class DataConfig:
@@ -115,7 +116,7 @@ _POSITIVE_INT = {"data.synthetic_samples": 0, "data.val_samples": 1, "data.worke
                  "model.depth": 1, "model.max_width": 1, "model.max_correction": 1, "optim.batch_size": 1,
                  "optim.steps": 1, "optim.warmup_steps": 0, "run.log_every": 1, "run.val_every": 1,
                  "run.checkpoint_every": 1, "run.threads": 0}
-_CHOICES = {"optim.name": ("adamw", "sgd"), "model.kind": KINDS, "model.conv": ("full", "separable"), "model.norm": ("group", "batch", "none"), "model.stem": ("shuffle", "strided"), "loss.fourier_weighting": WEIGHTINGS, "optim.schedule": ("cosine", "constant"),
+_CHOICES = {"optim.name": ("adamw", "sgd"), "model.kind": KINDS, "model.conv": CONV_KINDS, "model.norm": NORM_KINDS, "model.stem": STEM_KINDS, "loss.fourier_weighting": WEIGHTINGS, "optim.schedule": ("cosine", "constant"),
             "run.device": ("auto", "cpu", "cuda")}
 
 

@@ -31,11 +31,12 @@ SHARE = 0.8
 def _parameters(arch: dict) -> int:
     import torch
 
+    from .checkpoint import ARCH_OPTIONAL
     from .network import FringeUNet
 
-    with torch.device("meta"):
+    with torch.device("meta"):          # conv / norm / stem as the model is built (a separable one has ~7x fewer)
         net = FringeUNet(arch["in_channels"], arch["out_channels"], width=arch["width"], depth=arch["depth"],
-                         max_width=arch["max_width"])
+                         max_width=arch["max_width"], **{k: arch.get(k, d) for k, d in ARCH_OPTIONAL.items()})
     return sum(p.numel() for p in net.parameters())
 
 
