@@ -533,12 +533,11 @@ def main(argv=None) -> int:
     for n, why in NOT_SCORED:
         print(f"- {n}: {why}")
     if args.json:
-        out = Path(args.json)
-        tmp = out.with_name(out.name + ".tmp")
-        tmp.write_text(json.dumps({"params": params, "gate": gates, "results": {
+        from unwrap.safe_output import write_text
+
+        write_text(Path(args.json), json.dumps({"params": params, "gate": gates, "results": {
             k: {"rows": v["rows"], "curves": v["curves"], "ms": {r: float(np.median(m)) for r, m in v["ms"].items()},
                 "pixels": v["pixels"]} for k, v in all_res.items()}}, indent=1))
-        tmp.replace(out)                   # atomic: never a half-written file
     return 0
 
 
