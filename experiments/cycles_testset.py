@@ -357,7 +357,8 @@ def make_sample(scene: CyclesScene, system, *, samples: int, bounces: int = 4, t
     agree_interior = float(np.mean(((st["direct_uniform"] > 1e-4) == lit)[~edge]))  # Cycles lit where the twin is
     counts = sensor(st["gi"], full_well_e=full_well_e, read_noise_e=read_noise_e, seed=noise_seed)
     arrays = phase_arrays(counts, frequencies, steps)
-    orders = np.stack([phase_truth(geom, system.projector.size, "v", f)[1] for f in frequencies]).astype(np.int8)
+    truth = [phase_truth(geom, system.projector.size, "v", f) for f in frequencies]   # (Phi, order) per f
+    orders = np.stack([t[1] for t in truth]).astype(np.int8)
     sl = {f: slice(j * steps, (j + 1) * steps) for j, f in enumerate(frequencies)}
     clean = {f: unit_phase(st["direct"][sl[f]]) for f in frequencies}
     biased = {f: unit_phase(st["gi"][sl[f]]) for f in frequencies}
@@ -377,8 +378,7 @@ def make_sample(scene: CyclesScene, system, *, samples: int, bounces: int = 4, t
         stats["noise_unit_per_seed"] = wrap(p1 - p0) / math.sqrt(2)
         stats["unit_seeds"] = st["seeds"]
         # true order relative to the noise-free high phase (a pixel at the +-pi cut counts right)
-        rel = np.stack([np.rint((np.nan_to_num(phase_truth(geom, system.projector.size, "v", f)[0]) - biased[f])
-                                / (2 * np.pi)) for f in frequencies])
+        rel = np.stack([np.rint((np.nan_to_num(t[0]) - biased[f]) / (2 * np.pi)) for t, f in zip(truth, frequencies)])
         stats["error_vs_cycles_noise"] = noise_dependence(p0, p1, biased[frequencies[0]], st["seeds"], biased, rel,
                                                           frequencies, Wp, lit & ~edge)
     params = {"renderer": "blender cycles", "scene": scene.params, "note": scene.note, "samples": samples,
