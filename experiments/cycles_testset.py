@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ExperimentError
-from .gi_bias import cached_cycles
+from .gi_bias import _phase, _rect, _rot_y, cached_cycles, wrap
 
 #: The held-out meshes (synth/data/export_test.toml).
 MESH_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
@@ -79,11 +79,6 @@ def rot_x(deg: float) -> np.ndarray:
     return np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
 
 
-def rot_y(deg: float) -> np.ndarray:
-    a = math.radians(deg)
-    return np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
-
-
 #: File frame -> room frame (x right, y up, face towards +z) of each held-out mesh.
 MESH_FRAMES = {
     "nefertiti": np.array([[1, 0, 0], [0, 0, 1], [0, -1, 0]], float),   # z up, face -y
@@ -104,18 +99,9 @@ def placed_mesh(name: str, height_mm: float, yaw_deg: float, bottom_y: float, ba
     V, F = load_mesh(path)
     V = np.asarray(V, np.float64) @ MESH_FRAMES[name].T
     V = (V - (V.max(0) + V.min(0)) / 2) * (height_mm / float(V[:, 1].max() - V[:, 1].min()))
-    V = V @ rot_y(yaw_deg).T
+    V = V @ _rot_y(yaw_deg).T
     V += np.array([x - (V[:, 0].max() + V[:, 0].min()) / 2, bottom_y - V[:, 1].min(), back_z - V[:, 2].min()])
     return V, np.asarray(F)
-
-
-def _rect(center, R, size, n=4):
-    """Rectangle (object frame z = 0, ``size`` (w, h) mm) in the room frame: (V, F)."""
-    from synth.scenes.meshes import grid_mesh
-
-    w, h = size
-    V, F = grid_mesh(np.linspace(-w / 2, w / 2, n + 1), np.linspace(-h / 2, h / 2, n + 1), np.zeros((n + 1, n + 1)))
-    return V @ np.asarray(R).T + np.asarray(center), F
 
 
 #: The scenes: mesh, height (mm), yaw (deg), gap before the wall (mm, None: no wall), table
@@ -155,14 +141,14 @@ def build_scene(name: str, *, mesh_dir=None) -> CyclesScene:
     wall_c = np.array([0.0, TABLE_Y + wall_size[1] / 2 if d["table"] else 0.0, wall_z])
     R_wall = T  # plane z = 0 of the object frame, normal +z (room) -> towards the viewer
     objects.append(Plane("wall", R_wall, T @ wall_c, a_wall, wall_size))
-    Vr, Fr = _rect(wall_c, np.eye(3), wall_size)
+    Vr, Fr = _rect(wall_c, np.eye(3), wall_size, 4)
     meshes.append((Vr @ T.T, Fr, a_wall, False))
     if d["table"]:
         table_size = (400.0, 300.0)  # x by z
         R_tab = np.array([[1, 0, 0], [0, 0, 1], [0, -1, 0]], float)  # object z -> room +y (up)
         tab_c = np.array([0.0, TABLE_Y, wall_z + table_size[1] / 2])
         objects.append(Plane("table", T @ R_tab, T @ tab_c, a_table, table_size))
-        Vt, Ft = _rect(tab_c, R_tab, table_size)
+        Vt, Ft = _rect(tab_c, R_tab, table_size, 4)
         meshes.append((Vt @ T.T, Ft, a_table, False))
     note = (f"{d['mesh']} {d['height']:g} mm tall, yaw {d['yaw']:g} deg, {d['gap']:g} mm before a wall"
             + (", standing on a table" if d["table"] else "") + f"; albedo {a_obj}/{a_wall}"
@@ -276,13 +262,8 @@ def sensor(linear: np.ndarray, *, full_well_e: float = FULL_WELL_E, read_noise_e
 
 
 def unit_phase(stack: np.ndarray) -> np.ndarray:
-    from unwrap.phase_shift import wrapped_phase
-
-    return np.asarray(wrapped_phase(np.asarray(stack, np.float64), saturation=None, fill_invalid=False).phase)
-
-
-def wrap(x):
-    return np.angle(np.exp(1j * np.asarray(x)))
+    """The wrapped phase (H, W) rad of an N-step stack (K, H, W) (experiments.gi_bias's)."""
+    return _phase(stack)[0]
 
 
 def cycles_stacks(scene: CyclesScene, system, coef, basis, *, samples: int, bounces: int, threads: int, cache_dir,
@@ -376,7 +357,8 @@ def make_sample(scene: CyclesScene, system, *, samples: int, bounces: int = 4, t
     agree_interior = float(np.mean(((st["direct_uniform"] > 1e-4) == lit)[~edge]))  # Cycles lit where the twin is
     counts = sensor(st["gi"], full_well_e=full_well_e, read_noise_e=read_noise_e, seed=noise_seed)
     arrays = phase_arrays(counts, frequencies, steps)
-    orders = np.stack([phase_truth(geom, system.projector.size, "v", f)[1] for f in frequencies]).astype(np.int8)
+    truth = [phase_truth(geom, system.projector.size, "v", f) for f in frequencies]   # (Phi, order) per f
+    orders = np.stack([t[1] for t in truth]).astype(np.int8)
     sl = {f: slice(j * steps, (j + 1) * steps) for j, f in enumerate(frequencies)}
     clean = {f: unit_phase(st["direct"][sl[f]]) for f in frequencies}
     biased = {f: unit_phase(st["gi"][sl[f]]) for f in frequencies}
@@ -396,8 +378,7 @@ def make_sample(scene: CyclesScene, system, *, samples: int, bounces: int = 4, t
         stats["noise_unit_per_seed"] = wrap(p1 - p0) / math.sqrt(2)
         stats["unit_seeds"] = st["seeds"]
         # true order relative to the noise-free high phase (a pixel at the +-pi cut counts right)
-        rel = np.stack([np.rint((np.nan_to_num(phase_truth(geom, system.projector.size, "v", f)[0]) - biased[f])
-                                / (2 * np.pi)) for f in frequencies])
+        rel = np.stack([np.rint((np.nan_to_num(t[0]) - biased[f]) / (2 * np.pi)) for t, f in zip(truth, frequencies)])
         stats["error_vs_cycles_noise"] = noise_dependence(p0, p1, biased[frequencies[0]], st["seeds"], biased, rel,
                                                           frequencies, Wp, lit & ~edge)
     params = {"renderer": "blender cycles", "scene": scene.params, "note": scene.note, "samples": samples,

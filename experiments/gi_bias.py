@@ -235,11 +235,11 @@ def seeds_bias(direct: dict, outs: list) -> dict:
 def save_reference(path, name: str, bias: np.ndarray, mask: np.ndarray, meta: dict) -> None:
     """A small test reference: the bias map as float16 (5e-5 rad resolution at 0.1 rad) and the
     mask, compressed; written atomically."""
-    path = Path(path)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez_compressed(tmp, bias=np.where(mask, bias, 0).astype(np.float16), mask=np.packbits(mask),
-                        shape=np.asarray(mask.shape), **{k: np.asarray(v) for k, v in meta.items()})
-    os.replace(tmp, path)
+    from unwrap.safe_output import atomic_path
+
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:    # a handle: numpy adds no ".npz" to the name
+        np.savez_compressed(fh, bias=np.where(mask, bias, 0).astype(np.float16), mask=np.packbits(mask),
+                            shape=np.asarray(mask.shape), **{k: np.asarray(v) for k, v in meta.items()})
 
 
 def load_reference(path) -> tuple[np.ndarray, np.ndarray, dict]:

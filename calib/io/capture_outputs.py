@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from unwrap.safe_output import save_figure
+
 from ..observations import write_observations_json
 
 
@@ -35,10 +37,10 @@ def plot_detections(captured, path) -> Path:
         ax.set_title(f"{p.name}: {len(p.ids)} features on {p.board_image}, "
                      f"{int(fitted.sum())} with projector px", fontsize=8)
     fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    try:
+        return save_figure(fig, path, dpi=90)      # atomic: a failed write leaves the previous file
+    finally:
+        plt.close(fig)
 
 
 def write_capture_outputs(captured, out_dir) -> dict:

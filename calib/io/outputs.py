@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from unwrap.safe_output import save_figure
+
 from ..calibrate import Calibration
 from ..errors import FormatError
 from .calibration_json import write_calibration_json
@@ -203,9 +205,7 @@ def plot_residuals(cal: Calibration, obs, path) -> Path:
         ax.yaxis.set_minor_locator(NullLocator())
     # fixed margins: tight_layout would draw the figure once more to measure it (a third of the time)
     fig.subplots_adjust(left=0.1, right=0.97, bottom=0.05, top=0.95, wspace=0.3, hspace=0.35)
-    path = Path(path)
-    fig.savefig(path, dpi=90)
-    return path
+    return save_figure(fig, path, dpi=90)     # atomic: a failed write leaves the previous file
 
 
 def summary_table(cal: Calibration, obs=None, skipped=None) -> str:

@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from unwrap.safe_output import save_figure
+
 log = logging.getLogger(__name__)
 
 CORRELATION_FLAG = 0.2
@@ -183,7 +185,7 @@ def plot_residual_diagnostics(cal, obs, diagnostics: ResidualDiagnostics, out_di
                  "red x: rejected", fontsize=9)
     fig.subplots_adjust(left=0.03, right=0.99, bottom=0.04, top=0.86, wspace=0.25, hspace=0.5)
     paths = {"residuals_per_pose.png": out / "residuals_per_pose.png"}
-    fig.savefig(paths["residuals_per_pose.png"], dpi=90)
+    save_figure(fig, paths["residuals_per_pose.png"], dpi=90)
     paths["residuals_on_board.png"] = _plot_board(ba, obs, devices, diagnostics, out / "residuals_on_board.png")
     return paths
 
@@ -219,5 +221,4 @@ def _plot_board(ba, obs, devices, diagnostics, path):
     ax.set_title("correlogram (independent errors: 0)", fontsize=8)
     ax.legend(fontsize=7)
     fig.subplots_adjust(left=0.06, right=0.98, bottom=0.12, top=0.88, wspace=0.3)
-    fig.savefig(path, dpi=90)
-    return path
+    return save_figure(fig, path, dpi=90)
