@@ -23,7 +23,7 @@ def _frame(H=96, W=128, seed=3):
     """A noisy MF 1/48 frame (12 steps) of a tilted plane with a step: (phases, modulations, valid, true order)."""
     rng = np.random.default_rng(seed)
     yy, xx = np.mgrid[0:H, 0:W]
-    u = 150 + 5.0 * xx + 0.3 * yy + np.where(xx > W // 2, 37.0, 0.0)       # projector column, px of 912
+    u = 150 + (600.0 / W) * xx + 0.3 * yy + np.where(xx > W // 2, 37.0, 0.0)   # projector column, px of 912
     phi, mods, valid = [], [], np.ones((H, W), bool)
     for f in (1, 48):
         Phi = 2 * np.pi * f * u / 912
