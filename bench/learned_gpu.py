@@ -168,7 +168,7 @@ def training_rate(path, device: str, amp: bool, batch: int, repeats: int, crop: 
 
 
 # ---------------------------------------------------------------- the measurement
-def measure(models: dict, frames: list, repeats: int, log=print) -> dict:
+def measure(models: dict, frames: list, repeats: int, log=print, skip=()) -> dict:
     """{"machine": ..., "models": {name: {"forward": {...}, "path": [...], "orders": [...], "train": {...}}}}."""
     import torch
 
@@ -202,7 +202,7 @@ def measure(models: dict, frames: list, repeats: int, log=print) -> dict:
             fw[f"torch cpu, {threads} threads"] = best_ms(lambda: cpu_pred.logits(x1), repeats)
             log(f"{name}: forward torch cpu {threads} threads {fw[f'torch cpu, {threads} threads']:.1f} ms")
         torch.set_num_threads(2)
-        if ort is not None:
+        if ort is not None and "onnx" not in skip:
             try:
                 import tempfile
 
@@ -235,11 +235,17 @@ def measure(models: dict, frames: list, repeats: int, log=print) -> dict:
             row["traditional ms"] = best_ms(lambda: decode_pair(fr["method"], np.nan_to_num(fr["phase_low"]),
                                                                 np.nan_to_num(fr["phase_high"]), lo, hi,
                                                                 float(fr["width"]), valid), repeats)
+            path_orders = {}
             for v in ("cpu fp32", "cuda fp32", "cuda fp16", "cuda bf16"):
                 if v in variants:
                     dev = "cuda" if v.startswith("cuda") else "cpu"
-                    row[f"whole path {v} ms"] = best_ms(lambda: unwrap_learned(
-                        *args, width=float(fr["width"]), model=variants[v], on_outside="ignore"), repeats, dev)
+                    run = lambda: unwrap_learned(*args, width=float(fr["width"]), model=variants[v],  # noqa: E731
+                                                 on_outside="ignore")
+                    row[f"whole path {v} ms"] = best_ms(run, repeats, dev)
+                    path_orders[v] = run().order
+            for v, o in path_orders.items():      # CUDA: features and decode on the device too
+                if v != "cpu fp32":
+                    row[f"whole path {v}: orders differing"] = int((o != path_orders["cpu fp32"]).sum())
             r["path"].append(row)
             log(f"{name}: path {row}")
             x, ok, order_trad = frame_input(fr, ck["arch"]["kind"])
@@ -260,7 +266,7 @@ def measure(models: dict, frames: list, repeats: int, log=print) -> dict:
                 orow[f"error % {v}"] = 100.0 * float((o[scored] != ref[scored]).mean()) if scored.any() else None
             r["orders"].append(orow)
             log(f"{name}: orders {orow}")
-        for dev, amp in (("cpu", False),) + ((("cuda", False), ("cuda", True)) if cuda else ()):
+        for dev, amp in () if "train" in skip else (("cpu", False),) + ((("cuda", False), ("cuda", True)) if cuda else ()):
             for batch in (8, 64):
                 key = f"{dev}{' bf16 AMP' if amp else ' fp32'}, batch {batch}"
                 if dev == "cpu" and batch == 64:
@@ -282,10 +288,11 @@ def table(res: dict) -> str:
             lines.append(f"| {k} | {v:.2f} | {v / base:.3f} |")
         lines += ["", f"### {name}: whole learned path per frame (ms) beside the traditional decode", ""]
         if r["path"]:
-            cols = [k for k in r["path"][0] if k.endswith(" ms")]
+            cols = [k for k in r["path"][0] if k.endswith(" ms") or k.endswith("differing")]
             lines += ["| frame | pixels | " + " | ".join(cols) + " |", "|---|---:|" + "---:|" * len(cols)]
             for row in r["path"]:
-                lines.append(f"| {row['frame']} | {row['pixels']} | " + " | ".join(f"{row[c]:.1f}" for c in cols) + " |")
+                lines.append(f"| {row['frame']} | {row['pixels']} | " + " | ".join(
+                    f"{row[c]:.1f}" if isinstance(row[c], float) else str(row[c]) for c in cols) + " |")
         lines += ["", f"### {name}: orders against torch fp32 on the CPU (every valid pixel)", ""]
         if r["orders"]:
             cols = [k for k in r["orders"][0] if k not in ("frame",)]
@@ -311,6 +318,7 @@ def main(argv=None) -> int:
     p.add_argument("--model", action="append", default=[], metavar="NAME=PATH",
                    help="checkpoints to measure (default: shipped=the shipped model)")
     p.add_argument("--repeats", type=int, default=10)
+    p.add_argument("--skip", nargs="*", default=[], choices=["onnx", "train"], help="rows to leave out")
     p.add_argument("--json", default=None, help="also write the results as JSON")
     p.add_argument("--quick", action="store_true", help="2 repeats, the ramp frame only")
     args = p.parse_args(argv)
@@ -324,7 +332,7 @@ def main(argv=None) -> int:
     frames = [ramp_frame()] + (load_frames(args.frames) if args.frames and not args.quick else [])
     if args.quick:
         args.repeats = 2
-    res = measure(models, frames, args.repeats, log=lambda s: print(s, file=sys.stderr, flush=True))
+    res = measure(models, frames, args.repeats, log=lambda s: print(s, file=sys.stderr, flush=True), skip=args.skip)
     print(table(res))
     if args.json:
         from unwrap.safe_output import write_text

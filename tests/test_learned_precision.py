@@ -70,6 +70,25 @@ def test_the_learned_path_takes_a_predictor_in_any_precision():
     assert (r16.order[ok] == r32.order[ok]).mean() > 0.995
 
 
+def test_the_on_device_path_gives_the_numpy_paths_orders(monkeypatch):
+    """What a CUDA predictor runs (the training's torch features and decode on the device), here on
+    the CPU: the orders of the numpy path up to float32 ties, the same confidence."""
+    from unwrap.learned.runtime import TorchPredictor
+
+    phi, mods, valid, k = _frame()
+    args = ("mf", phi[0], phi[1], mods[0], mods[1], valid, (1, 48))
+    pred = load_predictor("learned", device="cpu")
+    r_np = unwrap_learned(*args, width=912, model=pred, on_outside="ignore")
+    monkeypatch.setattr(TorchPredictor, "features_on_device", property(lambda self: True))
+    r_dev = unwrap_learned(*args, width=912, model=pred, on_outside="ignore")
+    assert np.array_equal(r_np.valid, r_dev.valid)
+    same = r_np.order == r_dev.order
+    assert same.mean() > 0.999 and (r_dev.order[r_dev.valid] == k[r_dev.valid]).mean() > 0.99
+    np.testing.assert_allclose(r_dev.confidence[same], r_np.confidence[same], atol=2e-4)
+    assert r_dev.order.dtype == np.int64 and r_dev.confidence.dtype == np.float32
+    assert np.all(r_dev.order[~r_dev.valid] == -1)
+
+
 def test_unsupported_devices_and_precisions_are_refused_by_name():
     with pytest.raises(ModelError, match="fp16 needs a CUDA device"):
         load_predictor("learned", device="cpu", precision="fp16")
@@ -116,6 +135,9 @@ def test_on_cuda_the_orders_equal_the_cpus_up_to_ties():
         diff = ok & (o != o_cpu)
         assert diff.mean() <= most, prec
         assert not diff.any() or margin[diff].max() < (0.05 if prec == "fp32" else 1.0), prec
+    r_cpu = unwrap_learned("mf", phi[0], phi[1], mods[0], mods[1], valid, (1, 48), width=912,
+                           model=load_predictor("learned", device="cpu"), on_outside="ignore")
     r = unwrap_learned("mf", phi[0], phi[1], mods[0], mods[1], valid, (1, 48), width=912,
                        model=load_predictor("learned", device="cuda"), on_outside="ignore")
     assert (r.order[r.valid] == k[r.valid]).mean() > 0.99
+    assert (r.order == r_cpu.order).mean() > 0.999          # features and decode on the GPU: ties only

@@ -79,16 +79,27 @@ class TorchPredictor:
         if channels_last:
             self.net = net.to(memory_format=torch.channels_last)
 
-    def logits(self, x):
-        """Logits (1, K, H, W) float32 numpy of ``x`` (B, C, H, W) float32 numpy (any B)."""
+    @property
+    def features_on_device(self) -> bool:
+        """Whether :func:`unwrap.learned.infer.unwrap_learned` builds the inputs and decodes on the
+        device too (CUDA: the numpy features would cost 15-20x the forward; docs/speed.md)."""
+        return self.device.type == "cuda"
+
+    def forward(self, t):
+        """Logits (B, K, H, W) float32 tensor of an input tensor on the device, in the precision."""
         import torch
 
         with torch.inference_mode(), torch.autocast(self.device.type, dtype=self._dtype,
                                                      enabled=self._dtype is not None):
-            t = torch.from_numpy(x).to(self.device)
             if self.channels_last:
                 t = t.contiguous(memory_format=torch.channels_last)
-            return self.net(t).float().cpu().numpy()
+            return self.net(t).float()
+
+    def logits(self, x):
+        """Logits (B, K, H, W) float32 numpy of ``x`` (B, C, H, W) float32 numpy (any B)."""
+        import torch
+
+        return self.forward(torch.from_numpy(x).to(self.device)).cpu().numpy()
 
 
 class OnnxPredictor:
