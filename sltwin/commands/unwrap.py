@@ -58,6 +58,12 @@ def add_arguments(parser):
     parser.add_argument("--model", default=None, metavar="learned|PATH",
                         help="unwrap with the learned network instead: 'learned' (the shipped model) or a "
                              "checkpoint; writes the same unwrap.h5 plus confidence and order_traditional")
+    parser.add_argument("--device", choices=["cpu", "cuda", "auto"], default=None,
+                        help="with --model: where the network runs (default: a .pt on the CPU, an .onnx on CUDA "
+                             "where its onnxruntime offers it; auto: CUDA where present)")
+    parser.add_argument("--precision", choices=["fp32", "fp16", "bf16"], default="fp32",
+                        help="with a .pt --model: the forward's arithmetic (fp16 / bf16 under autocast; fp16 on "
+                             "CUDA only; orders can move where two classes tie: docs/speed.md)")
     parser.add_argument("--outside", choices=["raise", "warn"], default="raise",
                         help="--model with frequencies far outside its training range: refuse (default) or warn")
     parser.add_argument("--spatial", choices=["graphcut"], default=None,
@@ -105,6 +111,8 @@ def decoder(args):
     if args.global_bound and (args.spatial is None or args.model is not None or args.method not in (None, "mf")):
         raise CommandError("--global-bound belongs to --spatial graphcut with the prior's data term: MF, no --model")
     model = None
+    if args.model is None and (args.device is not None or args.precision != "fp32"):
+        raise CommandError("--device / --precision belong to --model")
     if args.model is not None:
         from unwrap.learned.runtime import load_predictor
         from unwrap.methods import PAIR_METHODS
@@ -120,7 +128,7 @@ def decoder(args):
             from unwrap import warmup
 
             warmup.plane_filter()       # the features' compiled kernel loads while the model and the frames are read
-        model = load_predictor(args.model)
+        model = load_predictor(args.model, device=args.device, precision=args.precision)
         kind = model.arch.get("kind")
         if kind != "physics":           # the prior-free baseline has no traditional prior to correct
             raise CommandError(f"--model {args.model}: a {KIND_NAMES.get(kind, kind)} model; --model takes a "

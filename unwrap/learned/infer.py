@@ -121,6 +121,35 @@ def predict(model, ck: dict, batch: dict, inputs=None):
         return Fe.decode(model(x).float(), batch, kind, K)
 
 
+def _orders_on_device(pred, method, prior, phi_lo, phi_hi, m_lo, m_hi, order_trad, valid, freqs):
+    """(order int64 (H, W), confidence float32 (H, W)) with the inputs, the forward and the decode on
+    a torch predictor's device: the training's torch features and decode (:mod:`.features`), which
+    give :mod:`.fast_features`' orders up to float32 ties (tests/test_learned_deploy.py). Inputs
+    float32 as in training (the smoothing inside is float64)."""
+    import torch
+
+    from . import features as Fe
+
+    dev = pred.device
+
+    def f32(a):
+        a = np.where(valid, np.nan_to_num(np.asarray(a, dtype=np.float64)), 0.0).astype(np.float32)
+        return torch.from_numpy(a)[None, None].to(dev)
+
+    batch = {"prior": f32(prior), "phase_low": f32(phi_lo), "phase_high": f32(phi_hi),
+             "modulation_low": f32(m_lo), "modulation_high": f32(m_hi),
+             "order_traditional": torch.from_numpy(np.asarray(order_trad, dtype=np.int64))[None].to(dev),
+             "valid": torch.from_numpy(np.asarray(valid, dtype=bool))[None].to(dev),
+             "frequency_low": torch.tensor([float(freqs[0])], dtype=torch.float64, device=dev),
+             "frequency_high": torch.tensor([float(freqs[1])], dtype=torch.float64, device=dev),
+             "method": torch.tensor([Fe.METHOD_INDEX[method]], device=dev)}
+    kind, K = pred.arch["kind"], int(pred.arch["max_correction"])
+    with torch.inference_mode():
+        x, _ = Fe.make_inputs(batch, kind)
+        order, conf = Fe.decode(pred.forward(x), batch, kind, K)
+        return order[0].cpu().numpy(), conf[0].cpu().numpy()
+
+
 @dataclass
 class LearnedResult:
     """Output of :func:`unwrap_learned` (numpy, camera image shape)."""
@@ -153,6 +182,10 @@ def unwrap_learned(method: str, phase_low, phase_high, modulation_low, modulatio
     check = check_frequency_range(pred.meta, method, (f_lo, f_hi), phi_hi, valid, on_outside=on_outside)
     prior, order_trad, valid = decode_pair(method, np.nan_to_num(phi_lo), np.nan_to_num(phi_hi), f_lo, f_hi,
                                            float(width), valid)
+    if getattr(pred, "features_on_device", False) and not log_probs:
+        order, conf = _orders_on_device(pred, method, prior, phi_lo, phi_hi, modulation_low, modulation_high,
+                                        order_trad, valid, (f_lo, f_hi))
+        return LearnedResult(order, conf, order_trad, prior, valid, check)
     x, ok = FF.make_inputs(kind, method, prior, phi_lo, phi_hi, modulation_low, modulation_high, order_trad, valid,
                            (f_lo, f_hi))
     del modulation_low, modulation_high        # freed before the forward where the caller passed temporaries

@@ -6,7 +6,11 @@ to logits (1, K, H, W) and carries what the checks need: ``arch`` (kind, max_cor
 ``meta`` (the trained frequency pairs). :func:`load_predictor` caches it by path, size and
 modification time, so orientations and captures of one process share one loaded model.
 
-- torch: the network in eval mode under ``torch.inference_mode`` (no autograd), CUDA when asked.
+- torch: the network in eval mode under ``torch.inference_mode`` (no autograd), on ``device``
+  ("cpu", "cuda", or "auto": CUDA where torch sees one), in ``precision`` "fp32" (default), or
+  "fp16" / "bf16" under autocast (the convolutions in half precision, the norms and the logits in
+  float32; fp16 only on CUDA). Half precision can move a pixel's order where two classes' logits
+  tie within its rounding: ``python -m bench.learned_gpu`` counts those pixels per frame.
 - onnxruntime: ``CUDAExecutionProvider`` first where the installed onnxruntime offers it, else
   ``CPUExecutionProvider``. Importing this module, loading an ``.onnx`` model and running it
   import neither torch nor anything that does (``calib unwrap --model model.onnx`` runs without
@@ -25,6 +29,10 @@ from pathlib import Path
 from .errors import CheckpointError, ModelError
 
 ONNX_FORMAT = "sltwin-unwrap-model-onnx-1"
+#: Arithmetic of a torch forward: float32, or float16 / bfloat16 under autocast.
+PRECISIONS = ("fp32", "fp16", "bf16")
+#: Where a model runs: the CPU, a CUDA device, or CUDA where one is present.
+DEVICES = ("cpu", "cuda", "auto")
 _SHIPPED = Path(__file__).resolve().parent / "data" / "shipped" / "model.pt"
 _CACHE: dict = {}
 
@@ -54,24 +62,44 @@ class TorchPredictor:
 
     backend = "torch"
 
-    def __init__(self, net, ck: dict, channels_last: bool = False):
+    def __init__(self, net, ck: dict, channels_last: bool = False, precision: str = "fp32"):
         import torch
 
         self.net, self.ck = net, ck
         self.arch, self.meta = ck["arch"], ck["meta"]
         self.device = next(net.parameters()).device
+        if precision not in PRECISIONS:
+            raise ModelError(f"precision {precision!r}: expected one of {', '.join(PRECISIONS)}")
+        if precision == "fp16" and self.device.type != "cuda":
+            raise ModelError("precision fp16 needs a CUDA device (the CPU has no fast float16 convolutions); "
+                             "use bf16 or fp32 on the CPU")
+        self.precision = precision
+        self._dtype = {"fp16": torch.float16, "bf16": torch.bfloat16}.get(precision)
         self.channels_last = channels_last
         if channels_last:
             self.net = net.to(memory_format=torch.channels_last)
 
-    def logits(self, x):
+    @property
+    def features_on_device(self) -> bool:
+        """Whether :func:`unwrap.learned.infer.unwrap_learned` builds the inputs and decodes on the
+        device too (CUDA: the numpy features would cost 15-20x the forward; docs/speed.md)."""
+        return self.device.type == "cuda"
+
+    def forward(self, t):
+        """Logits (B, K, H, W) float32 tensor of an input tensor on the device, in the precision."""
         import torch
 
-        with torch.inference_mode():
-            t = torch.from_numpy(x).to(self.device)
+        with torch.inference_mode(), torch.autocast(self.device.type, dtype=self._dtype,
+                                                     enabled=self._dtype is not None):
             if self.channels_last:
                 t = t.contiguous(memory_format=torch.channels_last)
-            return self.net(t).float().cpu().numpy()
+            return self.net(t).float()
+
+    def logits(self, x):
+        """Logits (B, K, H, W) float32 numpy of ``x`` (B, C, H, W) float32 numpy (any B)."""
+        import torch
+
+        return self.forward(torch.from_numpy(x).to(self.device)).cpu().numpy()
 
 
 class OnnxPredictor:
@@ -86,7 +114,7 @@ class OnnxPredictor:
 
     backend = "onnxruntime"
 
-    def __init__(self, path, providers=None, threads=None, spin=None):
+    def __init__(self, path, providers=None, threads=None, spin=None, device=None):
         import os
 
         import onnxruntime as ort
@@ -97,6 +125,14 @@ class OnnxPredictor:
         avail = ort.get_available_providers()
         if providers is None:
             providers = [p for p in ("CUDAExecutionProvider", "CPUExecutionProvider") if p in avail]
+            if device == "cpu":
+                providers = ["CPUExecutionProvider"]
+            elif device == "cuda":
+                if "CUDAExecutionProvider" not in avail:
+                    raise ModelError(f"device cuda: this onnxruntime has no CUDAExecutionProvider (it offers "
+                                     f"{', '.join(avail)}); install onnxruntime-gpu, or run a .pt checkpoint "
+                                     "with torch on CUDA")
+                providers = ["CUDAExecutionProvider"]
         opts = ort.SessionOptions()
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         opts.enable_cpu_mem_arena = False     # activations freed after each frame: the peak stays one forward's
@@ -140,28 +176,56 @@ class OnnxPredictor:
         return self.session.run(None, {self.input_name: self.prepare(x)})[0][..., :H, :W]
 
 
-def load_predictor(model="learned", device: str = "cpu"):
+def resolve_device(device) -> str:
+    """"cpu" or "cuda" for a torch model: ``device`` None / "cpu" -> "cpu"; "auto" -> "cuda" where
+    torch sees a CUDA device, else "cpu"; "cuda" (or "cuda:N") refused where there is none."""
+    if device in (None, "cpu"):
+        return "cpu"
+    if device != "auto" and not str(device).startswith("cuda"):
+        raise ModelError(f"device {device!r}: expected one of {', '.join(DEVICES)}")
+    import torch
+
+    if torch.cuda.is_available():
+        return "cuda" if device == "auto" else str(device)
+    if device == "auto":
+        return "cpu"
+    raise ModelError(f"device {device}: torch sees no CUDA device (torch {torch.__version__}, "
+                     f"built for CUDA {torch.version.cuda or 'none'}); use --device cpu or auto")
+
+
+def load_predictor(model="learned", device=None, precision: str = "fp32"):
     """A predictor for ``model``: "learned" (the shipped checkpoint), a ``.pt`` / ``.onnx`` path, a
     ``(net, checkpoint)`` pair, or a predictor (returned as is). Files are loaded once per process
-    (cached by path, size and modification time)."""
+    (cached by path, size, modification time, device and precision).
+
+    ``device``: None (torch: the CPU; onnxruntime: CUDA where its build offers it, else the CPU),
+    "cpu", "cuda" or "auto" (:data:`DEVICES`); ``precision``: :data:`PRECISIONS` (torch only: an
+    ONNX graph runs in float32)."""
     if hasattr(model, "logits") and hasattr(model, "arch"):
         return model
     if isinstance(model, tuple):
-        return TorchPredictor(*model)
+        return TorchPredictor(*model, precision=precision)
+    if device not in (None, *DEVICES) and not str(device).startswith("cuda"):
+        raise ModelError(f"device {device!r}: expected one of {', '.join(DEVICES)}")
+    if precision not in PRECISIONS:
+        raise ModelError(f"precision {precision!r}: expected one of {', '.join(PRECISIONS)}")
     path = model_path(model)
     try:
         st = path.stat()
-        key = (str(path.resolve()), st.st_size, st.st_mtime_ns, device)
+        key = (str(path.resolve()), st.st_size, st.st_mtime_ns, device, precision)
     except OSError:
         key = None
     if key is not None and key in _CACHE:
         return _CACHE[key]
     if is_onnx(path):
-        pred = OnnxPredictor(path)
+        if precision != "fp32":
+            raise ModelError(f"precision {precision}: an ONNX model runs in float32 (half precision is for a "
+                             ".pt checkpoint on torch)")
+        pred = OnnxPredictor(path, device=None if device == "auto" else device)
     else:
         from .checkpoint import load_model
 
-        pred = TorchPredictor(*load_model(path, device))
+        pred = TorchPredictor(*load_model(path, resolve_device(device)), precision=precision)
     if key is not None:
         _CACHE[key] = pred
     return pred
