@@ -36,8 +36,9 @@ def beat_window_message(method: str, f_lo: float, f_hi: float, width: float) -> 
     w = common_window(f_lo, f_hi, width)
     p_lo, p_hi = w["pitches_px"]
     msg = (f"{method.upper()} pair of {f_lo:g} and {f_hi:g} periods over {width:g} px (pitches {p_lo:.4g} and "
-           f"{p_hi:.4g} px): the beat period {w['window_px']:.4g} px is shorter than the pattern's {width:g} px, so "
-           "the beat wraps inside the field and the order is ambiguous beyond one beat")
+           f"{p_hi:.4g} px): the beat frequency is {f_hi - f_lo:.3g} periods > 1, i.e. the beat period "
+           f"{w['window_px']:.4g} px is shorter than the pattern's {width:g} px, so the beat wraps inside the field "
+           "and the order is ambiguous beyond one beat")
     if w["whole"]:
         a, b = (int(round(f)) for f in w["frequencies"])
         msg += (f"; declare the pair on its common window: a pattern {w['window_px']:.4g} px wide ([projector] size "
