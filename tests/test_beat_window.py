@@ -42,7 +42,7 @@ def test_circular_plane_filter_follows_a_wrapping_phase():
     Phi = np.remainder(true, TWO_PI)                       # wraps 2-3 times across the image
     valid = np.ones(Phi.shape, bool)
     for w in (7, 15):
-        got = circular_plane_filter(Phi, valid, 0.0, (w,))[w]
+        got = circular_plane_filter(Phi, valid, 0.0, (w,), plane_filter)[w]
         np.testing.assert_allclose(got, Phi, atol=1e-9)
         plain = plane_filter(Phi, valid, (w,))[w]
         assert np.abs(plain - Phi).max() > 1.0             # the plain fit averages across each wrap

@@ -32,9 +32,10 @@ SYNOPSIS
 
     >>> import numpy as np
     >>> from unwrap.learned.beat_window import circular_plane_filter
+    >>> from unwrap.learned.fast_features import plane_filter
     >>> x = np.tile(np.arange(40.0), (9, 1))
-    >>> Phi = np.remainder(0.3 * x, 2 * np.pi)              # a ramp that wraps three times
-    >>> out = circular_plane_filter(Phi, np.ones(Phi.shape, bool), 0.0, (7,))[7]
+    >>> Phi = np.remainder(0.3 * x, 2 * np.pi)              # a ramp that wraps twice
+    >>> out = circular_plane_filter(Phi, np.ones(Phi.shape, bool), 0.0, (7,), plane_filter)[7]
     >>> bool(np.allclose(out, Phi))                        # the plain plane fit misses at each wrap
     True
 """
@@ -57,17 +58,15 @@ def wrap_orders(method: str, f_lo: float, f_hi: float):
     return int(round(r)) if abs(r - round(r)) < 1e-9 else None
 
 
-def circular_plane_filter(Phi, valid, cut: float, windows, fit: str = "plane", plane_filter=None) -> dict:
+def circular_plane_filter(Phi, valid, cut: float, windows, plane_filter, fit: str = "plane") -> dict:
     """{window: plane-filtered ``Phi`` (H, W) float64} of a phase known modulo 2 pi.
 
     ``Phi``: the coarse phase (rad) in [cut, cut + 2 pi); ``valid`` (H, W) bool; ``windows``: box
-    sizes (px); ``fit``, ``plane_filter``: the filter (default
-    :func:`unwrap.learned.fast_features.plane_filter`). A pixel whose phase lies in the middle
+    sizes (px); ``plane_filter``, ``fit``: the filter
+    (:func:`unwrap.learned.fast_features.plane_filter`) and its kind. A pixel whose phase lies in the middle
     half of the range keeps the plain fit (its box does not reach the cut unless it spans a
     quarter period); the others take the fit of the phase cut half a period away, moved by whole
     periods to their own branch. Invalid pixels keep ``Phi``."""
-    if plane_filter is None:
-        from .fast_features import plane_filter
     Phi = np.asarray(Phi, dtype=np.float64)
     plain = plane_filter(Phi, valid, windows, fit)
     rel = Phi - cut

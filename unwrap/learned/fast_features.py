@@ -147,7 +147,7 @@ def smoothed_priors(method: str, phi_l, phi_h, f_l: float, f_h: float, valid, wi
     if method == "mf":
         filt = plane_filter(Phi, valid, windows, fit)
     else:       # the beat may wrap inside the image (a pair declared on its common window)
-        filt = BW.circular_plane_filter(Phi, valid, coarse_cut(method, f_l, f_h, width)[1], windows, fit, plane_filter)
+        filt = BW.circular_plane_filter(Phi, valid, coarse_cut(method, f_l, f_h, width)[1], windows, plane_filter, fit)
     return {w: (float(f_h) / f_c * Ps - phi_h) / (2 * math.pi) for w, Ps in filt.items()}, usable
 
 
