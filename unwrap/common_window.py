@@ -47,3 +47,15 @@ def beat_window_message(method: str, f_lo: float, f_hi: float, width: float) -> 
     else:
         msg += "; choose pitches whose beat spans the whole pattern, or a third frequency"
     return msg
+
+
+def pair_wrap_orders(method: str, f_lo: float, f_hi: float):
+    """Orders of the high frequency per period of the coarse (beat) phase, an int, for MW / NT
+    pairs whose ratio ``f_hi / (f_hi - f_lo)`` is whole (within 1e-9; 16 for 15 / 16, 48 for
+    47 / 48): the period by which a decode of the pair repeats, by which a correction or a phase
+    outside the pattern moves (:func:`unwrap.temporal.constrain_to_pattern`). None otherwise (MF,
+    or a ratio that is not whole)."""
+    if method == "mf" or not f_hi > f_lo:
+        return None
+    r = float(f_hi) / (float(f_hi) - float(f_lo))
+    return int(round(r)) if abs(r - round(r)) < 1e-9 else None

@@ -45,17 +45,9 @@ import math
 
 import numpy as np
 
+from ..common_window import pair_wrap_orders as wrap_orders  # noqa: F401  (public here)
+
 TWO_PI = 2.0 * math.pi
-
-
-def wrap_orders(method: str, f_lo: float, f_hi: float):
-    """Orders of the high frequency per period of the coarse (beat) phase, an int, for MW / NT
-    pairs whose ratio ``f_hi / (f_hi - f_lo)`` is whole (within 1e-9); None otherwise (MF, or a
-    ratio that is not whole: the decode is then not periodic)."""
-    if method == "mf" or not f_hi > f_lo:
-        return None
-    r = float(f_hi) / (float(f_hi) - float(f_lo))
-    return int(round(r)) if abs(r - round(r)) < 1e-9 else None
 
 
 def circular_plane_filter(Phi, valid, cut: float, windows, plane_filter, fit: str = "plane") -> dict:
