@@ -52,9 +52,11 @@ def filtered_order(method: str, phase_low, phase_high, frequencies, valid, *, wi
     projector pixels across the fringes (places the 2 pi cut of the coarse phase as
     unwrap.temporal does; optional).
 
-    With numba and ``fit="plane"``: the plane kernel between two compiled per-pixel passes
+    With numba and ``fit="plane"``, MF: the plane kernel between two compiled per-pixel passes
     (:mod:`unwrap.learned._filtered_kernel`), the same orders as the numpy formulation
-    (:func:`_filtered_order_numpy`, used otherwise).
+    (:func:`_filtered_order_numpy`, used otherwise). MW / NT take the numpy formulation, whose beat
+    is filtered as a periodic phase (:mod:`unwrap.learned.beat_window`: a pair declared on its
+    common window has the beat's wrap inside the image).
     """
     check_method(method, PAIR_METHODS, ModelError)
     f_lo, f_hi = (float(f) for f in frequencies)
@@ -62,7 +64,7 @@ def filtered_order(method: str, phase_low, phase_high, frequencies, valid, *, wi
         raise ModelError(f"{method} pair ({f_lo:g}, {f_hi:g}): the filtered baseline needs a beat of at most "
                          f"1 period (an absolute coarse phase); this pair's is {f_hi - f_lo:g}")
     valid = np.asarray(valid, dtype=bool)
-    if fit == "plane":
+    if fit == "plane" and method == "mf":       # MW / NT: the beat filtered as a periodic phase (numpy path)
         try:
             from . import _filtered_kernel as FK
             from ._plane_kernel import plane_filter_kernel
