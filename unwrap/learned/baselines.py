@@ -102,7 +102,7 @@ def _filtered_order_numpy(method, phase_low, phase_high, f_lo, f_hi, valid, wind
     priors, _ = smoothed_priors(method, t(phase_low), t(phase_high), f_lo, f_hi, valid, (window,), fit, width)
     prior = priors[int(window) | 1]
     ok = valid & np.isfinite(prior)
-    k = round_order(np.where(ok, prior, 0.0))
     period = BW.wrap_orders(method, f_lo, f_hi)
+    k = round_order(np.where(ok, prior, 0.0))
     k = BW.modulo_orders(k, period, math.floor(f_hi + 0.5)) if period else np.clip(k, 0, math.floor(f_hi + 0.5))
     return np.where(ok, k, -1).astype(np.int64)
