@@ -18,8 +18,10 @@ coordinate ``u``, taken modulo the window, gives the order that makes the *measu
 phase absolute; an order counts as right when it equals the reference modulo ``f_hi`` (orders 0
 and ``f_hi`` name the same fringe, the window's first and last half period).
 
-Rows (error % of the pixels with valid inputs and a reference, the same pixels in every column;
-fixed / broken against traditional MW): Traditional MW and NT (:func:`unwrap.temporal.decode_pair`),
+Columns (error % of the pixels with valid inputs and a reference, the same pixels in every
+column; fixed / broken against traditional MW, and the broken ones within :data:`NEAR_PX` px of a
+place where the true window coordinate wraps - a wrap of the beat, or a depth step across one):
+Traditional MW and NT (:func:`unwrap.temporal.decode_pair`),
 Filtered 15x15 (:func:`unwrap.learned.baselines.filtered_order`), Graph cut
 (:func:`unwrap.spatial_orders.graphcut_orders`, the prior's likelihood), Learned MW / NT (the
 shipped model, :func:`unwrap.learned.infer.unwrap_learned`), Learned + graph cut (the network's
