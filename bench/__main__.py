@@ -9,7 +9,7 @@ from __future__ import annotations
 import sys
 import time
 
-from . import (ba_scale, calib_accuracy, calib_captures, calib_speed, cycles_testset, decision_error_fit,
+from . import (ba_scale, beat_wrap, calib_accuracy, calib_captures, calib_speed, cycles_testset, decision_error_fit,
                defocus_bias, deploy_speed, detect_accuracy, export_speed, finetune_real, gi_bias, global_bias,
                learned_deploy, learned_speed, outlier_rule, retrain_compare, spatial_unwrap, synth_speed,
                unwrap_speed)
@@ -36,6 +36,7 @@ BENCHMARKS = [
     ("finetune_real", finetune_real.main, ["--quick"]),
     ("retrain_compare", retrain_compare.main, ["--quick"]),
     ("cycles_testset", cycles_testset.main, ["--quick"]),
+    ("beat_wrap", beat_wrap.main, ["--quick", "-q"]),
 ]
 
 

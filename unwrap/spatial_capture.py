@@ -25,6 +25,7 @@ import numpy as np
 
 from ._xp import TWO_PI
 from .capture import FrameReader, load_capture
+from .common_window import pair_wrap_orders
 from .consistency import check_priors, prior_check
 from .errors import UnwrapError
 from .phase_shift import wrapped_phase
@@ -164,7 +165,8 @@ def spatial_orientation(oc, method: str = "mf", *, model=None, use_gate: bool = 
         label += "+gate"
     ok = order >= 0
     phase = np.where(ok, phi_hi + TWO_PI * order, math.nan)
-    phase, order, ok = constrain_to_pattern(np, phase, order, ok, pair[1], oc.width)
+    phase, order, ok = constrain_to_pattern(np, phase, order, ok, pair[1], oc.width,
+                                            pair_wrap_orders(method, *pair))   # MW / NT: one beat, as traditional
     phase = np.where(ok, phase, math.nan)
     out = Unwrapped(phase, np.where(ok, order, -1).astype(np.int32), ok, np.where(res.valid, res.prior, math.nan),
                     pair[1], label)

@@ -314,6 +314,17 @@ def _frequencies_from(frequencies, pitches, width, n):
     return _check_frequencies(frequencies, n, "frequencies")
 
 
+def _check_beat_in_field(method: str, f, width) -> None:
+    """Refuse a pair whose beat wraps inside the ``width``-px pattern, naming its common window
+    (:mod:`unwrap.common_window`); no-op without a width or for other than two frequencies."""
+    if width is None or len(f) != 2 or not width > 1:
+        return
+    lo, hi = sorted(float(v) for v in f)
+    if hi - lo > 1.0 + 1e-9:
+        from .common_window import beat_window_message
+        raise UnwrapError(beat_window_message(method, lo, hi, float(width)))
+
+
 def heterodyne_frequencies(frequencies):
     """The equivalent (beat) frequencies of 2 or 3 wavelengths, highest first.
 
@@ -344,6 +355,7 @@ def mw_unwrap(phases, frequencies=None, *, pitches=None, width=None, valid=None,
     if n not in (2, 3):
         raise UnwrapError(f"MW takes two or three wavelengths, got {n}")
     f = _frequencies_from(frequencies, pitches, width, n)
+    _check_beat_in_field("mw", f, width)
     order = np.argsort(-f, kind="stable")
     f, beats = check_mw_set(f)
     shape = tuple(phases[0].shape)
@@ -401,7 +413,10 @@ def nt_unwrap(phases, frequencies, *, width=None, valid=None, phase_sigma=None, 
     """
     if len(phases) != 2:
         raise UnwrapError(f"NT takes two wrapped phases, got {len(phases)}")
-    f1, f2 = check_nt_pair(_check_frequencies(frequencies, 2, "frequencies"))
+    f = _check_frequencies(frequencies, 2, "frequencies")
+    if np.any(f != np.round(f)):
+        _check_beat_in_field("nt", f, width)
+    f1, f2 = check_nt_pair(f)
     table, offset = nt_lookup_table(f1, f2)
     if any(is_torch(p) for p in phases):
         raise UnwrapError("nt_unwrap works on numpy arrays (convert tensors with .numpy())")

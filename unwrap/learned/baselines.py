@@ -40,6 +40,7 @@ import math
 import numpy as np
 from .._xp import TIE_BAND, round_order
 from ..methods import PAIR_METHODS, check_method
+from . import beat_window as BW
 from .errors import ModelError
 
 
@@ -52,9 +53,11 @@ def filtered_order(method: str, phase_low, phase_high, frequencies, valid, *, wi
     projector pixels across the fringes (places the 2 pi cut of the coarse phase as
     unwrap.temporal does; optional).
 
-    With numba and ``fit="plane"``: the plane kernel between two compiled per-pixel passes
+    With numba and ``fit="plane"``, MF: the plane kernel between two compiled per-pixel passes
     (:mod:`unwrap.learned._filtered_kernel`), the same orders as the numpy formulation
-    (:func:`_filtered_order_numpy`, used otherwise).
+    (:func:`_filtered_order_numpy`, used otherwise). MW / NT take the numpy formulation, whose beat
+    is filtered as a periodic phase (:mod:`unwrap.learned.beat_window`: a pair declared on its
+    common window has the beat's wrap inside the image).
     """
     check_method(method, PAIR_METHODS, ModelError)
     f_lo, f_hi = (float(f) for f in frequencies)
@@ -62,7 +65,7 @@ def filtered_order(method: str, phase_low, phase_high, frequencies, valid, *, wi
         raise ModelError(f"{method} pair ({f_lo:g}, {f_hi:g}): the filtered baseline needs a beat of at most "
                          f"1 period (an absolute coarse phase); this pair's is {f_hi - f_lo:g}")
     valid = np.asarray(valid, dtype=bool)
-    if fit == "plane":
+    if fit == "plane" and method == "mf":       # MW / NT: the beat filtered as a periodic phase (numpy path)
         try:
             from . import _filtered_kernel as FK
             from ._plane_kernel import plane_filter_kernel
@@ -99,5 +102,7 @@ def _filtered_order_numpy(method, phase_low, phase_high, f_lo, f_hi, valid, wind
     priors, _ = smoothed_priors(method, t(phase_low), t(phase_high), f_lo, f_hi, valid, (window,), fit, width)
     prior = priors[int(window) | 1]
     ok = valid & np.isfinite(prior)
-    k = np.clip(round_order(np.where(ok, prior, 0.0)), 0, math.floor(f_hi + 0.5))
+    period = BW.wrap_orders(method, f_lo, f_hi)
+    k = round_order(np.where(ok, prior, 0.0))
+    k = BW.modulo_orders(k, period, math.floor(f_hi + 0.5)) if period else np.clip(k, 0, math.floor(f_hi + 0.5))
     return np.where(ok, k, -1).astype(np.int64)

@@ -29,6 +29,7 @@ from ..methods import pair_indices
 from ..phase_shift import wrapped_phase
 from ..pipeline import OrientationResult, check_min_modulation, each_orientation
 from ..temporal import Unwrapped, constrain_to_pattern
+from .beat_window import wrap_orders
 from .errors import ModelError
 from .infer import unwrap_learned
 from .runtime import load_predictor
@@ -69,7 +70,9 @@ def learned_orientation(oc, method: str, model, *, min_modulation=None, on_outsi
     del lo_phase, lo_B, lo_valid
     ok = r.order >= 0
     phase = np.where(ok, np.nan_to_num(hi_phase) + TWO_PI * r.order, math.nan)
-    phase, order, ok = constrain_to_pattern(np, phase, r.order, ok, freqs[i_hi], oc.width)
+    # the traditional decode's range constraint: MW / NT move a phase by one period of the beat
+    phase, order, ok = constrain_to_pattern(np, phase, r.order, ok, freqs[i_hi], oc.width,
+                                            wrap_orders(method, freqs[i_lo], freqs[i_hi]))
     phase = np.where(ok, phase, math.nan)
     res = Unwrapped(phase, np.where(ok, order, -1).astype(np.int32), ok, np.where(r.valid, r.prior, math.nan),
                     freqs[i_hi], f"{method}+learned")

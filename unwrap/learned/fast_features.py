@@ -38,6 +38,7 @@ import math
 import numpy as np
 
 from .._xp import TIE_BAND, wrap
+from . import beat_window as BW
 from .channels import METHOD_INDEX, MODULATION_GAIN, SMOOTH_WINDOWS, channel_slices
 
 _F32 = np.float32
@@ -139,10 +140,14 @@ def coarse_cut(method: str, f_l: float, f_h: float, width=None) -> tuple[float, 
 def smoothed_priors(method: str, phi_l, phi_h, f_l: float, f_h: float, valid, windows=SMOOTH_WINDOWS,
                     fit: str = "plane", width=None):
     """({window: prior (H, W) float64 with the coarse phase plane-filtered}, usable): the high
-    frequency's prior from the filtered coarse phase (every window from one product stack)."""
+    frequency's prior from the filtered coarse phase (every window from one product stack). MW /
+    NT: the beat is filtered as a periodic phase (:func:`unwrap.learned.beat_window.circular_plane_filter`)."""
     phi_l, phi_h = np.asarray(phi_l, np.float64), np.asarray(phi_h, np.float64)
     Phi, f_c, usable = coarse_phase(method, phi_l, phi_h, float(f_l), float(f_h), width)
-    filt = plane_filter(Phi, valid, windows, fit)
+    if method == "mf":
+        filt = plane_filter(Phi, valid, windows, fit)
+    else:       # the beat may wrap inside the image (a pair declared on its common window)
+        filt = BW.circular_plane_filter(Phi, valid, coarse_cut(method, f_l, f_h, width)[1], windows, plane_filter, fit)
     return {w: (float(f_h) / f_c * Ps - phi_h) / (2 * math.pi) for w, Ps in filt.items()}, usable
 
 
@@ -183,9 +188,12 @@ def make_inputs(kind: str, method: str, prior, phase_low, phase_high, modulation
         f_l, f_h = (float(f) for f in frequencies)
         priors, usable = smoothed_priors(method, pl.astype(np.float64), ph.astype(np.float64), f_l, f_h, ok,
                                          windows)
+        period = BW.wrap_orders(method, f_l, f_h) if usable else None
         for i, w in enumerate(windows):
             s, d = at["smoothed"].start + i, at["disagreement"].start + i
             ps = (priors[int(w) | 1] if usable else p.astype(np.float64)).astype(_F32)
+            if period:              # on the traditional order's window (the beat may wrap in the image)
+                ps = BW.nearest_branch(ps, trad, period)
             ps[~ok] = zero
             rs = _round_order32(ps)
             np.subtract(ps, rs, out=X[s])
@@ -216,12 +224,14 @@ def make_inputs(kind: str, method: str, prior, phase_low, phase_high, modulation
     return x, ok
 
 
-def decode(logits: np.ndarray, order_traditional, ok, f_high: float, kind: str, max_correction: int = 2):
+def decode(logits: np.ndarray, order_traditional, ok, f_high: float, kind: str, max_correction: int = 2,
+           wrap_orders=None):
     """Logits (1, K, H, W) -> (order int64 (H, W), -1 where not ``ok``; confidence float32 (H, W)).
 
     physics: the most probable correction added to the traditional order, clipped to
-    [0, round(f_high)]; prior_free: the most probable order class. Confidence: its softmax
-    probability (float32, 0 where not ok)."""
+    [0, round(f_high)] (``wrap_orders``, the orders of one coarse period: taken modulo it first,
+    :func:`unwrap.learned.beat_window.modulo_orders`); prior_free: the most probable order class.
+    Confidence: its softmax probability (float32, 0 where not ok)."""
     z = np.asarray(logits[0], dtype=_F32)
     e = np.exp(z - z.max(axis=0, keepdims=True))
     p = e / e.sum(axis=0, keepdims=True)
@@ -230,5 +240,7 @@ def decode(logits: np.ndarray, order_traditional, ok, f_high: float, kind: str, 
     kmax = int(math.floor(float(f_high) + 0.5))
     trad = np.asarray(order_traditional, dtype=np.int64)
     order = trad + cls - max_correction if kind == "physics" else cls.astype(np.int64)
+    if wrap_orders and kind == "physics":
+        order = BW.modulo_orders(order, int(wrap_orders), kmax)
     order = np.minimum(np.maximum(order, 0), kmax)
     return np.where(ok, order, -1).astype(np.int64), np.where(ok, conf, _F32(0.0)).astype(_F32)

@@ -35,6 +35,7 @@ from .. import _xp
 from ..methods import coarse_ratio
 from ..temporal import decode_pair
 from . import fast_features as FF
+from .beat_window import wrap_orders
 from .errors import FrequencyRangeWarning, ModelError
 from .runtime import load_predictor, shipped_model_path  # noqa: F401  (shipped_model_path: public here)
 
@@ -194,7 +195,7 @@ def unwrap_learned(method: str, phase_low, phase_high, modulation_low, modulatio
         x = pred.prepare(x)
     logits = pred.logits(x)[..., :H, :W]
     del x                                                            # the input (C x H x W float32) is not needed after
-    order, conf = FF.decode(logits, order_trad, ok, f_hi, kind, K)
+    order, conf = FF.decode(logits, order_trad, ok, f_hi, kind, K, wrap_orders(method, f_lo, f_hi))
     if not log_probs:
         return LearnedResult(order, conf, order_trad, prior, valid, check)
     if kind != "physics":
