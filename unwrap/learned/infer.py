@@ -125,8 +125,8 @@ def predict(model, ck: dict, batch: dict, inputs=None):
 def _orders_on_device(pred, method, prior, phi_lo, phi_hi, m_lo, m_hi, order_trad, valid, freqs):
     """(order int64 (H, W), confidence float32 (H, W)) with the inputs, the forward and the decode on
     a torch predictor's device: the training's torch features and decode (:mod:`.features`), which
-    give :mod:`.fast_features`' orders up to float32 ties (tests/test_learned_deploy.py). Inputs
-    float32 as in training (the smoothing inside is float64)."""
+    give :mod:`.fast_features`' orders up to float32 ties for MF (tests/test_learned_deploy.py,
+    tests/test_learned_precision.py). Inputs float32 as in training (the smoothing inside is float64)."""
     import torch
 
     from . import features as Fe
@@ -183,7 +183,9 @@ def unwrap_learned(method: str, phase_low, phase_high, modulation_low, modulatio
     check = check_frequency_range(pred.meta, method, (f_lo, f_hi), phi_hi, valid, on_outside=on_outside)
     prior, order_trad, valid = decode_pair(method, np.nan_to_num(phi_lo), np.nan_to_num(phi_hi), f_lo, f_hi,
                                            float(width), valid)
-    if getattr(pred, "features_on_device", False) and not log_probs:
+    if getattr(pred, "features_on_device", False) and method == "mf" and not log_probs:
+        # MF only: MW / NT inputs filter the beat as a periodic phase (unwrap.learned.beat_window), which
+        # the training's torch features do not; those build their inputs in numpy, the forward on the device
         order, conf = _orders_on_device(pred, method, prior, phi_lo, phi_hi, modulation_low, modulation_high,
                                         order_trad, valid, (f_lo, f_hi))
         return LearnedResult(order, conf, order_trad, prior, valid, check)

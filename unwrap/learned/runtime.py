@@ -82,7 +82,7 @@ class TorchPredictor:
     @property
     def features_on_device(self) -> bool:
         """Whether :func:`unwrap.learned.infer.unwrap_learned` builds the inputs and decodes on the
-        device too (CUDA: the numpy features would cost 15-20x the forward; docs/speed.md)."""
+        device too (CUDA, MF pairs: the numpy features would cost 15-20x the forward; docs/speed.md)."""
         return self.device.type == "cuda"
 
     def forward(self, t):
