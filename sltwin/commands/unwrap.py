@@ -116,10 +116,6 @@ def decoder(args):
         if args.spatial is None and (args.max_error_rate is not None or args.noise_sigma is not None):
             raise CommandError("--max-error-rate / --noise-sigma set the threshold from the traditional decoders' "
                                "reliability model; with --model give --min-modulation instead")
-        if args.spatial is None:        # (the learned capture path waits for it before its features)
-            from unwrap import warmup
-
-            warmup.plane_filter()       # the features' compiled kernel loads while the model and the frames are read
         model = load_predictor(args.model)
         kind = model.arch.get("kind")
         if kind != "physics":           # the prior-free baseline has no traditional prior to correct
@@ -178,6 +174,10 @@ def run_batch(args, folders, decode) -> int:
     from unwrap.batch import output_names, stream, summary
     from unwrap.pipeline import write_results
 
+    if args.model is not None:      # many captures: numba's plane-fit kernel pays for its ~1 s load
+        from unwrap import warmup
+
+        warmup.plane_filter()
     out = Path(args.output)
     names = dict(zip(folders, output_names(folders)))
     t0, items = time.perf_counter(), []

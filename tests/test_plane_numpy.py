@@ -1,0 +1,129 @@
+"""The plane-fit kernel's numpy replica (unwrap/learned/_plane_numpy.py) gives numba's bits, and
+`calib unwrap --model` on one capture no longer loads numba for it (docs/speed.md, session 9)."""
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import shared_data
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _scene(H, W, seed):
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:H, 0:W].astype(float)
+    Phi = 2 * np.pi * (0.002 * x + 0.001 * y) + 0.3 * np.sin(x / 11) + rng.normal(0, 0.05, (H, W))
+    valid = rng.random((H, W)) > 0.25
+    valid[H // 3:H // 2, W // 4:W // 2] = False                  # a hole wider than any box
+    valid[:, -2:] = False
+    Phi[~valid] = np.nan                                         # invalid pixels may hold anything
+    Phi[0, 0] = -0.0
+    return Phi, valid
+
+
+def _bits(a):
+    return np.ascontiguousarray(a).view(np.int64)
+
+
+@pytest.mark.parametrize("shape", [(5, 3), (37, 150), (130, 64), (150, 333), (129, 193)])
+def test_numpy_replica_gives_the_compiled_kernels_bits(shape, monkeypatch):
+    """Frames narrower and shorter than a box or a block, several blocks and partial last blocks,
+    holes, NaN at invalid pixels, -0.0: every output bit equal, for both boxes, also with another
+    block length (the runs' restart points move together)."""
+    pytest.importorskip("numba")
+    from unwrap.learned import _plane_kernel as K
+    from unwrap.learned import _plane_numpy as N
+
+    assert N.BLOCK == K.BLOCK
+    Phi, valid = _scene(*shape, seed=shape[0])
+    for r in (3, 7):
+        assert np.array_equal(_bits(N.plane_filter_numpy(Phi, valid, r)), _bits(K.plane_filter_kernel(Phi, valid, r)))
+    monkeypatch.setattr(K, "BLOCK", 7)
+    a = K.plane_filter_kernel(Phi, valid, 3)
+    assert np.array_equal(_bits(N.plane_filter_numpy(Phi, valid, 3, block=7)), _bits(a))
+
+
+def test_numpy_replica_fits_planes():
+    """On its own (no numba needed): a plane is reproduced to rounding, even at the frame's edge and
+    beside a hole; a box with fewer than 3 valid pixels gives their mean; invalid pixels keep Phi."""
+    from unwrap.learned._plane_numpy import plane_filter_numpy
+
+    y, x = np.mgrid[0:70, 0:140].astype(float)
+    Phi = 0.013 * x - 0.021 * y + 1.5
+    valid = np.ones_like(Phi, bool)
+    valid[20:40, 50:90] = False
+    Phi[~valid] = 7.0
+    valid[55:66, 0:10] = False
+    valid[60, 3] = True                                          # alone in its 7 x 7 box
+    out = plane_filter_numpy(Phi, valid, 3)
+    keep = valid.copy()
+    keep[60, 3] = False
+    np.testing.assert_allclose(out[keep], Phi[keep], rtol=0, atol=1e-12)
+    assert abs(out[60, 3] - Phi[60, 3]) < 1e-12                  # the mean of one pixel (sliding sums round)
+    assert np.array_equal(out[~valid], Phi[~valid])
+
+
+@pytest.mark.realdata
+def test_numpy_replica_on_a_real_capture():
+    """The SLStudio skull's coarse (unit-frequency) phase and mask: the same bits."""
+    pytest.importorskip("numba")
+    from unwrap.capture import load_capture, read_stack
+    from unwrap.learned._plane_kernel import plane_filter_kernel
+    from unwrap.learned._plane_numpy import plane_filter_numpy
+    from unwrap.phase_shift import wrapped_phase
+
+    oc = load_capture(shared_data("slstudio-ps2x3-calib") / "skull_2x3").orientations["v"]
+    s = min(oc.sets, key=lambda s: s.frequency)
+    w = wrapped_phase(read_stack(s.files), s.shifts, min_modulation=0.02 * 255)
+    valid = np.asarray(w.valid, bool)
+    assert valid.sum() > 50_000
+    for r in (3, 7):
+        assert np.array_equal(_bits(plane_filter_numpy(w.phase, valid, r)),
+                              _bits(plane_filter_kernel(w.phase, valid, r)))
+
+
+_CHILD = """
+import json, sys
+from sltwin.cli import main
+from unwrap import warmup
+code = main(sys.argv[1:])
+print("STATE " + json.dumps({"code": code, "numba": "numba" in sys.modules,
+                             "warm": warmup.started("plane_filter") is not None}))
+"""
+
+
+def _calib(args, tmp_path):
+    p = subprocess.run([sys.executable, "-c", _CHILD, *map(str, args)], capture_output=True, text=True, cwd=ROOT,
+                       env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=600)
+    line = [x for x in p.stdout.splitlines() if x.startswith("STATE ")]
+    assert line, p.stderr[-2000:]
+    return json.loads(line[-1][6:])
+
+
+def test_one_capture_with_a_model_loads_no_numba_and_a_batch_warms_it_up(tmp_path):
+    """`calib unwrap CAPTURE --model M` (one capture): no numba in the process (its features' plane
+    fits run in numpy, the same bits); a batch of captures starts the compiled kernel's warm-up."""
+    pytest.importorskip("numba")
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench.deploy_speed import write_capture
+    from test_learned_use import constant_model
+
+    model = constant_model(tmp_path / "m.pt", kind="physics")
+    batch = tmp_path / "batch"
+    for name in ("a", "b"):
+        write_capture(batch / name, (64, 48), seed=5)
+    one = _calib(["unwrap", batch / "a", "--model", model, "-o", tmp_path / "one", "--no-previews", "-q"], tmp_path)
+    assert one == {"code": 0, "numba": False, "warm": False}
+    many = _calib(["unwrap", batch, "--model", model, "-o", tmp_path / "many", "--no-previews", "-q"], tmp_path)
+    assert many["code"] == 0 and many["warm"] and many["numba"]
+    import h5py
+
+    with h5py.File(tmp_path / "one" / "unwrap.h5") as f, h5py.File(tmp_path / "many" / "a" / "unwrap.h5") as g:
+        for o in ("v", "h"):
+            for name in ("order", "phase", "confidence", "prior"):
+                assert f[o][name][()].tobytes() == g[o][name][()].tobytes(), (o, name)
