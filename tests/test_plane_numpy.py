@@ -43,6 +43,9 @@ def test_numpy_replica_gives_the_compiled_kernels_bits(shape, monkeypatch):
     Phi, valid = _scene(*shape, seed=shape[0])
     for r in (3, 7):
         assert np.array_equal(_bits(N.plane_filter_numpy(Phi, valid, r)), _bits(K.plane_filter_kernel(Phi, valid, r)))
+    both = N.plane_filter_numpy(Phi, valid, (3, 7))                 # every box in one pass: the same
+    for r, got in zip((3, 7), both):
+        assert np.array_equal(_bits(got), _bits(K.plane_filter_kernel(Phi, valid, r)))
     monkeypatch.setattr(K, "BLOCK", 7)
     a = K.plane_filter_kernel(Phi, valid, 3)
     assert np.array_equal(_bits(N.plane_filter_numpy(Phi, valid, 3, block=7)), _bits(a))
