@@ -130,3 +130,63 @@ def test_one_capture_with_a_model_loads_no_numba_and_a_batch_warms_it_up(tmp_pat
         for o in ("v", "h"):
             for name in ("order", "phase", "confidence", "prior"):
                 assert f[o][name][()].tobytes() == g[o][name][()].tobytes(), (o, name)
+
+
+def _rss_mb():
+    with open("/proc/self/status") as f:
+        return next(int(line.split()[1]) / 1024 for line in f if line.startswith("VmRSS"))
+
+
+def test_trim_heap_gives_freed_heap_pages_back():
+    """Blocks of the heap freed between live ones stay resident until trim_heap (glibc's
+    malloc_trim) hands their pages back."""
+    import ctypes
+    import platform
+
+    from unwrap.memory import trim_heap
+
+    if platform.libc_ver()[0] != "glibc":
+        assert trim_heap() is False
+        return
+    libc = ctypes.CDLL("libc.so.6")
+    libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
+    libc.free.argtypes = [ctypes.c_void_p]
+    size, n = 60 * 1024, 1600                                   # below any mmap threshold: heap blocks
+    blocks = [libc.malloc(size) for _ in range(n)]
+    for b in blocks:
+        ctypes.memset(b, 1, size)                                 # resident
+    for b in blocks[::2]:
+        libc.free(b)                                              # holes between live blocks
+    before = _rss_mb()
+    assert trim_heap() is True
+    assert before - _rss_mb() > 0.3 * n / 2 * size / 2 ** 20      # most of the ~47 MB of holes returned
+    for b in blocks[1::2]:
+        libc.free(b)
+
+
+def test_the_learned_path_trims_the_heap_right_before_the_forward(monkeypatch):
+    """unwrap_learned calls trim_heap after the input is built and before the network runs (the
+    forward is the command's peak); the orders do not depend on it."""
+    from unwrap.learned import infer
+    from unwrap.learned.runtime import load_predictor
+
+    calls = []
+    pred = load_predictor(_model())
+    logits = pred.logits
+    monkeypatch.setattr(infer, "trim_heap", lambda: calls.append("trim"))
+    monkeypatch.setattr(pred, "logits", lambda x: calls.append("forward") or logits(x))
+    rng = np.random.default_rng(0)
+    u = np.linspace(10, 900, 64)[None, :].repeat(48, 0) + rng.normal(0, 0.2, (48, 64))
+    phi = [np.angle(np.exp(2j * np.pi * f * u / 912)) for f in (1, 48)]
+    B = np.full((48, 64), 0.4)
+    r = infer.unwrap_learned("mf", phi[0], phi[1], B, B, np.ones((48, 64), bool), (1, 48), width=912, model=pred)
+    assert calls == ["trim", "forward"] and (r.order >= 0).any()
+
+
+def _model():
+    import tempfile
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from test_learned_use import constant_model
+
+    return constant_model(Path(tempfile.mkdtemp()) / "m.pt", kind="physics")
