@@ -51,6 +51,14 @@ def test_numpy_replica_gives_the_compiled_kernels_bits(shape, monkeypatch):
     assert np.array_equal(_bits(N.plane_filter_numpy(Phi, valid, 3, block=7)), _bits(a))
 
 
+def test_the_compiled_kernel_serves_a_process_that_has_numba_loaded():
+    pytest.importorskip("numba")
+    from unwrap.learned import fast_features as FF
+    from unwrap.learned._plane_kernel import plane_filter_kernel
+
+    assert FF._kernel() is plane_filter_kernel          # (numba is imported by now)
+
+
 def test_numpy_replica_fits_planes():
     """On its own (no numba needed): a plane is reproduced to rounding, even at the frame's edge and
     beside a hole; a box with fewer than 3 valid pixels gives their mean; invalid pixels keep Phi."""

@@ -84,11 +84,12 @@ def plane_filter(Phi: np.ndarray, valid: np.ndarray, windows=SMOOTH_WINDOWS, fit
 
 def _kernel():
     """The one-box plane filter ``f(Phi, valid, r)``: numba's compiled kernel
-    (:mod:`unwrap.learned._plane_kernel`) where this process has loaded it or is loading it
-    (:func:`unwrap.warmup.plane_filter`, waited for here; the filtered baseline's compiled path),
-    else its numpy replica (:mod:`unwrap.learned._plane_numpy`), which gives the same bits. A
-    process that decodes one capture so never imports numba (~0.8-1 s of CPU and ~120 MB resident
-    to load, against ~0.1-0.2 s more per box in numpy at 900 x 700); a batch warms the kernel up."""
+    (:mod:`unwrap.learned._plane_kernel`) in a process that has imported numba already (the
+    traditional decoders' fused kernel, a batch's warm-up: :func:`unwrap.warmup.plane_filter`,
+    waited for here), else its numpy replica (:mod:`unwrap.learned._plane_numpy`), which gives the
+    same bits. ``calib unwrap --model`` on one capture so never imports numba: its import and
+    cache load cost ~0.8-1 s of CPU and ~120 MB resident, the replica ~0.1 s more per box at 900 x
+    700 (docs/speed.md, session 9)."""
     import sys
 
     from .. import warmup
@@ -96,9 +97,9 @@ def _kernel():
     w = warmup.started("plane_filter")
     if w is not None:
         w.wait()
-    if f"{__package__}._plane_kernel" in sys.modules:
+    if "numba" in sys.modules:
         try:
-            from ._plane_kernel import plane_filter_kernel     # (waits for an import in progress)
+            from ._plane_kernel import plane_filter_kernel
             return plane_filter_kernel
         except ImportError:
             pass
