@@ -74,7 +74,7 @@ def add_arguments(parser):
     parser.add_argument("--no-previews", action="store_true", help="skip the PNG previews")
     parser.add_argument("--low-memory", action="store_true",
                         help="return freed memory to the system at once (glibc): a lower peak (900x700 with --model: "
-                             "~510 -> ~420 MB) for 10-30 %% more CPU time (docs/speed.md)")
+                             "~375 -> ~305 MB) for 10-30 %% more CPU time (docs/speed.md)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress messages")
 
 
