@@ -30,25 +30,38 @@ def _bits(a):
     return np.ascontiguousarray(a).view(np.int64)
 
 
+def _replicas():
+    """(name, f(Phi, valid, r, block=...)) of the numba-free engines available here."""
+    from unwrap.learned import _plane_c, _plane_numpy
+
+    out = [("numpy", _plane_numpy.plane_filter_numpy)]
+    c = _plane_c.kernel()
+    return out + ([("C", c)] if c is not None else [])
+
+
 @pytest.mark.parametrize("shape", [(5, 3), (37, 150), (130, 64), (150, 333), (129, 193)])
-def test_numpy_replica_gives_the_compiled_kernels_bits(shape, monkeypatch):
+def test_replicas_give_the_compiled_kernels_bits(shape, monkeypatch):
     """Frames narrower and shorter than a box or a block, several blocks and partial last blocks,
     holes, NaN at invalid pixels, -0.0: every output bit equal, for both boxes, also with another
-    block length (the runs' restart points move together)."""
+    block length (the runs' restart points move together), for the C replica as for numpy's."""
     pytest.importorskip("numba")
+    from unwrap.learned import _plane_c
     from unwrap.learned import _plane_kernel as K
     from unwrap.learned import _plane_numpy as N
 
-    assert N.BLOCK == K.BLOCK
+    assert N.BLOCK == K.BLOCK == _plane_c.BLOCK
     Phi, valid = _scene(*shape, seed=shape[0])
-    for r in (3, 7):
-        assert np.array_equal(_bits(N.plane_filter_numpy(Phi, valid, r)), _bits(K.plane_filter_kernel(Phi, valid, r)))
-    both = N.plane_filter_numpy(Phi, valid, (3, 7))                 # every box in one pass: the same
+    ref = {r: _bits(K.plane_filter_kernel(Phi, valid, r)) for r in (3, 7)}
+    for name, f in _replicas():
+        for r in (3, 7):
+            assert np.array_equal(_bits(f(Phi, valid, r)), ref[r]), (name, r)
+    both = N.plane_filter_numpy(Phi, valid, (3, 7))                 # every box in one numpy pass: the same
     for r, got in zip((3, 7), both):
-        assert np.array_equal(_bits(got), _bits(K.plane_filter_kernel(Phi, valid, r)))
+        assert np.array_equal(_bits(got), ref[r])
     monkeypatch.setattr(K, "BLOCK", 7)
-    a = K.plane_filter_kernel(Phi, valid, 3)
-    assert np.array_equal(_bits(N.plane_filter_numpy(Phi, valid, 3, block=7)), _bits(a))
+    a = _bits(K.plane_filter_kernel(Phi, valid, 3))
+    for name, f in _replicas():
+        assert np.array_equal(_bits(f(Phi, valid, 3, block=7)), a), name
 
 
 def test_the_compiled_kernel_serves_a_process_that_has_numba_loaded():
@@ -59,10 +72,14 @@ def test_the_compiled_kernel_serves_a_process_that_has_numba_loaded():
     assert FF._kernel() is plane_filter_kernel          # (numba is imported by now)
 
 
-def test_numpy_replica_fits_planes():
-    """On its own (no numba needed): a plane is reproduced to rounding, even at the frame's edge and
-    beside a hole; a box with fewer than 3 valid pixels gives their mean; invalid pixels keep Phi."""
-    from unwrap.learned._plane_numpy import plane_filter_numpy
+@pytest.mark.parametrize("engine", ["numpy", "C"])
+def test_replicas_fit_planes(engine):
+    """On their own (no numba needed): a plane is reproduced to rounding, even at the frame's edge
+    and beside a hole; a box with fewer than 3 valid pixels gives their mean; invalid pixels keep Phi."""
+    engines = dict(_replicas())
+    if engine not in engines:
+        pytest.skip("no C compiler here")
+    plane_filter_numpy = engines[engine]
 
     y, x = np.mgrid[0:70, 0:140].astype(float)
     Phi = 0.013 * x - 0.021 * y + 1.5
@@ -85,7 +102,6 @@ def test_numpy_replica_on_a_real_capture():
     pytest.importorskip("numba")
     from unwrap.capture import load_capture, read_stack
     from unwrap.learned._plane_kernel import plane_filter_kernel
-    from unwrap.learned._plane_numpy import plane_filter_numpy
     from unwrap.phase_shift import wrapped_phase
 
     oc = load_capture(shared_data("slstudio-ps2x3-calib") / "skull_2x3").orientations["v"]
@@ -94,8 +110,8 @@ def test_numpy_replica_on_a_real_capture():
     valid = np.asarray(w.valid, bool)
     assert valid.sum() > 50_000
     for r in (3, 7):
-        assert np.array_equal(_bits(plane_filter_numpy(w.phase, valid, r)),
-                              _bits(plane_filter_kernel(w.phase, valid, r)))
+        for name, f in _replicas():
+            assert np.array_equal(_bits(f(w.phase, valid, r)), _bits(plane_filter_kernel(w.phase, valid, r))), name
 
 
 _CHILD = """

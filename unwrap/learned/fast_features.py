@@ -8,8 +8,8 @@ The same quantities as :func:`unwrap.learned.features.make_inputs` / :func:`~unw
   15 px): two separable sliding passes per box, moments about each box's centre, the plane solved
   by Cramer's rule with :func:`unwrap.learned.smoothing.smooth_phase`'s conditioning rule, run by
   numba's compiled kernel (:mod:`unwrap.learned._plane_kernel`) in a process that has loaded it,
-  else by its numpy replica (:mod:`unwrap.learned._plane_numpy`: bitwise the same result, without
-  numba's ~1 s and ~120 MB of start-up; :func:`_kernel`);
+  else by its C or numpy replica (:mod:`unwrap.learned._plane_c`, :mod:`unwrap.learned._plane_numpy`:
+  bitwise the same result, without numba's ~1 s and ~120 MB of start-up; :func:`_kernel`);
 - every other channel is elementwise float32, in the order and precision of the torch code (the
   phases are rounded to float32 before the float64 plane fit, as the torch batch holds them).
 
@@ -62,7 +62,7 @@ def plane_filter(Phi: np.ndarray, valid: np.ndarray, windows=SMOOTH_WINDOWS, fit
     keep ``Phi``. ``fit``: "plane" (local least-squares plane at the pixel; the box mean where the
     box has < 3 valid pixels or they are collinear) or "mean" (masked box mean).
     Same algorithm and conditioning rule as :func:`unwrap.learned.smoothing.smooth_phase`;
-    "plane" by numba's compiled kernel (:mod:`unwrap.learned._plane_kernel`) or its bitwise
+    "plane" by numba's compiled kernel (:mod:`unwrap.learned._plane_kernel`) or its bitwise C or
     numpy replica (:func:`_kernel`); "mean" as box sums."""
     if fit not in ("plane", "mean"):
         raise ValueError(f"fit {fit!r}: expected 'plane' or 'mean'")
@@ -86,10 +86,11 @@ def _kernel():
     """The one-box plane filter ``f(Phi, valid, r)``: numba's compiled kernel
     (:mod:`unwrap.learned._plane_kernel`) in a process that has imported numba already (the
     traditional decoders' fused kernel, a batch's warm-up: :func:`unwrap.warmup.plane_filter`,
-    waited for here), else its numpy replica (:mod:`unwrap.learned._plane_numpy`), which gives the
-    same bits. ``calib unwrap --model`` on one capture so never imports numba: its import and
-    cache load cost ~0.8-1 s of CPU and ~120 MB resident, the replica ~0.1 s more per box at 900 x
-    700 (docs/speed.md, session 9)."""
+    waited for here), else its C replica (:mod:`unwrap.learned._plane_c`, compiled once per machine
+    and cached), else, without a C compiler, its numpy replica (:mod:`unwrap.learned._plane_numpy`);
+    all three give the same bits. ``calib unwrap --model`` on one capture so never imports numba,
+    whose import and cache load cost ~0.8-1 s of CPU and ~120 MB resident (docs/speed.md, session
+    9); a box at 900 x 700 takes ~10 ms compiled, ~17 ms in C, ~0.1 s in numpy."""
     import sys
 
     from .. import warmup
@@ -103,6 +104,11 @@ def _kernel():
             return plane_filter_kernel
         except ImportError:
             pass
+    from ._plane_c import kernel
+
+    c = kernel()
+    if c is not None:
+        return c
     from ._plane_numpy import plane_filter_numpy
     return plane_filter_numpy
 
