@@ -2,7 +2,8 @@
 
 Why: a process that decodes one capture pays ~0.8-1 s of CPU and ~120 MB of resident memory to
 import numba and load the compiled kernel from its cache (docs/speed.md, session 9), for a
-kernel that then runs in ~10 ms a box. This module runs the same two sliding passes with numpy,
+kernel that then runs in ~10 ms a box. :mod:`unwrap.learned._plane_c` runs it in C where a C
+compiler is at hand; this module, the fallback, runs the same two sliding passes with numpy,
 vectorised across the independent runs instead of across pixels, every box size at once: pass 1
 advances every (box, row, block of :data:`BLOCK` columns) run one column per step, pass 2 every
 (box, block of :data:`BLOCK` rows) run one row per step over the whole row width. Every float64
