@@ -175,9 +175,11 @@ def run_batch(args, folders, decode) -> int:
     from unwrap.pipeline import write_results
 
     if args.model is not None:      # many captures: numba's plane-fit kernel pays for its ~1 s load
-        from unwrap import warmup
+        from unwrap import warmup     # unless the features' plane fits run in C (no C compiler here)
+        from unwrap.learned.fast_features import native_plane_filter
 
-        warmup.plane_filter()
+        if not native_plane_filter():
+            warmup.plane_filter()
     out = Path(args.output)
     names = dict(zip(folders, output_names(folders)))
     t0, items = time.perf_counter(), []
