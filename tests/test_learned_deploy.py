@@ -255,19 +255,24 @@ def test_a_folder_of_captures_streams_with_one_model_and_a_summary(onnx_model, c
     assert (tmp_path / "out2" / "b" / "unwrap.h5").is_file()
 
 
-def test_plane_filter_numba_kernel_and_numpy_box_sums_agree(monkeypatch):
+def test_plane_filter_numba_kernel_and_numpy_replica_agree(monkeypatch):
+    """plane_filter's two engines (docs/speed.md, session 9): the same bits."""
+    pytest.importorskip("numba")
+    from unwrap.learned import _plane_kernel
     from unwrap.learned import fast_features as FF
+    from unwrap.learned._plane_numpy import plane_filter_numpy
 
     rng = np.random.default_rng(7)
     y, x = np.mgrid[0:50, 0:61].astype(float)
     Phi = 0.05 * x + 0.01 * y + rng.normal(0, 0.1, x.shape)
     valid = rng.random(x.shape) > 0.3
     valid[:, :3] = False
+    monkeypatch.setattr(FF, "_kernel", lambda: _plane_kernel.plane_filter_kernel)
     fast = FF.plane_filter(Phi, valid, (7, 15))
-    monkeypatch.setattr(FF, "_kernel", lambda: None)
+    monkeypatch.setattr(FF, "_kernel", lambda: plane_filter_numpy)
     slow = FF.plane_filter(Phi, valid, (7, 15))
     for w in (7, 15):
-        np.testing.assert_allclose(fast[w], slow[w], rtol=0, atol=1e-9)
+        assert fast[w].tobytes() == slow[w].tobytes()
 
 
 def test_sliding_plane_kernel_matches_direct_sums_over_many_blocks(monkeypatch):

@@ -256,9 +256,10 @@ def test_a_gzip_level_other_than_1_is_written_by_h5py_at_that_level(tmp_path, mo
         assert bool(calls) == (level == 1), level
 
 
-def test_the_plane_fit_warm_up_runs_for_a_physics_model_only(tmp_path, monkeypatch):
-    """unwrap_capture_learned loads the plane-fit kernel early for a physics-aware model, whose
-    features fit planes; a prior-free model's do not, and nothing (numba's ~100 MB) is loaded for it."""
+def test_the_learned_capture_path_starts_no_warm_up(tmp_path, monkeypatch):
+    """unwrap_capture_learned no longer loads numba's plane-fit kernel for one capture (its numpy
+    replica gives the same bits: tests/test_plane_numpy.py); only a batch of captures asks for it
+    (`calib unwrap` with several captures)."""
     import sys
     from pathlib import Path
 
@@ -269,10 +270,8 @@ def test_the_plane_fit_warm_up_runs_for_a_physics_model_only(tmp_path, monkeypat
     from unwrap.learned.capture import unwrap_capture_learned
 
     started = []
-    plane_filter = warmup.plane_filter
-    monkeypatch.setattr(warmup, "plane_filter", lambda: started.append(1) or plane_filter())
+    monkeypatch.setattr(warmup, "plane_filter", lambda: started.append(1))
     cap = write_capture(tmp_path / "cap", (64, 48), seed=4)
     for kind in ("prior_free", "physics"):
-        started.clear()
         out = unwrap_capture_learned(cap, "mf", constant_model(tmp_path / f"{kind}.pt", kind=kind))
-        assert set(out) == {"v", "h"} and started == ([1] if kind == "physics" else []), kind
+        assert set(out) == {"v", "h"} and started == [], kind

@@ -15,6 +15,11 @@ every buffer of the network's forward: ~15 % of the command's CPU time); at 4 Mi
 It is a setting of the whole process: ``calib unwrap --low-memory`` asks for it; library code does
 not set it. It outlasts the command in a Python process that runs it in-process
 (``sltwin.cli.main([... "--low-memory"])``): glibc has no call that restores the dynamic threshold.
+
+:func:`trim_heap` is the one-off, setting-free counterpart (``malloc_trim(0)``: the heap's free
+pages go back to the system now, the threshold stays dynamic). The learned path calls it before
+the network's forward, the peak of ``calib unwrap --model``: there the heap held ~50-130 MB of
+freed maps on ~160-190 MB live (900 x 700, docs/speed.md, session 9).
 """
 from __future__ import annotations
 
@@ -37,4 +42,18 @@ def fix_mmap_threshold(nbytes: int = DEFAULT_THRESHOLD) -> bool:
         libc = ctypes.CDLL("libc.so.6")
         return bool(libc.mallopt(_M_MMAP_THRESHOLD, int(nbytes)))
     except (OSError, AttributeError):       # musl or another libc without mallopt
+        return False
+
+
+def trim_heap() -> bool:
+    """Give the free pages of glibc's heaps back to the system now (``malloc_trim(0)``; module
+    docstring). True when glibc released memory; False when there was none to release or the C
+    library is not glibc (nothing changes)."""
+    if not sys.platform.startswith("linux"):
+        return False
+    import ctypes
+
+    try:
+        return bool(ctypes.CDLL("libc.so.6").malloc_trim(0))
+    except (OSError, AttributeError):       # musl or another libc without malloc_trim
         return False

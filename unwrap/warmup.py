@@ -56,6 +56,12 @@ def start(key, fn) -> Warmup:
         return _STARTED[key]
 
 
+def started(key):
+    """The :class:`Warmup` started for ``key`` in this process (running or done), else None."""
+    with _LOCK:
+        return _STARTED.get(key)
+
+
 def fused_mf(dtype, n_frequencies: int, max_steps: int) -> Warmup:
     """Load the fused MF kernel (:mod:`unwrap.fused_mf`) for stacks of ``dtype`` (uint8 / uint16),
     ``n_frequencies`` stacks of at most ``max_steps`` frames: the kernel's types depend on the
@@ -89,11 +95,13 @@ def fused_mf_for(first_frame, n_frequencies: int, max_steps: int) -> Warmup:
 
 
 def plane_filter() -> Warmup:
-    """Load the learned path's plane-fit kernel (:func:`unwrap.learned.fast_features.plane_filter`,
-    both boxes: one overload)."""
+    """Load the learned path's plane-fit kernel (:mod:`unwrap.learned._plane_kernel`, both boxes:
+    one overload). Only a process that decodes several captures asks for it: from then on
+    :func:`unwrap.learned.fast_features.plane_filter` waits for it and runs the compiled kernel
+    instead of its numpy replica (the same bits)."""
     def run():
-        from .learned.fast_features import plane_filter
+        from .learned._plane_kernel import plane_filter_kernel
 
-        plane_filter(np.zeros((16, 16)), np.ones((16, 16), bool))
+        plane_filter_kernel(np.zeros((16, 16)), np.ones((16, 16), bool), 3)
 
     return start("plane_filter", run)

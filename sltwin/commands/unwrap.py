@@ -80,7 +80,7 @@ def add_arguments(parser):
     parser.add_argument("--no-previews", action="store_true", help="skip the PNG previews")
     parser.add_argument("--low-memory", action="store_true",
                         help="return freed memory to the system at once (glibc): a lower peak (900x700 with --model: "
-                             "~510 -> ~420 MB) for 10-30 %% more CPU time (docs/speed.md)")
+                             "~375 -> ~305 MB) for 10-30 %% more CPU time (docs/speed.md)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress messages")
 
 
@@ -124,10 +124,6 @@ def decoder(args):
         if args.spatial is None and (args.max_error_rate is not None or args.noise_sigma is not None):
             raise CommandError("--max-error-rate / --noise-sigma set the threshold from the traditional decoders' "
                                "reliability model; with --model give --min-modulation instead")
-        if args.spatial is None:        # (the learned capture path waits for it before its features)
-            from unwrap import warmup
-
-            warmup.plane_filter()       # the features' compiled kernel loads while the model and the frames are read
         model = load_predictor(args.model, device=args.device, precision=args.precision)
         kind = model.arch.get("kind")
         if kind != "physics":           # the prior-free baseline has no traditional prior to correct
@@ -186,6 +182,12 @@ def run_batch(args, folders, decode) -> int:
     from unwrap.batch import output_names, stream, summary
     from unwrap.pipeline import write_results
 
+    if args.model is not None:      # many captures: numba's plane-fit kernel pays for its ~1 s load
+        from unwrap import warmup     # unless the features' plane fits run in C (no C compiler here)
+        from unwrap.learned.fast_features import native_plane_filter
+
+        if not native_plane_filter():
+            warmup.plane_filter()
     out = Path(args.output)
     names = dict(zip(folders, output_names(folders)))
     t0, items = time.perf_counter(), []

@@ -21,7 +21,6 @@ import math
 
 import numpy as np
 
-from .. import warmup
 from .._xp import TWO_PI
 from ..capture import FrameReader, load_capture
 from ..consistency import check_priors, prior_check
@@ -38,11 +37,9 @@ log = logging.getLogger("unwrap.learned")
 
 
 def learned_orientation(oc, method: str, model, *, min_modulation=None, on_outside: str = "raise",
-                        check_prior: bool = True, camera_size=None, progress: bool = False,
-                        warm=None) -> OrientationResult:
+                        check_prior: bool = True, camera_size=None, progress: bool = False) -> OrientationResult:
     """One orientation of a capture (:class:`unwrap.capture.OrientationCapture`) by the network
-    (checks: module docstring; ``camera_size`` (W, H) the frames must have; ``warm``: an
-    :class:`unwrap.warmup.Warmup` to wait for before the features)."""
+    (checks: module docstring; ``camera_size`` (W, H) the frames must have)."""
     reader = FrameReader(camera_size)
     sets = sorted(oc.sets, key=lambda s: s.frequency)
     freqs = [float(s.frequency) for s in sets]
@@ -63,8 +60,6 @@ def learned_orientation(oc, method: str, model, *, min_modulation=None, on_outsi
                 freqs[i], len(sets[i].files))
     (lo_phase, lo_valid, lo_B, _, full_lo), (hi_phase, hi_valid, hi_B, hi_A, full_hi) = w.pop(i_lo), w.pop(i_hi)
     valid = lo_valid & hi_valid
-    if warm is not None:
-        warm.wait()
     r = unwrap_learned(method, lo_phase, hi_phase, lo_B / full_lo, hi_B / full_hi, valid, (freqs[i_lo], freqs[i_hi]),
                        width=oc.width, model=model, on_outside=on_outside)
     del lo_phase, lo_B, lo_valid
@@ -96,9 +91,7 @@ def unwrap_capture_learned(folder, method: str = "mf", model="learned", *, prese
     """Every orientation of a capture folder by the network: {"v": OrientationResult, ...}."""
     cap = load_capture(folder, preset, pose)
     net = load_predictor(model)          # loaded once (cached per process), shared by the orientations
-    # the physics features' compiled kernel loads while the frames are read (a prior-free model's
-    # features have no plane fit: no numba loaded for it)
-    warm = warmup.plane_filter() if net.arch.get("kind") == "physics" else None
+    # (the features' plane fits run in numpy unless the process warmed numba's kernel up: a batch)
     return each_orientation(cap, f"{method} + learned", lambda oc: learned_orientation(
         oc, method, net, min_modulation=min_modulation, on_outside=on_outside, check_prior=check_prior,
-        camera_size=cap.camera_size, progress=progress, warm=warm), progress)
+        camera_size=cap.camera_size, progress=progress), progress)

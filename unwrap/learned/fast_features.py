@@ -5,12 +5,11 @@ The same quantities as :func:`unwrap.learned.features.make_inputs` / :func:`~unw
 (channel table there), computed in one pass:
 
 - the local plane fits of the coarse phase at each box (:data:`channels.SMOOTH_WINDOWS`, 7 and
-  15 px): with numba, one compiled kernel per box (:mod:`unwrap.learned._plane_kernel`: two
-  separable passes, moments about each box's centre, the plane solved in the same pass); without
-  it, both boxes share one product stack (valid, phase, and their x / y / x^2 / y^2 / xy moments:
-  9 float64 planes) filtered by unnormalised separable box filters (``cv2.boxFilter``, running
-  sums, zeros outside the image as the torch cumulative sums). Either way the plane is solved by
-  Cramer's rule with :func:`unwrap.learned.smoothing.smooth_phase`'s conditioning rule;
+  15 px): two separable sliding passes per box, moments about each box's centre, the plane solved
+  by Cramer's rule with :func:`unwrap.learned.smoothing.smooth_phase`'s conditioning rule, run by
+  numba's compiled kernel (:mod:`unwrap.learned._plane_kernel`) in a process that has loaded it,
+  else by its C or numpy replica (:mod:`unwrap.learned._plane_c`, :mod:`unwrap.learned._plane_numpy`:
+  bitwise the same result, without numba's ~1 s and ~120 MB of start-up; :func:`_kernel`);
 - every other channel is elementwise float32, in the order and precision of the torch code (the
   phases are rounded to float32 before the float64 plane fit, as the torch batch holds them).
 
@@ -63,59 +62,65 @@ def plane_filter(Phi: np.ndarray, valid: np.ndarray, windows=SMOOTH_WINDOWS, fit
     """{window: filtered ``Phi`` (H, W) float64} over the valid pixels of each box; invalid pixels
     keep ``Phi``. ``fit``: "plane" (local least-squares plane at the pixel; the box mean where the
     box has < 3 valid pixels or they are collinear) or "mean" (masked box mean).
-    Same algorithm and conditioning rule as :func:`unwrap.learned.smoothing.smooth_phase`; with
-    numba, the plane runs as one compiled kernel (:mod:`unwrap.learned._plane_kernel`), else as
-    box sums of a product stack here."""
+    Same algorithm and conditioning rule as :func:`unwrap.learned.smoothing.smooth_phase`;
+    "plane" by numba's compiled kernel (:mod:`unwrap.learned._plane_kernel`) or its bitwise C or
+    numpy replica (:func:`_kernel`); "mean" as box sums."""
     if fit not in ("plane", "mean"):
         raise ValueError(f"fit {fit!r}: expected 'plane' or 'mean'")
-    H, W = Phi.shape
     Phi = np.asarray(Phi, dtype=np.float64)
-    kernel = _kernel() if fit == "plane" else None
-    if kernel is not None:
+    if fit == "plane":
+        kernel = _kernel()
         ok = np.ascontiguousarray(valid, dtype=bool)
         return {int(w) | 1: kernel(np.ascontiguousarray(Phi), ok, (int(w) | 1) // 2) for w in windows}
     v = np.asarray(valid, dtype=bool).astype(np.float64)
     P = np.where(v > 0, Phi, 0.0)
-    if fit == "mean":
-        planes = [v, P]
-    else:
-        x = np.arange(W, dtype=np.float64)[None, :]
-        y = np.arange(H, dtype=np.float64)[:, None]
-        vx, vy = v * x, v * y
-        planes = [v, P, vx, vy, vx * x, vy * y, vx * y, P * x, P * y]
-    stack = np.stack(planes, axis=-1)
+    stack = np.stack([v, P], axis=-1)
     out = {}
     for win in windows:
-        win = int(win) | 1
-        s = box_sum(stack, win)
+        s = box_sum(stack, int(win) | 1)
         S0, SP = s[..., 0], s[..., 1]
-        mean = np.where(S0 > 0.5, SP / np.maximum(S0, 1.0), P)
-        if fit == "mean":
-            out[win] = np.where(v > 0, mean, Phi)
-            continue
-        Bx, By, Bxx, Byy, Bxy, BPx, BPy = (s[..., i] for i in range(2, 9))
-        # moments about each box's own centre pixel (as smoothing.smooth_phase)
-        Sx, Sy = Bx - x * S0, By - y * S0
-        Sxx = Bxx - 2 * x * Bx + x * x * S0
-        Syy = Byy - 2 * y * By + y * y * S0
-        Sxy = Bxy - x * By - y * Bx + x * y * S0
-        SxP, SyP = BPx - x * SP, BPy - y * SP
-        det = S0 * (Sxx * Syy - Sxy * Sxy) - Sx * (Sx * Syy - Sxy * Sy) + Sy * (Sx * Sxy - Sxx * Sy)
-        num = SP * (Sxx * Syy - Sxy * Sxy) - Sx * (SxP * Syy - Sxy * SyP) + Sy * (SxP * Sxy - Sxx * SyP)
-        scale = S0 * (Sxx + Syy) ** 2 + 1e-12
-        well = (S0 >= 3) & (det > 1e-6 * scale)
-        plane = np.where(well, num / np.where(well, det, 1.0), mean)
-        out[win] = np.where(v > 0, plane, Phi)
+        out[int(win) | 1] = np.where(v > 0, np.where(S0 > 0.5, SP / np.maximum(S0, 1.0), P), Phi)
     return out
 
 
+def native_plane_filter() -> bool:
+    """True when the plane fits run compiled without numba here (the C replica built or cached):
+    then even a batch of captures has no use for numba's ~1 s start-up (a box takes ~17 ms in C,
+    ~10 ms in numba, ~0.1 s in numpy at 900 x 700)."""
+    from ._plane_c import kernel
+
+    return kernel() is not None
+
+
 def _kernel():
-    """The numba plane filter (:mod:`unwrap.learned._plane_kernel`), or None without numba."""
-    try:
-        from ._plane_kernel import plane_filter_kernel
-    except ImportError:
-        return None
-    return plane_filter_kernel
+    """The one-box plane filter ``f(Phi, valid, r)``: numba's compiled kernel
+    (:mod:`unwrap.learned._plane_kernel`) in a process that has imported numba already (the
+    traditional decoders' fused kernel, a batch's warm-up: :func:`unwrap.warmup.plane_filter`,
+    waited for here), else its C replica (:mod:`unwrap.learned._plane_c`, compiled once per machine
+    and cached), else, without a C compiler, its numpy replica (:mod:`unwrap.learned._plane_numpy`);
+    all three give the same bits. ``calib unwrap --model`` on one capture so never imports numba,
+    whose import and cache load cost ~0.8-1 s of CPU and ~120 MB resident (docs/speed.md, session
+    9); a box at 900 x 700 takes ~10 ms compiled, ~17 ms in C, ~0.1 s in numpy."""
+    import sys
+
+    from .. import warmup
+
+    w = warmup.started("plane_filter")
+    if w is not None:
+        w.wait()
+    if "numba" in sys.modules:
+        try:
+            from ._plane_kernel import plane_filter_kernel
+            return plane_filter_kernel
+        except ImportError:
+            pass
+    from ._plane_c import kernel
+
+    c = kernel()
+    if c is not None:
+        return c
+    from ._plane_numpy import plane_filter_numpy
+    return plane_filter_numpy
 
 
 def coarse_phase(method: str, phi_l: np.ndarray, phi_h: np.ndarray, f_l: float, f_h: float, width=None):

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import _xp
+from ..memory import trim_heap
 from ..methods import coarse_ratio
 from ..temporal import decode_pair
 from . import fast_features as FF
@@ -195,6 +196,7 @@ def unwrap_learned(method: str, phase_low, phase_high, modulation_low, modulatio
     H, W = x.shape[-2:]
     if hasattr(pred, "prepare"):       # padded for the graph: the unpadded input is freed before the forward
         x = pred.prepare(x)
+    trim_heap()                        # the forward is the peak: the maps freed so far leave the heap first
     logits = pred.logits(x)[..., :H, :W]
     del x                                                            # the input (C x H x W float32) is not needed after
     order, conf = FF.decode(logits, order_trad, ok, f_hi, kind, K, wrap_orders(method, f_lo, f_hi))

@@ -1,0 +1,207 @@
+"""The plane-fit kernel of :mod:`unwrap.learned._plane_kernel` in C, bit for bit, loaded with ctypes.
+
+Why: the numpy replica (:mod:`unwrap.learned._plane_numpy`) spares a one-capture ``calib unwrap
+--model`` numba's ~1 s of start-up but spends ~0.1 s of CPU a box on numpy's per-step overhead;
+the same loops in C take ~10-20 ms a box and load in ~1 ms. The source below is
+``_plane_kernel``'s functions line for line (one thread: no ``prange``), compiled once by the
+system C compiler without fast-math and with ``-ffp-contract=off`` (no fused multiply-adds, as
+numba compiles), and cached on disk (``$SLTWIN_CACHE_DIR/unwrap_kernels``, else
+``$XDG_CACHE_HOME/sltwin/unwrap_kernels``, else ``~/.cache/sltwin/unwrap_kernels``) under a hash of
+the source, the compiler and its flags. Same operations in the same order: the outputs are
+bitwise the compiled kernel's (tests/test_plane_numpy.py).
+
+:func:`kernel` returns ``plane_filter_c(Phi, valid, r)``, or None where there is no C compiler or
+the cache cannot be written (the caller then runs the numpy replica).
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+BLOCK = 64
+"""Outputs per sliding run (:data:`unwrap.learned._plane_kernel.BLOCK`; a test holds them equal)."""
+
+_FLAGS = ("-O2", "-fPIC", "-shared", "-fno-math-errno", "-ffp-contract=off")
+
+_SOURCE = r"""
+#include <stddef.h>
+
+static void row_block(const double *Phi, const unsigned char *valid, long W, long r, long y, long x0,
+                      long x1, double *h, size_t HW) {
+    double a0 = 0.0, a1 = 0.0, a2 = 0.0, a3 = 0.0, a4 = 0.0;
+    const double *P = Phi + (size_t)y * W;
+    const unsigned char *v = valid + (size_t)y * W;
+    long lo = x0 - r > 0 ? x0 - r : 0, hi = x0 + r < W - 1 ? x0 + r : W - 1;
+    for (long xx = lo; xx <= hi; xx++) {
+        if (v[xx]) {
+            long d = xx - x0;
+            double p = P[xx];
+            a0 += 1.0;
+            a1 += (double)d;
+            a2 += (double)(d * d);
+            a3 += p;
+            a4 += p * (double)d;
+        }
+    }
+    long x = x0;
+    for (;;) {
+        size_t i = (size_t)y * W + x;
+        h[i] = a0; h[HW + i] = a1; h[2 * HW + i] = a2; h[3 * HW + i] = a3; h[4 * HW + i] = a4;
+        x += 1;
+        if (x >= x1) break;
+        a2 = a2 - 2.0 * a1 + a0;
+        a1 = a1 - a0;
+        a4 = a4 - a3;
+        long xo = x - r - 1;
+        if (xo >= 0 && v[xo]) {
+            double p = P[xo];
+            a0 -= 1.0;
+            a1 += (double)(r + 1);
+            a2 -= (double)((r + 1) * (r + 1));
+            a3 -= p;
+            a4 += p * (double)(r + 1);
+        }
+        long xi = x + r;
+        if (xi < W && v[xi]) {
+            double p = P[xi];
+            a0 += 1.0;
+            a1 += (double)r;
+            a2 += (double)(r * r);
+            a3 += p;
+            a4 += p * (double)r;
+        }
+    }
+}
+
+static void solve(const double *Phi, const unsigned char *valid, long W, long y, const double *S,
+                  double *out) {
+    for (long x = 0; x < W; x++) {
+        size_t i = (size_t)y * W + x;
+        if (!valid[i]) { out[i] = Phi[i]; continue; }
+        double S0 = S[x], Sx = S[W + x], Sy = S[2 * W + x], Sxx = S[3 * W + x], Syy = S[4 * W + x];
+        double Sxy = S[5 * W + x], SP = S[6 * W + x], SxP = S[7 * W + x], SyP = S[8 * W + x];
+        double det = S0 * (Sxx * Syy - Sxy * Sxy) - Sx * (Sx * Syy - Sxy * Sy) + Sy * (Sx * Sxy - Sxx * Sy);
+        double t = Sxx + Syy;
+        double scale = S0 * (t * t) + 1e-12;
+        if (S0 >= 3.0 && det > 1e-6 * scale) {
+            double num = SP * (Sxx * Syy - Sxy * Sxy) - Sx * (SxP * Syy - Sxy * SyP) + Sy * (SxP * Sxy - Sxx * SyP);
+            out[i] = num / det;
+        } else {
+            out[i] = SP / (S0 < 1.0 ? 1.0 : S0);
+        }
+    }
+}
+
+static void add_row(double *S, const double *h, long W, size_t HW, long yy, double d, double sign) {
+    const double *h0r = h + (size_t)yy * W, *h1r = h + HW + (size_t)yy * W, *h2r = h + 2 * HW + (size_t)yy * W;
+    const double *h3r = h + 3 * HW + (size_t)yy * W, *h4r = h + 4 * HW + (size_t)yy * W;
+    for (long x = 0; x < W; x++) {
+        double h0 = h0r[x], h1 = h1r[x], h3 = h3r[x];
+        S[x] += sign * h0;
+        S[W + x] += sign * h1;
+        S[2 * W + x] += sign * (h0 * d);
+        S[3 * W + x] += sign * h2r[x];
+        S[4 * W + x] += sign * (h0 * (d * d));
+        S[5 * W + x] += sign * (h1 * d);
+        S[6 * W + x] += sign * h3;
+        S[7 * W + x] += sign * h4r[x];
+        S[8 * W + x] += sign * (h3 * d);
+    }
+}
+
+static void col_block(const double *Phi, const unsigned char *valid, long H, long W, long r, long y0, long y1,
+                      const double *h, double *out, double *S) {
+    size_t HW = (size_t)H * W;
+    for (long k = 0; k < 9 * W; k++) S[k] = 0.0;
+    long lo = y0 - r > 0 ? y0 - r : 0, hi = y0 + r < H - 1 ? y0 + r : H - 1;
+    for (long yy = lo; yy <= hi; yy++) add_row(S, h, W, HW, yy, (double)(yy - y0), 1.0);
+    long y = y0;
+    for (;;) {
+        solve(Phi, valid, W, y, S, out);
+        y += 1;
+        if (y >= y1) break;
+        for (long x = 0; x < W; x++) {
+            S[4 * W + x] = S[4 * W + x] - 2.0 * S[2 * W + x] + S[x];
+            S[2 * W + x] = S[2 * W + x] - S[x];
+            S[5 * W + x] = S[5 * W + x] - S[W + x];
+            S[8 * W + x] = S[8 * W + x] - S[6 * W + x];
+        }
+        if (y - r - 1 >= 0) add_row(S, h, W, HW, y - r - 1, (double)(-r - 1), -1.0);
+        if (y + r < H) add_row(S, h, W, HW, y + r, (double)r, 1.0);
+    }
+}
+
+void plane_filter(const double *Phi, const unsigned char *valid, long H, long W, long r, long block,
+                  double *h, double *S, double *out) {
+    size_t HW = (size_t)H * W;
+    for (long y = 0; y < H; y++)
+        for (long x0 = 0; x0 < W; x0 += block)
+            row_block(Phi, valid, W, r, y, x0, x0 + block < W ? x0 + block : W, h, HW);
+    for (long y0 = 0; y0 < H; y0 += block)
+        col_block(Phi, valid, H, W, r, y0, y0 + block < H ? y0 + block : H, h, out, S);
+}
+"""
+
+_LIB = []
+
+
+def cache_dir() -> Path:
+    """Where the compiled library is kept (module docstring)."""
+    if os.environ.get("SLTWIN_CACHE_DIR"):
+        return Path(os.environ["SLTWIN_CACHE_DIR"]) / "unwrap_kernels"
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "sltwin" / "unwrap_kernels"
+
+
+def _build():
+    """The loaded library, compiling it unless cached; None when that cannot be done."""
+    import ctypes
+
+    cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        return None
+    key = hashlib.sha256("\0".join((_SOURCE, cc, *_FLAGS)).encode()).hexdigest()[:16]
+    folder = cache_dir()
+    lib = folder / f"plane_filter_{key}.so"
+    try:
+        if not lib.is_file():
+            folder.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryDirectory(dir=folder) as tmp:
+                src, out = Path(tmp) / "plane.c", Path(tmp) / "plane.so"
+                src.write_text(_SOURCE)
+                proc = subprocess.run([cc, *_FLAGS, "-o", str(out), str(src)], capture_output=True, timeout=120)
+                if proc.returncode != 0:
+                    return None
+                os.replace(out, lib)                  # atomic: another process may build it too
+        dll = ctypes.CDLL(str(lib))
+    except (OSError, subprocess.SubprocessError):
+        return None
+    f = dll.plane_filter
+    ptr, lng = ctypes.c_void_p, ctypes.c_long
+    f.argtypes, f.restype = [ptr, ptr, lng, lng, lng, lng, ptr, ptr, ptr], None
+    return f
+
+
+def kernel():
+    """``plane_filter_c(Phi, valid, r, block=BLOCK)`` (module docstring), or None."""
+    if not _LIB:
+        _LIB.append(_build())
+    f = _LIB[0]
+    if f is None:
+        return None
+
+    def plane_filter_c(Phi, valid, r, block: int = BLOCK):
+        Phi = np.ascontiguousarray(Phi, dtype=np.float64)
+        valid = np.ascontiguousarray(valid, dtype=bool)
+        H, W = Phi.shape
+        h, S, out = np.empty((5, H, W)), np.empty((9, W)), np.empty((H, W))
+        f(Phi.ctypes.data, valid.ctypes.data, H, W, int(r), int(block), h.ctypes.data, S.ctypes.data,
+          out.ctypes.data)
+        return out
+    return plane_filter_c
