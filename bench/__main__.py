@@ -11,7 +11,7 @@ import time
 
 from . import (ba_scale, beat_wrap, calib_accuracy, calib_captures, calib_speed, cycles_testset, decision_error_fit,
                defocus_bias, deploy_speed, detect_accuracy, export_speed, finetune_real, gi_bias, global_bias,
-               learned_deploy, learned_speed, outlier_rule, retrain_compare, spatial_unwrap, synth_speed,
+               learned_deploy, learned_gpu, learned_speed, outlier_rule, retrain_compare, spatial_unwrap, synth_speed,
                unwrap_speed)
 
 #: (name, main(argv) of the benchmark, arguments of its quick mode)
@@ -37,6 +37,7 @@ BENCHMARKS = [
     ("retrain_compare", retrain_compare.main, ["--quick"]),
     ("cycles_testset", cycles_testset.main, ["--quick"]),
     ("beat_wrap", beat_wrap.main, ["--quick", "-q"]),
+    ("learned_gpu", learned_gpu.main, ["--quick", "--skip", "onnx"]),
 ]
 
 

@@ -168,111 +168,133 @@ def training_rate(path, device: str, amp: bool, batch: int, repeats: int, crop: 
 
 
 # ---------------------------------------------------------------- the measurement
-def measure(models: dict, frames: list, repeats: int, log=print, skip=()) -> dict:
-    """{"machine": ..., "models": {name: {"forward": {...}, "path": [...], "orders": [...], "train": {...}}}}."""
+def _machine(log) -> dict:
     import torch
 
-    from unwrap.learned.infer import unwrap_learned
-    from unwrap.learned.runtime import TorchPredictor, load_predictor
-    from unwrap.learned.checkpoint import load_model
-    from unwrap.temporal import decode_pair
-
     cuda = torch.cuda.is_available()
-    if cuda:
-        torch.backends.cudnn.benchmark = True      # one frame size throughout: let cuDNN pick its kernels
     machine = dict(cpu=platform.processor() or platform.machine(), cores=os.cpu_count(), torch=torch.__version__,
                    gpu=torch.cuda.get_device_name(0) if cuda else None, numpy=np.__version__)
     try:
         import onnxruntime as ort
         machine["onnxruntime"] = f"{ort.__version__} ({', '.join(ort.get_available_providers())})"
     except ImportError:
-        ort = None
+        pass
     log(f"machine: {machine}")
-    all_threads = torch.get_num_threads()
-    res = {"machine": machine, "models": {}}
-    for name, path in models.items():
-        r = res["models"][name] = {"forward": {}, "path": [], "orders": [], "train": {}}
-        net, ck = load_model(path, "cpu")
-        C, H, W = int(ck["arch"]["in_channels"]), *SIZE
-        x1, x8 = np.zeros((1, C, H, W), np.float32), np.zeros((8, C, H, W), np.float32)
-        fw = r["forward"]
-        cpu_pred = TorchPredictor(net, ck)
-        for threads in (2, all_threads):
-            torch.set_num_threads(threads)
-            fw[f"torch cpu, {threads} threads"] = best_ms(lambda: cpu_pred.logits(x1), repeats)
-            log(f"{name}: forward torch cpu {threads} threads {fw[f'torch cpu, {threads} threads']:.1f} ms")
-        torch.set_num_threads(2)
-        if ort is not None and "onnx" not in skip:
-            try:
-                import tempfile
+    return machine
 
-                from unwrap.learned.runtime import OnnxPredictor, export_onnx
-                with tempfile.TemporaryDirectory() as td:
-                    onnx_path = export_onnx((net, ck), Path(td) / "m.onnx")
-                    op = OnnxPredictor(onnx_path, threads=2, device="cpu")
-                    fw["onnxruntime cpu, 2 threads"] = best_ms(lambda: op.logits(x1), repeats)
-                    log(f"{name}: forward onnxruntime cpu 2 threads {fw['onnxruntime cpu, 2 threads']:.1f} ms")
-            except Exception as exc:            # report, go on: the GPU rows matter more here
-                log(f"{name}: onnxruntime row skipped ({type(exc).__name__}: {str(exc)[:200]})")
-        variants = {"cpu fp32": cpu_pred}
-        if cuda:
-            for prec in ("fp32", "fp16", "bf16"):
-                variants[f"cuda {prec}"] = load_predictor(path, device="cuda", precision=prec)
-            cl_net, _ = load_model(path, "cuda")
-            variants["cuda fp32 channels-last"] = TorchPredictor(cl_net, ck, channels_last=True)
-            variants["cuda bf16 channels-last"] = TorchPredictor(cl_net, ck, channels_last=True, precision="bf16")
-            for v, pred in variants.items():
-                if v == "cpu fp32":
-                    continue
-                fw[v] = best_ms(lambda: pred.logits(x1), repeats, "cuda")
-                fw[v + ", batch 8 (per frame)"] = best_ms(lambda: pred.logits(x8), repeats, "cuda") / 8
-                log(f"{name}: forward {v} {fw[v]:.2f} ms; batch 8 {fw[v + ', batch 8 (per frame)']:.2f} ms/frame")
+
+def forward_rows(name, path, net, ck, repeats, log, skip=()) -> tuple[dict, dict]:
+    """({row: ms} of one 640 x 480 frame's forward, {variant: predictor}) (module docstring)."""
+    import torch
+
+    from unwrap.learned.checkpoint import load_model
+    from unwrap.learned.runtime import TorchPredictor, load_predictor
+
+    C, H, W = int(ck["arch"]["in_channels"]), *SIZE
+    x1, x8 = np.zeros((1, C, H, W), np.float32), np.zeros((8, C, H, W), np.float32)
+    fw, all_threads = {}, torch.get_num_threads()
+    cpu_pred = TorchPredictor(net, ck)
+    for threads in (2, all_threads):
+        torch.set_num_threads(threads)
+        fw[f"torch cpu, {threads} threads"] = best_ms(lambda: cpu_pred.logits(x1), repeats)
+        log(f"{name}: forward torch cpu {threads} threads {fw[f'torch cpu, {threads} threads']:.1f} ms")
+    torch.set_num_threads(2)
+    if "onnx" not in skip:
+        try:
+            import tempfile
+
+            from unwrap.learned.runtime import OnnxPredictor, export_onnx
+            with tempfile.TemporaryDirectory() as td:
+                op = OnnxPredictor(export_onnx((net, ck), Path(td) / "m.onnx"), threads=2, device="cpu")
+                fw["onnxruntime cpu, 2 threads"] = best_ms(lambda: op.logits(x1), repeats)
+                log(f"{name}: forward onnxruntime cpu 2 threads {fw['onnxruntime cpu, 2 threads']:.1f} ms")
+        except Exception as exc:            # report, go on: the GPU rows matter more here
+            log(f"{name}: onnxruntime row skipped ({type(exc).__name__}: {str(exc)[:200]})")
+    variants = {"cpu fp32": cpu_pred}
+    if torch.cuda.is_available():
+        torch.backends.cudnn.benchmark = True      # one frame size throughout: let cuDNN pick its kernels
+        for prec in ("fp32", "fp16", "bf16"):
+            variants[f"cuda {prec}"] = load_predictor(path, device="cuda", precision=prec)
+        cl_net, _ = load_model(path, "cuda")
+        variants["cuda fp32 channels-last"] = TorchPredictor(cl_net, ck, channels_last=True)
+        variants["cuda bf16 channels-last"] = TorchPredictor(cl_net, ck, channels_last=True, precision="bf16")
+        for v, pred in list(variants.items())[1:]:
+            fw[v] = best_ms(lambda: pred.logits(x1), repeats, "cuda")
+            fw[v + ", batch 8 (per frame)"] = best_ms(lambda: pred.logits(x8), repeats, "cuda") / 8
+            log(f"{name}: forward {v} {fw[v]:.2f} ms; batch 8 {fw[v + ', batch 8 (per frame)']:.2f} ms/frame")
+    return fw, variants
+
+
+def path_row(fr, variants, repeats) -> dict:
+    """Whole learned path per frame (ms) of each precision beside the traditional decode; CUDA rows
+    with the pixels whose order differs from the CPU path's."""
+    from unwrap.learned.infer import unwrap_learned
+    from unwrap.temporal import decode_pair
+
+    lo, hi = (float(f) for f in fr["freqs"])
+    args = (fr["method"], fr["phase_low"], fr["phase_high"], fr["m_low"], fr["m_high"], fr["valid"], (lo, hi))
+    valid = np.asarray(fr["valid"], bool)
+    row = dict(frame=fr["name"], pixels=int(valid.sum()), size=list(valid.shape))
+    row["traditional ms"] = best_ms(lambda: decode_pair(fr["method"], np.nan_to_num(fr["phase_low"]),
+                                                        np.nan_to_num(fr["phase_high"]), lo, hi, float(fr["width"]),
+                                                        valid), repeats)
+    orders = {}
+    for v in ("cpu fp32", "cuda fp32", "cuda fp16", "cuda bf16"):
+        if v in variants:
+            run = lambda: unwrap_learned(*args, width=float(fr["width"]), model=variants[v],  # noqa: E731
+                                         on_outside="ignore")
+            row[f"whole path {v} ms"] = best_ms(run, repeats, "cuda" if v.startswith("cuda") else "cpu")
+            orders[v] = run().order
+    for v, o in list(orders.items())[1:]:      # CUDA, MF: features and decode on the device too
+        row[f"whole path {v}: orders differing"] = int((o != orders["cpu fp32"]).sum())
+    return row
+
+
+def orders_row(fr, variants, kind) -> dict:
+    """Each variant's orders against torch fp32 on the CPU on every valid pixel of ``fr`` (the forward
+    alone: the same numpy inputs), the CPU's logit margin where they differ, error % vs the reference."""
+    hi = float(fr["freqs"][1])
+    x, ok, order_trad = frame_input(fr, kind)
+    base, z = decode_orders(variants["cpu fp32"], x, ok, order_trad, hi)
+    margin = _margin(z)
+    ref = np.asarray(fr["ref"])
+    scored = ok & (ref >= 0)
+    err = lambda o: 100.0 * float((o[scored] != ref[scored]).mean()) if scored.any() else None  # noqa: E731
+    row = dict(frame=fr["name"], valid=int(ok.sum()), scored=int(scored.sum()),
+               margin_median=float(np.median(margin[ok])) if ok.any() else None)
+    row["error % cpu fp32"] = err(base)
+    for v, pred in list(variants.items())[1:]:
+        o, _ = decode_orders(pred, x, ok, order_trad, hi)
+        diff = ok & (o != base)
+        row[f"{v}: differing"] = int(diff.sum())
+        row[f"{v}: max margin there"] = float(margin[diff].max()) if diff.any() else None
+        row[f"error % {v}"] = err(o)
+    return row
+
+
+def measure(models: dict, frames: list, repeats: int, log=print, skip=()) -> dict:
+    """{"machine": ..., "models": {name: {"forward": {...}, "path": [...], "orders": [...], "train": {...}}}}."""
+    import torch
+
+    from unwrap.learned.checkpoint import load_model
+
+    cuda = torch.cuda.is_available()
+    res = {"machine": _machine(log), "models": {}}
+    for name, path in models.items():
+        net, ck = load_model(path, "cpu")
+        fw, variants = forward_rows(name, path, net, ck, repeats, log, skip)
+        r = res["models"][name] = {"forward": fw, "path": [], "orders": [], "train": {}}
         for fr in frames:
-            lo, hi = (float(f) for f in fr["freqs"])
-            args = (fr["method"], fr["phase_low"], fr["phase_high"], fr["m_low"], fr["m_high"], fr["valid"], (lo, hi))
-            valid = np.asarray(fr["valid"], bool)
-            row = dict(frame=fr["name"], pixels=int(valid.sum()), size=list(valid.shape))
-            row["traditional ms"] = best_ms(lambda: decode_pair(fr["method"], np.nan_to_num(fr["phase_low"]),
-                                                                np.nan_to_num(fr["phase_high"]), lo, hi,
-                                                                float(fr["width"]), valid), repeats)
-            path_orders = {}
-            for v in ("cpu fp32", "cuda fp32", "cuda fp16", "cuda bf16"):
-                if v in variants:
-                    dev = "cuda" if v.startswith("cuda") else "cpu"
-                    run = lambda: unwrap_learned(*args, width=float(fr["width"]), model=variants[v],  # noqa: E731
-                                                 on_outside="ignore")
-                    row[f"whole path {v} ms"] = best_ms(run, repeats, dev)
-                    path_orders[v] = run().order
-            for v, o in path_orders.items():      # CUDA: features and decode on the device too
-                if v != "cpu fp32":
-                    row[f"whole path {v}: orders differing"] = int((o != path_orders["cpu fp32"]).sum())
-            r["path"].append(row)
-            log(f"{name}: path {row}")
-            x, ok, order_trad = frame_input(fr, ck["arch"]["kind"])
-            base, z = decode_orders(cpu_pred, x, ok, order_trad, hi)
-            margin = _margin(z)
-            ref = np.asarray(fr["ref"])
-            scored = ok & (ref >= 0)
-            orow = dict(frame=fr["name"], valid=int(ok.sum()), scored=int(scored.sum()),
-                        margin_median=float(np.median(margin[ok])) if ok.any() else None)
-            orow["error % cpu fp32"] = 100.0 * float((base[scored] != ref[scored]).mean()) if scored.any() else None
-            for v, pred in variants.items():
-                if v == "cpu fp32":
-                    continue
-                o, _ = decode_orders(pred, x, ok, order_trad, hi)
-                diff = ok & (o != base)
-                orow[f"{v}: differing"] = int(diff.sum())
-                orow[f"{v}: max margin there"] = float(margin[diff].max()) if diff.any() else None
-                orow[f"error % {v}"] = 100.0 * float((o[scored] != ref[scored]).mean()) if scored.any() else None
-            r["orders"].append(orow)
-            log(f"{name}: orders {orow}")
-        for dev, amp in () if "train" in skip else (("cpu", False),) + ((("cuda", False), ("cuda", True)) if cuda else ()):
-            for batch in (8, 64):
-                key = f"{dev}{' bf16 AMP' if amp else ' fp32'}, batch {batch}"
-                if dev == "cpu" and batch == 64:
-                    continue
-                r["train"][key] = training_rate(path, dev, amp, batch, max(2, repeats // 2))
-                log(f"{name}: train {key} {r['train'][key]:.1f} samples/s")
+            r["path"].append(path_row(fr, variants, repeats))
+            log(f"{name}: path {r['path'][-1]}")
+            r["orders"].append(orders_row(fr, variants, ck["arch"]["kind"]))
+            log(f"{name}: orders {r['orders'][-1]}")
+        runs = [] if "train" in skip else [("cpu", False, 8)] + ([(d, a, b) for d, a in (("cuda", False), ("cuda", True))
+                                                                   for b in (8, 64)] if cuda else [])
+        for dev, amp, batch in runs:
+            key = f"{dev}{' bf16 AMP' if amp else ' fp32'}, batch {batch}"
+            r["train"][key] = training_rate(path, dev, amp, batch, max(2, repeats // 2))
+            log(f"{name}: train {key} {r['train'][key]:.1f} samples/s")
     return res
 
 
