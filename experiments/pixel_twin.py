@@ -130,11 +130,42 @@ def capture_sensor(real_file, folder, orientation: str = "v") -> dict:
     return fit
 
 
+def unit_phase_bias(real_file, orientation: str = "v", window: int = 15) -> dict:
+    """The capture's coherent bias of the unit phase against its top frequency's:
+    ``d = wrap(phi_1 - Phi_top / f_top)`` on the labelled pixels (Phi_top as in :func:`pixel_twin`:
+    reference orders, 5x5 plane), averaged over ``window`` x ``window`` boxes (kept where a
+    quarter of the box is labelled, else 0). Noise averages out of the box mean (~0.027 rad per
+    pixel on the skull, ~100 pixels per box); what is left is a bias the order decision sees
+    ``f_top`` times: ``16 d`` at MF 1 -> 16.
+
+    RETURNED VALUE: {"bias" (H, W) rad, "rms" of the map over the labelled pixels, "pixel_sd" the
+    robust spread of ``d - bias`` (the noise), "labelled" (H, W) bool}."""
+    import cv2
+
+    Phi, r, ok, lab, _, freqs = _absolute_top(real_file, orientation)
+    import h5py
+
+    from unwrap.dataset_schema import decode_phase
+
+    with h5py.File(real_file, "r") as h5:
+        phi1 = decode_phase(h5[f"{orientation}/phase"][0, 0])
+    d = np.where(lab, np.angle(np.exp(1j * (phi1 - (Phi - r) * (freqs[0] / freqs[-1])))), 0.0)
+    n = cv2.boxFilter(lab.astype(np.float64), -1, (window, window), normalize=False)
+    s = cv2.boxFilter(d, -1, (window, window), normalize=False)
+    keep = n > window * window / 4.0
+    b = np.where(keep, s / np.maximum(n, 1.0), 0.0)
+    m = lab & keep
+    return {"bias": b, "rms": float(np.sqrt(np.mean(b[m] ** 2))) if m.any() else 0.0,
+            "pixel_sd": float(1.4826 * np.median(np.abs((d - b)[m]))) if m.any() else 0.0, "labelled": lab}
+
+
 def pixel_twin(real_file, folder, out_file, *, full_well_e: float, read_noise_e: float, seed: int = 0,
-               orientation: str = "v", bits: int = 8) -> dict:
+               orientation: str = "v", bits: int = 8, unit_bias=None) -> dict:
     """Write the pixel twin of ``real_file`` (a capture export with reference orders; its frames
     in ``folder``) to ``out_file`` (module docstring): a copy of the real file whose phase,
-    modulation, flags and reference orders of ``orientation`` are the twin's.
+    modulation, flags and reference orders of ``orientation`` are the twin's. ``unit_bias`` (H, W)
+    rad, optional: added to the lowest frequency's rendered phase only (e.g.
+    :func:`unit_phase_bias`'s map); the reference orders stay those of the unbiased phase.
 
     RETURNED VALUE: {"file", "labelled": [per frequency, real], "labelled_twin": [per frequency],
     "seed", "full_well_e", "read_noise_e"}."""
@@ -159,7 +190,8 @@ def pixel_twin(real_file, folder, out_file, *, full_well_e: float, read_noise_e:
         Phi_f = Phi_top * (s["frequency"] / freqs[-1])
         A, B = s["A"], s["B"]
         live = ok & np.isfinite(A) & np.isfinite(B)
-        I = A[None] + B[None] * np.cos(np.where(live, Phi_f, 0.0)[None] - s["shifts"][:, None, None])
+        shown = Phi_f + unit_bias if (unit_bias is not None and j == 0) else Phi_f
+        I = A[None] + B[None] * np.cos(np.where(live, shown, 0.0)[None] - s["shifts"][:, None, None])
         I = torch.from_numpy(np.where(live[None], I, 0.0).astype(np.float32)).contiguous()
         counts = quantise(add_noise(I, Noise(full_well_e, read_noise_e, int(seed)), gen), bits).numpy()
         w = wrapped_phase(counts, s["shifts"], min_modulation=0.02 * top_count)
@@ -183,7 +215,8 @@ def pixel_twin(real_file, folder, out_file, *, full_well_e: float, read_noise_e:
             for name, arr in (("phase", phases), ("modulation", mods), ("flags", flags), ("reference_order", refs)):
                 h5[f"{orientation}/{name}"][0] = np.stack(arr)
             h5.attrs["pixel_twin"] = (f"pixel twin of {Path(real_file).name}: capture A, B; sensor {full_well_e:.0f} e- "
-                                      f"full well, {read_noise_e:.1f} e- read noise, seed {int(seed)}")
+                                      f"full well, {read_noise_e:.1f} e- read noise, seed {int(seed)}; unit bias "
+                                      f"{'none' if unit_bias is None else 'given'}")
         os.replace(tmp, out)
     finally:
         if tmp.exists():
