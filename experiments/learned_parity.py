@@ -224,14 +224,17 @@ def _score(files, pair, model) -> dict:
             "items": s.items}
 
 
-def parity(real_files, twin_files, model="learned", *, frequencies=(16, 48, 96)) -> dict:
-    """Error rates (traditional, filtered, learned) on the captures and the twin renders per frequency."""
+def parity(real_files, twin_files, model="learned", *, frequencies=(16, 48, 96), pixel_twin_files=()) -> dict:
+    """Error rates (traditional, filtered, learned) on the captures and the twin renders per frequency;
+    ``pixel_twin_files`` (experiments.pixel_twin) add rows "pixel twin"."""
     from unwrap.learned.infer import resolve_model
 
     net = resolve_model(model)
     rows = []
     for f in frequencies:
-        for kind, files in (("real", real_files), ("twin", twin_files)):
+        for kind, files in (("real", real_files), ("twin", twin_files), ("pixel twin", list(pixel_twin_files))):
+            if not files:
+                continue
             try:
                 r = _score(files, (1.0, float(f)), net)
             except ValueError as exc:   # a frequency the file does not hold, a bad file
@@ -245,7 +248,8 @@ def parity(real_files, twin_files, model="learned", *, frequencies=(16, 48, 96))
 
 def slstudio_parity(shared_data, out_dir, model="learned", *, samples: int = 2, progress: bool = True):
     """The whole parity experiment on SLStudio's skull (``shared_data`` = ``../shared/data``):
-    export the capture with its Gray-code reference, render the matched twin, score both.
+    export the capture with its Gray-code reference, render the matched twin and the pixel twin
+    (:mod:`experiments.pixel_twin`, its sensor fitted on the capture), score all three.
 
     RETURNED VALUE: {"parity": :func:`parity`'s result, "twin": :func:`render_matched_twin`'s},
     or None when the capture is not there."""
@@ -263,4 +267,10 @@ def slstudio_parity(shared_data, out_dir, model="learned", *, samples: int = 2, 
         export_capture(skull, real, reference_cloud=cloud, reference_system=system)
     twin = render_matched_twin(real, system, out, mesh_dir=Path(shared_data) / "meshes", samples=samples,
                                progress=progress)
-    return {"parity": parity([real], [twin["file"]], model), "twin": twin}
+    from .pixel_twin import capture_sensor, pixel_twin
+
+    sensor = capture_sensor(real, skull)
+    pix = [] if sensor["full_well_e"] is None else [pixel_twin(
+        real, skull, out / "pixel_twin.h5", full_well_e=sensor["full_well_e"], read_noise_e=sensor["read_noise_e"], seed=0)]
+    twin["pixel_twin"] = {**(pix[0] if pix else {}), "sensor": sensor}
+    return {"parity": parity([real], [twin["file"]], model, pixel_twin_files=[p["file"] for p in pix]), "twin": twin}

@@ -130,12 +130,13 @@ def capture_sensor(real_file, folder, orientation: str = "v") -> dict:
     return fit
 
 
-def unit_phase_bias(real_file, orientation: str = "v", window: int = 15) -> dict:
+def unit_phase_bias(real_file, orientation: str = "v", window: int = 15, leave_one_out: bool = False) -> dict:
     """The capture's coherent bias of the unit phase against its top frequency's:
     ``d = wrap(phi_1 - Phi_top / f_top)`` on the labelled pixels (Phi_top as in :func:`pixel_twin`:
     reference orders, 5x5 plane), averaged over ``window`` x ``window`` boxes (kept where a
-    quarter of the box is labelled, else 0). Noise averages out of the box mean (~0.027 rad per
-    pixel on the skull, ~100 pixels per box); what is left is a bias the order decision sees
+    quarter of the box is labelled, else 0; ``leave_one_out``: the box without the pixel itself).
+    Noise averages out of the box mean (~0.027 rad per pixel on the skull, ~100 pixels per 15x15
+    box; a small box keeps some: ~0.01 rad at 5x5); what is left is a bias the order decision sees
     ``f_top`` times: ``16 d`` at MF 1 -> 16.
 
     RETURNED VALUE: {"bias" (H, W) rad, "rms" of the map over the labelled pixels, "pixel_sd" the
@@ -152,7 +153,9 @@ def unit_phase_bias(real_file, orientation: str = "v", window: int = 15) -> dict
     d = np.where(lab, np.angle(np.exp(1j * (phi1 - (Phi - r) * (freqs[0] / freqs[-1])))), 0.0)
     n = cv2.boxFilter(lab.astype(np.float64), -1, (window, window), normalize=False)
     s = cv2.boxFilter(d, -1, (window, window), normalize=False)
-    keep = n > window * window / 4.0
+    if leave_one_out:   # a pixel's bias from its neighbours only: its own deviation (noise) is not in it
+        n, s = n - lab, s - d
+    keep = n > max(window * window / 4.0 - 1.0, 1.0)
     b = np.where(keep, s / np.maximum(n, 1.0), 0.0)
     m = lab & keep
     return {"bias": b, "rms": float(np.sqrt(np.mean(b[m] ** 2))) if m.any() else 0.0,

@@ -111,3 +111,37 @@ def test_pixel_twin_of_the_skull_keeps_the_masks_and_is_unchanged_by_a_zero_bias
     ok = item["order_true"] >= 0
     assert int(ok.sum()) > 80_000
     assert float((item["order_traditional"][ok] != item["order_true"][ok]).float().mean()) < 2e-3
+
+
+def test_verdict_compares_with_the_pixel_twin_when_there_is_one():
+    """The measured skull (docs/learned.md): real 166 wrong, rendered twin ~0.10 %, pixel twin 29."""
+    from reports.learned_parity import traditional_gap, verdict
+    from unwrap.learned.metrics import ErrorCount
+
+    def row(data, trad, learned, counted=91_578):
+        return {"data": data, "f": 16.0, "traditional": ErrorCount(trad, counted), "learned": ErrorCount(learned, counted)}
+
+    rows = [row("real", 166, 99), row("twin", 92, 100), row("pixel twin", 29, 24)]
+    v = verdict(rows)
+    assert "under-predicts real errors 5.7x" in v and "twin 0.032 %" in v
+    assert "(ratio 5.7)" in traditional_gap(rows)
+    assert "under-predicts real errors 1.8x" in verdict(rows[:2])     # without it: the rendered twin, as before
+
+
+def test_parity_scores_pixel_twin_rows(tmp_path):
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from dataset_helpers import tiny_config
+    from test_learned_use import constant_model
+    from experiments.learned_parity import parity
+    from synth.export.dataset import export_dataset
+
+    path = tmp_path / "set.h5"
+    export_dataset(tiny_config(tmp_path, samples=1, frequencies="[1, 8]", steps=4,
+                               effects="noise = {full_well_e = 3000, read_noise_e = 1}\nexposure = 0.8"),
+                   path, progress=False)
+    res = parity([path], [], constant_model(tmp_path / "zero.pt", 0), frequencies=(8,), pixel_twin_files=[path])
+    assert [r["data"] for r in res["rows"]] == ["real", "pixel twin"]
+    assert res["rows"][0]["traditional"] == res["rows"][1]["traditional"]
