@@ -12,8 +12,9 @@ Data (both through ``unwrap.dataset``):
 
 Noise match: on the capture's valid pixels the traditional absolute phase ``phi + 2 pi k`` of the
 high frequency is smooth (its 2 pi errors are outliers, moved by their whole turns before the plane
-is refitted: :func:`order_outlier_residual`), so its residual from a 5x5 local plane (robust: 1.4826 x median absolute
-value, corrected for the fit's own degrees of freedom) is its noise ``sigma_Phi``; with the N-step
+is refitted: :func:`experiments.plane_residual.order_outlier_residual`), so its residual from a 5x5
+local plane (robust: 1.4826 x median absolute value, corrected for the fit's own degrees of
+freedom) is its noise ``sigma_Phi``; with the N-step
 noise gain, ``sigma_I = sigma_Phi * B * sqrt(N / 2)`` (full-scale units) per pixel, summarised by
 its median. For the twin's Poisson sensor ``sigma_I^2 ~ I / full_well`` with ``I ~ B`` (full-contrast
 fringes), so ``full_well = median(B) / sigma_I^2``. The twin renders are measured the same way and
@@ -46,6 +47,8 @@ def capture_noise(path, orientation: str = "v", pair=None) -> dict:
     from unwrap.reliability import plane_residual_noise
     import h5py
 
+    from .plane_residual import order_outlier_residual
+
     with h5py.File(path, "r") as h5:
         a = read_attrs(h5)
     freqs = sorted(float(f) for f in a["frequencies"])
@@ -62,7 +65,7 @@ def capture_noise(path, orientation: str = "v", pair=None) -> dict:
         # the traditional absolute phase: its rare 2 pi errors are outliers the median ignores
         Phi = (it["phase_high"][0].double() + 2 * math.pi * it["order_traditional"].double())[None, None]
         # residual of the pixel from the plane through its 5x5 neighbours (itself included), after
-        # the orders of the neighbours are corrected (:func:`order_outlier_residual`)
+        # the orders of the neighbours are corrected (experiments.plane_residual)
         resid = order_outlier_residual(Phi[0, 0], ok)
         interior = ok & (torch.nn.functional.avg_pool2d(ok[None, None].double(), 5, 1, 2)[0, 0] > 0.999)
         res.append(resid[interior].numpy())
@@ -73,28 +76,6 @@ def capture_noise(path, orientation: str = "v", pair=None) -> dict:
     return {"sigma_I": noise["sigma_I"], "sigma_phase_rad": noise["sigma_phase_rad"],
             "modulation": noise["modulation"], "pixels": noise["pixels"], "steps": N, "pair": list(pair),
             "curve": noise_curve(np.concatenate(res), np.concatenate(mods), N)}
-
-
-def order_outlier_residual(Phi, ok, window: int = 5, passes: int = 1):
-    """Residual (H, W) float64 of an absolute phase ``Phi`` (H, W) tensor, rad, from the plane
-    through its ``window`` x ``window`` neighbours among ``ok`` (H, W) bool, after ``passes``
-    corrections of order outliers.
-
-    A pixel whose traditional order is wrong sits ~2 pi off the plane; left in, it moves the plane
-    of each of its 24 neighbours by ~2 pi / 25 = 0.25 rad, so where orders fail often (dim pixels:
-    at 6 % wrong, 77 % of the pixels have a wrong neighbour) the robust spread of the residuals
-    measures the order errors, not the noise (3.3x at the skull twin's dimmest decile, docs/learned.md).
-    Each pass moves every pixel by the whole turns of its residual, ``Phi - 2 pi round(r / 2 pi)``,
-    and refits; a pixel's own noise (<< pi) is untouched."""
-    from unwrap.learned.smoothing import smooth_phase
-
-    Phi = Phi.double()
-    v = ok[None, None]
-    r = Phi - smooth_phase(Phi[None, None], v, window, "plane")[0, 0]
-    for _ in range(int(passes)):
-        Phi = Phi - 2 * math.pi * torch.round(torch.where(ok, r, torch.zeros_like(r)) / (2 * math.pi))
-        r = Phi - smooth_phase(Phi[None, None], v, window, "plane")[0, 0]
-    return r
 
 
 def noise_curve(residuals, modulation, steps: int, bins: int = 10, bits: int = 8) -> dict:
@@ -271,6 +252,6 @@ def slstudio_parity(shared_data, out_dir, model="learned", *, samples: int = 2, 
 
     sensor = capture_sensor(real, skull)
     pix = [] if sensor["full_well_e"] is None else [pixel_twin(
-        real, skull, out / "pixel_twin.h5", full_well_e=sensor["full_well_e"], read_noise_e=sensor["read_noise_e"], seed=0)]
+        real, skull, out / "pixel_twin.h5", full_well_e=sensor["full_well_e"], read_noise_e=sensor["read_noise_e"])]
     twin["pixel_twin"] = {**(pix[0] if pix else {}), "sensor": sensor}
     return {"parity": parity([real], [twin["file"]], model, pixel_twin_files=[p["file"] for p in pix]), "twin": twin}

@@ -9,7 +9,7 @@ render, the projector coordinate of each pixel is known, so that spread splits i
 - ``geometry``: the same plane residual of the *exact* phase (the surface's curvature and
   grazing geometry inside the window, no noise);
 - ``plane`` and ``plane_raw``: the estimator with and without the order-outlier correction of
-  :func:`experiments.learned_parity.order_outlier_residual` (``raw``: a neighbour with a wrong
+  :func:`experiments.plane_residual.order_outlier_residual` (``raw``: a neighbour with a wrong
   order moves the plane by ~2 pi / 25).
 
 Each per decile of the high frequency's modulation B (full scale), with the error rate of the
@@ -29,18 +29,20 @@ def phase_error_split(path, pair=(1.0, 16.0), orientation: str = "v", bins: int 
     """The split of the module docstring on every sample of a twin file ``path`` (it must hold the
     projector coordinate). RETURNED VALUE: {"B": [median per decile], "plane", "plane_raw", "true",
     "geometry", "wrong_pct": [per decile], "pixels"}."""
+    import json
+
     import h5py
     import torch
 
     from unwrap.dataset import FringeOrderDataset
     from unwrap.learned.smoothing import smooth_phase
 
-    from .learned_parity import order_outlier_residual
+    from .plane_residual import order_outlier_residual
 
     with h5py.File(path, "r") as h5:
         if f"{orientation}/coordinate" not in h5:
             raise ExperimentError(f"{path}: no {orientation}/coordinate (a twin render knows its truth; a capture does not)")
-        width = float(__import__("json").loads(h5.attrs["widths"])[orientation])
+        width = float(json.loads(h5.attrs["widths"])[orientation])
         coords = h5[f"{orientation}/coordinate"][()]
     ds = FringeOrderDataset(path, method="mf", frequencies=tuple(pair), orientation=orientation, crop=None, seed=0)
     dof = math.sqrt(25.0 / 22.0)

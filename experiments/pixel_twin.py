@@ -13,7 +13,7 @@ quantisation (``synth.effects.sensor``), and the same decode as the capture's ex
 (``unwrap.phase_shift.wrapped_phase`` with the export's modulation threshold). ``Phi_top`` is the
 capture's absolute phase of its top frequency (the reference order where there is one, the
 traditional order elsewhere), order outliers moved by their whole turns and smoothed by the 5x5
-plane (:func:`experiments.learned_parity.order_outlier_residual`), so that its noise is not
+plane (:func:`experiments.plane_residual.order_outlier_residual`), so that its noise is not
 counted twice. The twin's reference order is that of ``Phi_f`` against its own stored wrapped
 phase, kept on the capture's labelled pixels only, with the export's quarter-period margin: the
 same masks and reference as the real file, one noise draw per ``seed``.
@@ -71,7 +71,7 @@ def _absolute_top(real_file, orientation: str):
     from unwrap.dataset import FringeOrderDataset
     from unwrap.dataset_schema import read_attrs
 
-    from .learned_parity import order_outlier_residual
+    from .plane_residual import order_outlier_residual
 
     with h5py.File(real_file, "r") as h5:
         a = read_attrs(h5)

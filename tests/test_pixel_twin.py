@@ -1,4 +1,4 @@
-"""The skull parity's estimator fix and pixel twin (experiments.learned_parity.order_outlier_residual,
+"""The skull parity's estimator fix and pixel twin (experiments.plane_residual.order_outlier_residual,
 experiments.pixel_twin, experiments.noise_split)."""
 import math
 
@@ -21,7 +21,7 @@ def _plane_phase_with_order_errors(rate, sigma, seed=0, shape=(120, 160)):
 def test_order_outlier_residual_measures_the_noise_not_the_neighbours_order_errors():
     """At 6 % wrong orders (the skull twin's dimmest decile) the plain plane residual's robust spread
     is dominated by wrong neighbours (~0.25 rad each); the corrected one is the noise."""
-    from experiments.learned_parity import order_outlier_residual
+    from experiments.plane_residual import order_outlier_residual
 
     sigma = 0.1
     Phi, ok = _plane_phase_with_order_errors(0.06, sigma)
