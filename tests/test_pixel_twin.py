@@ -145,6 +145,14 @@ def test_parity_scores_pixel_twin_rows(tmp_path):
     res = parity([path], [], constant_model(tmp_path / "zero.pt", 0), frequencies=(8,), pixel_twin_files=[path])
     assert [r["data"] for r in res["rows"]] == ["real", "pixel twin"]
     assert res["rows"][0]["traditional"] == res["rows"][1]["traditional"]
+    from reports.html import to_markdown
+    from reports.learned_parity import section
+
+    sensor = {"full_well_e": 8500.0, "read_noise_e": 13.3, "contrast_median": 0.89}
+    (title, blocks), summary = section(res, twin_info={"pixel_twin": {"sensor": sensor}})
+    md = to_markdown("t", [(title, blocks)])
+    assert "Pixel twin (experiments.pixel_twin)" in md and "8500 e- full well" in md
+    assert "behaves on the real capture as on its twin" in summary["verdict"]   # same file: same errors
 
 
 @pytest.mark.realdata
