@@ -17,7 +17,8 @@ rule, the sensor fitted on the capture, ``seeds`` noise draws), with the unit ph
 
 Rows: traditional MF 1 -> 16 error on the labelled pixels (% and count, mean over the seeds and
 the range), real / twin. Renders and twins are cached in ``--work`` (~1 min per interreflection
-render at half resolution, ~15 s per twin, on 2 shared cores). Needs ``../shared/data``.
+render at half resolution, ``--scale 2 --stride 2``, the default; ~2-4 min at full, ``--scale 1``;
+~15 s per twin; 2 shared cores). Needs ``../shared/data``.
 """
 from __future__ import annotations
 
@@ -55,6 +56,8 @@ def main(argv=None) -> int:
     ap.add_argument("--data", default=str(ROOT), help="the slstudio-ps2x3-calib folder")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--quick", action="store_true", help="one seed, the interreflection at quarter resolution")
+    ap.add_argument("--scale", type=int, default=2, help="camera reduction of the interreflection render (1: full)")
+    ap.add_argument("--stride", type=int, default=2, help="camera pixels between the mesh's vertices")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     root, work = Path(args.data), Path(args.work)
@@ -68,7 +71,7 @@ def main(argv=None) -> int:
         export_capture(folder, real, reference_cloud=root / "skull_reference" / "pointCloud_from_skull_gray.mat",
                        reference_system=system)
     seeds = 1 if args.quick else args.seeds
-    scale = 4 if args.quick else 2
+    scale, stride = (4, 4) if args.quick else (args.scale, args.stride)
     sensor = capture_sensor(real, folder)
     print(f"sensor fitted on the capture: full well {sensor['full_well_e']:.0f} e-, read noise "
           f"{sensor['read_noise_e']:.1f} e-, contrast B/A {sensor['contrast_median']:.2f}", flush=True)
@@ -79,12 +82,13 @@ def main(argv=None) -> int:
     biases["+ noise-only map 5x5 LOO"] = (None, "")
     measured15 = unit_phase_bias(real, window=15)
     for albedo, bounces in ((0.8, 1), (0.8, 2), (1.0, 2)):
-        cache = work / f"gi_a{albedo}_b{bounces}_x{scale}.npz"
+        cache = work / (f"gi_a{albedo}_b{bounces}_x{scale}.npz" if stride == scale else
+                        f"gi_a{albedo}_b{bounces}_x{scale}_s{stride}.npz")
         if cache.exists():
             z = np.load(cache)
             r = {"bias": z["bias"], "lit": z["lit"], "seconds": float(z["seconds"])}
         else:
-            r = interreflection_bias(real, system, stride=scale, scale=scale, albedo=albedo, bounces=bounces)
+            r = interreflection_bias(real, system, stride=stride, scale=scale, albedo=albedo, bounces=bounces)
             np.savez(cache, bias=r["bias"], lit=r["lit"], seconds=r["seconds"])
         c = compare_bias(r["bias"], r["lit"], measured15, 15)
         biases[f"+ interreflection, albedo {albedo}, {bounces} bounce(s)"] = (
@@ -105,7 +109,8 @@ def main(argv=None) -> int:
             bias, note = b["bias"], f"rms {b['rms']:.4f} rad"
         counts = []
         for seed in range(seeds):
-            out = work / f"twin_{_slug(name)}_seed{seed}.h5"
+            tag = f"_x{scale}_s{stride}" if "interreflection" in name and (scale, stride) != (2, 2) else ""
+            out = work / f"twin_{_slug(name)}{tag}_seed{seed}.h5"
             if not out.exists():
                 pixel_twin(real, folder, out, full_well_e=sensor["full_well_e"], read_noise_e=sensor["read_noise_e"],
                            seed=seed, unit_bias=bias)
