@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from unwrap.safe_output import write_text
+from unwrap.safe_output import atomic_path, write_text
 
 ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "slstudio-ps2x3-calib"
 
@@ -46,8 +46,44 @@ def _slug(name: str) -> str:
     return "".join(c if c.isalnum() else "_" for c in name).strip("_")
 
 
-def main(argv=None) -> int:
+def _interreflection_rows(real, system, work: Path, scale: int, stride: int) -> dict:
+    """{row name: (bias (H, W) rad, note)} of the interreflection renders (cached in ``work``) and the
+    last one scaled to the measured bias's amplitude."""
     from experiments.capture_gi import compare_bias, interreflection_bias
+    from experiments.pixel_twin import unit_phase_bias
+
+    biases = {}
+    measured15 = unit_phase_bias(real, window=15)
+    for albedo, bounces in ((0.8, 1), (0.8, 2), (1.0, 2)):
+        cache = work / (f"gi_a{albedo}_b{bounces}_x{scale}.npz" if stride == scale else
+                        f"gi_a{albedo}_b{bounces}_x{scale}_s{stride}.npz")
+        if cache.exists():
+            z = np.load(cache)
+            r = {"bias": z["bias"], "lit": z["lit"], "seconds": float(z["seconds"])}
+        else:
+            r = interreflection_bias(real, system, stride=stride, scale=scale, albedo=albedo, bounces=bounces)
+            with atomic_path(cache) as tmp:
+                np.savez(tmp, bias=r["bias"], lit=r["lit"], seconds=r["seconds"])
+        c = compare_bias(r["bias"], r["lit"], measured15, 15)
+        biases[f"+ interreflection, albedo {albedo}, {bounces} bounce(s)"] = (
+            r["bias"], f"corr {c['correlation']:.2f}, rendered rms {c['rms_rendered']:.4f} (x{c['scale']:.2f} = "
+                       f"measured), {r['seconds']:.0f} s")
+    # the last render with its amplitude scaled to the capture's measured bias (a fit to the bias map, not to
+    # the error rate): what the missing indirect light (surfaces the camera does not see) would add
+    biases[f"+ interreflection, albedo {albedo}, {bounces} bounces, x{c['scale']:.2f} (measured amplitude)"] = (
+        r["bias"] * c["scale"], "amplitude fitted to the measured 15x15 bias map")
+    return biases
+
+
+def _print_table(rows, seeds: int, wrong_real: int, n_real: int) -> None:
+    print(f"\n| twin (seeds {seeds}) | traditional % | wrong | real / twin | note |\n|---|---:|---:|---:|---|")
+    print(f"| real capture | {100.0 * wrong_real / n_real:.3f} | {wrong_real} | 1 | {n_real} labelled pixels |")
+    for r in rows:
+        print(f"| {r['twin']} | {r['rate_pct']:.3f} | {min(r['wrong'])}-{max(r['wrong'])} | {r['real_over_twin']:.2f} | "
+              f"{r['note']} |")
+
+
+def main(argv=None) -> int:
     from experiments.pixel_twin import capture_sensor, pixel_twin, unit_phase_bias
     from synth.export.capture import export_capture
 
@@ -80,24 +116,7 @@ def main(argv=None) -> int:
         b = unit_phase_bias(real, window=win, leave_one_out=loo)
         biases[f"+ measured bias {win}x{win}{' LOO' if loo else ''}"] = (b["bias"], f"rms {b['rms']:.4f} rad")
     biases["+ noise-only map 5x5 LOO"] = (None, "")
-    measured15 = unit_phase_bias(real, window=15)
-    for albedo, bounces in ((0.8, 1), (0.8, 2), (1.0, 2)):
-        cache = work / (f"gi_a{albedo}_b{bounces}_x{scale}.npz" if stride == scale else
-                        f"gi_a{albedo}_b{bounces}_x{scale}_s{stride}.npz")
-        if cache.exists():
-            z = np.load(cache)
-            r = {"bias": z["bias"], "lit": z["lit"], "seconds": float(z["seconds"])}
-        else:
-            r = interreflection_bias(real, system, stride=stride, scale=scale, albedo=albedo, bounces=bounces)
-            np.savez(cache, bias=r["bias"], lit=r["lit"], seconds=r["seconds"])
-        c = compare_bias(r["bias"], r["lit"], measured15, 15)
-        biases[f"+ interreflection, albedo {albedo}, {bounces} bounce(s)"] = (
-            r["bias"], f"corr {c['correlation']:.2f}, rendered rms {c['rms_rendered']:.4f} (x{c['scale']:.2f} = "
-                       f"measured), {r['seconds']:.0f} s")
-    # the last render with its amplitude scaled to the capture's measured bias (a fit to the bias map, not to
-    # the error rate): what the missing indirect light (surfaces the camera does not see) would add
-    biases[f"+ interreflection, albedo {albedo}, {bounces} bounces, x{c['scale']:.2f} (measured amplitude)"] = (
-        r["bias"] * c["scale"], "amplitude fitted to the measured 15x15 bias map")
+    biases.update(_interreflection_rows(real, system, work, scale, stride))
     rows = []
     wrong_real, n_real = _errors(real)
     spare = work / f"twin_{_slug('sensor only')}_seed{seeds}.h5"
@@ -121,11 +140,7 @@ def main(argv=None) -> int:
                      "real_over_twin": (100.0 * wrong_real / n_real) / max(rate, 1e-12)})
         print(f"{name:48s} {rate:.3f} % ({min(w)}-{max(w)})  real/twin {rows[-1]['real_over_twin']:.2f}  {note}",
               flush=True)
-    print(f"\n| twin (seeds {seeds}) | traditional % | wrong | real / twin | note |\n|---|---:|---:|---:|---|")
-    print(f"| real capture | {100.0 * wrong_real / n_real:.3f} | {wrong_real} | 1 | {n_real} labelled pixels |")
-    for r in rows:
-        print(f"| {r['twin']} | {r['rate_pct']:.3f} | {min(r['wrong'])}-{max(r['wrong'])} | {r['real_over_twin']:.2f} | "
-              f"{r['note']} |")
+    _print_table(rows, seeds, wrong_real, n_real)
     if args.json:
         write_text(args.json, json.dumps({"real": {"wrong": wrong_real, "labelled": n_real}, "sensor": sensor,
                                           "rows": rows}, indent=1))
