@@ -14,7 +14,11 @@ Public surface:
 - the learned unwrapping: ``TestSource`` and ``score`` (error rates of models and baselines on a
   test set), ``evaluate_models`` (``calib eval``: tables S5 / S6 beside the paper's, confidence,
   real captures, speed), ``learned_parity`` (twin renders with the capture's noise vs the real
-  capture), ``slstudio_parity`` (the whole check on SLStudio's skull).
+  capture), ``slstudio_parity`` (the whole check on SLStudio's skull); the twin built from what a
+  capture measures is `experiments.pixel_twin` (its own A, B per pixel, the fitted sensor, its
+  unit-phase bias), the interreflection rendered on a capture's own geometry
+  `experiments.capture_gi`, the plane estimator's noise split on a twin `experiments.noise_split`
+  (``python -m bench.skull_parity``).
 - ``ExperimentError`` (a ValueError).
 
 Experiments take no command line and import nothing from reports; progress goes to the

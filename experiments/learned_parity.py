@@ -11,8 +11,10 @@ Data (both through ``unwrap.dataset``):
   unseen 96), with the sensor noise matched to the capture's (:func:`capture_noise`).
 
 Noise match: on the capture's valid pixels the traditional absolute phase ``phi + 2 pi k`` of the
-high frequency is smooth (its rare 2 pi errors are outliers that the median ignores), so its residual from a 5x5 local plane (robust: 1.4826 x median absolute
-value, corrected for the fit's own degrees of freedom) is its noise ``sigma_Phi``; with the N-step
+high frequency is smooth (its 2 pi errors are outliers, moved by their whole turns before the plane
+is refitted: :func:`experiments.plane_residual.order_outlier_residual`), so its residual from a 5x5
+local plane (robust: 1.4826 x median absolute value, corrected for the fit's own degrees of
+freedom) is its noise ``sigma_Phi``; with the N-step
 noise gain, ``sigma_I = sigma_Phi * B * sqrt(N / 2)`` (full-scale units) per pixel, summarised by
 its median. For the twin's Poisson sensor ``sigma_I^2 ~ I / full_well`` with ``I ~ B`` (full-contrast
 fringes), so ``full_well = median(B) / sigma_I^2``. The twin renders are measured the same way and
@@ -42,9 +44,10 @@ def capture_noise(path, orientation: str = "v", pair=None) -> dict:
     """
     from unwrap.dataset import FringeOrderDataset
     from unwrap.dataset_schema import read_attrs
-    from unwrap.learned.smoothing import smooth_phase
     from unwrap.reliability import plane_residual_noise
     import h5py
+
+    from .plane_residual import order_outlier_residual
 
     with h5py.File(path, "r") as h5:
         a = read_attrs(h5)
@@ -61,10 +64,11 @@ def capture_noise(path, orientation: str = "v", pair=None) -> dict:
             continue
         # the traditional absolute phase: its rare 2 pi errors are outliers the median ignores
         Phi = (it["phase_high"][0].double() + 2 * math.pi * it["order_traditional"].double())[None, None]
-        # residual of the pixel from the plane through its 5x5 neighbours (itself included)
-        smooth = smooth_phase(Phi, ok[None, None], 5, "plane")[0, 0]
+        # residual of the pixel from the plane through its 5x5 neighbours (itself included), after
+        # the orders of the neighbours are corrected (experiments.plane_residual)
+        resid = order_outlier_residual(Phi[0, 0], ok)
         interior = ok & (torch.nn.functional.avg_pool2d(ok[None, None].double(), 5, 1, 2)[0, 0] > 0.999)
-        res.append((Phi[0, 0] - smooth)[interior].numpy())
+        res.append(resid[interior].numpy())
         mods.append(it["modulation_high"][0][interior].double().numpy())
     if not res:
         raise ExperimentError(f"{path}: no sample with reference orders to measure the noise on")
@@ -201,14 +205,17 @@ def _score(files, pair, model) -> dict:
             "items": s.items}
 
 
-def parity(real_files, twin_files, model="learned", *, frequencies=(16, 48, 96)) -> dict:
-    """Error rates (traditional, filtered, learned) on the captures and the twin renders per frequency."""
+def parity(real_files, twin_files, model="learned", *, frequencies=(16, 48, 96), pixel_twin_files=()) -> dict:
+    """Error rates (traditional, filtered, learned) on the captures and the twin renders per frequency;
+    ``pixel_twin_files`` (experiments.pixel_twin) add rows "pixel twin"."""
     from unwrap.learned.infer import resolve_model
 
     net = resolve_model(model)
     rows = []
     for f in frequencies:
-        for kind, files in (("real", real_files), ("twin", twin_files)):
+        for kind, files in (("real", real_files), ("twin", twin_files), ("pixel twin", list(pixel_twin_files))):
+            if not files:
+                continue
             try:
                 r = _score(files, (1.0, float(f)), net)
             except ValueError as exc:   # a frequency the file does not hold, a bad file
@@ -222,7 +229,8 @@ def parity(real_files, twin_files, model="learned", *, frequencies=(16, 48, 96))
 
 def slstudio_parity(shared_data, out_dir, model="learned", *, samples: int = 2, progress: bool = True):
     """The whole parity experiment on SLStudio's skull (``shared_data`` = ``../shared/data``):
-    export the capture with its Gray-code reference, render the matched twin, score both.
+    export the capture with its Gray-code reference, render the matched twin and the pixel twin
+    (:mod:`experiments.pixel_twin`, its sensor fitted on the capture), score all three.
 
     RETURNED VALUE: {"parity": :func:`parity`'s result, "twin": :func:`render_matched_twin`'s},
     or None when the capture is not there."""
@@ -240,4 +248,10 @@ def slstudio_parity(shared_data, out_dir, model="learned", *, samples: int = 2, 
         export_capture(skull, real, reference_cloud=cloud, reference_system=system)
     twin = render_matched_twin(real, system, out, mesh_dir=Path(shared_data) / "meshes", samples=samples,
                                progress=progress)
-    return {"parity": parity([real], [twin["file"]], model), "twin": twin}
+    from .pixel_twin import capture_sensor, pixel_twin
+
+    sensor = capture_sensor(real, skull)
+    pix = [] if sensor["full_well_e"] is None else [pixel_twin(
+        real, skull, out / "pixel_twin.h5", full_well_e=sensor["full_well_e"], read_noise_e=sensor["read_noise_e"])]
+    twin["pixel_twin"] = {**(pix[0] if pix else {}), "sensor": sensor}
+    return {"parity": parity([real], [twin["file"]], model, pixel_twin_files=[p["file"] for p in pix]), "twin": twin}

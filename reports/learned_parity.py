@@ -6,12 +6,20 @@ learned/traditional error ratio on the capture is within a factor 2 of the twin'
 rates are below 0.1 %), and the learned error rate on the capture is not above the traditional;
 when the capture's traditional error is more than 1.5x its twin's, the verdict says instead that
 "the twin under-predicts real errors Nx" (the twin does not make the real errors, so it cannot vouch);
-below 1 / 1.5x, "the twin over-predicts real errors Nx" (its errors are not the capture's either)."""
+below 1 / 1.5x, "the twin over-predicts real errors Nx" (its errors are not the capture's either).
+Where the result holds a "pixel twin" row at the capture's frequency (experiments.pixel_twin: the
+capture's own A, B and the fitted sensor, on the same masks and reference) the verdict and the gap
+compare against it; the rendered twin's rows stay in the table."""
 from __future__ import annotations
 
 import numpy as np
 
 SECTION_TITLE = "Learned unwrapping: twin vs real"
+
+
+def _twin_row(rows, f):
+    """The twin row the verdict compares with at frequency ``f``: the pixel twin's, else the rendered one's."""
+    return next((r for kind in ("pixel twin", "twin") for r in rows if r["data"] == kind and r["f"] == f), None)
 
 
 def verdict(rows) -> str:
@@ -20,7 +28,7 @@ def verdict(rows) -> str:
     if not real:
         return "No real capture with reference orders: parity not measured."
     f = real[0]["f"]
-    twin = next((r for r in rows if r["data"] == "twin" and r["f"] == f), None)
+    twin = _twin_row(rows, f)
     rr = real[0]["learned"].rate / max(real[0]["traditional"].rate, 1e-12)
     if twin is None:
         return f"No twin render at f = {f:g}: parity not measured (real learned/traditional = {rr:.2f})."
@@ -53,7 +61,7 @@ def traditional_gap(rows) -> str:
     if not real:
         return ""
     f = real[0]["f"]
-    twin = next((r for r in rows if r["data"] == "twin" and r["f"] == f), None)
+    twin = _twin_row(rows, f)
     if twin is None:
         return ""
     tr, tt = real[0]["traditional"].rate, twin["traditional"].rate
@@ -100,6 +108,14 @@ def section(res: dict, *, twin_info: dict | None = None):
                                     f"{name} sigma_I {c['sigma_I'][0]:.4f} at B {c['modulation'][0]:.3f} -> "
                                     f"{c['sigma_I'][-1]:.4f} at B {c['modulation'][-1]:.3f}" for name, c in curves)
                                 + ". A twin matched at the median only can still differ at equal modulation."))
+    pix = (twin_info or {}).get("pixel_twin", {}).get("sensor")
+    if pix and pix.get("full_well_e"):
+        blocks.append(("p", "Pixel twin (experiments.pixel_twin): the capture's own background and modulation per "
+                            "pixel, its geometry from the reference, and only the sensor from a fit on the capture "
+                            f"(sigma_I^2 against the background: {pix['full_well_e']:.0f} e- full well, "
+                            f"{pix['read_noise_e']:.1f} e- read noise; median contrast B / A "
+                            f"{pix.get('contrast_median', float('nan')):.2f}); the verdict compares with it. What it "
+                            "lacks is any phase bias of the capture (interreflection, defocus, response)."))
     table = []
     for r in rows:
         chk = r["check"] or {}
