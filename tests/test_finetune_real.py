@@ -159,10 +159,11 @@ def test_init_starts_from_the_checkpoint_and_keeps_training(tmp_path):
     train(None, _tiny_cfg(), tmp_path / "fresh", progress=False, on_step=lambda step, loss: fresh.append(loss))
     assert abs(fresh[0] - expected) > 1e-3 * max(abs(expected), 1e-3)   # the init changed the start
     tuned, _ = load_model(tmp_path / "ft" / "model.pt")
-    a, b = init.state_dict(), tuned.state_dict()
+    # the learned weights (a BatchNorm model's running statistics are buffers that follow the new data)
+    a, b = dict(init.named_parameters()), dict(tuned.named_parameters())
     assert r.step == 2
     assert any(not torch.equal(a[k], b[k]) for k in a)                    # training moved the weights
-    assert max(float((a[k] - b[k]).abs().max()) for k in a if a[k].is_floating_point()) < 0.05
+    assert max(float((a[k] - b[k]).abs().max()) for k in a) < 0.05
 
 
 def test_init_refuses_another_kind_or_architecture(tmp_path):
