@@ -72,7 +72,7 @@ def arch_rows(repeats: int, tmp: Path) -> list:
         with torch.inference_mode():
             xt = torch.from_numpy(x)
             t_torch = _best(lambda: net(xt), repeats)
-        out.append((" ".join(ov) or "shipped (width 16, full 3x3)", count_parameters(net),
+        out.append((" ".join(ov) or "default config (width 16, full 3x3)", count_parameters(net),
                     count_macs(net, C, (480, 640)) / 1e9, _best(lambda: ort.logits(x), repeats), t_torch))
     return out
 
