@@ -250,5 +250,6 @@ def test_c_kernel_takes_a_compiler_with_arguments_and_refuses_one_that_changes_t
     odd.chmod(0o755)
     assert _fresh_c_kernel(monkeypatch, tmp_path / "b", str(odd)) is None
     assert list((tmp_path / "b" / "cache" / "unwrap_kernels").glob("*.so"))     # it was built, and refused
+    assert _fresh_c_kernel(monkeypatch, tmp_path / "c", f'{gcc} "-O2') is None   # unbalanced quote: numpy
     (tmp_path / "file").write_text("")
     assert _fresh_c_kernel(monkeypatch, tmp_path / "file", gcc) is None          # cache under a regular file

@@ -168,7 +168,10 @@ def _build():
     """The loaded library, compiling it unless cached; None when that cannot be done."""
     import ctypes
 
-    cc = shlex.split(os.environ.get("CC", "")) or [shutil.which("cc") or shutil.which("gcc")]
+    try:
+        cc = shlex.split(os.environ.get("CC", "")) or [shutil.which("cc") or shutil.which("gcc")]
+    except ValueError:                                  # an unbalanced quote in $CC: no compiler
+        return None
     if cc[0] is None:
         return None
     key = hashlib.sha256("\0".join((_SOURCE, *cc, *_FLAGS, platform.machine())).encode()).hexdigest()[:16]
