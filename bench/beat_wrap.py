@@ -53,9 +53,12 @@ COLUMNS = ("Traditional MW", "Traditional NT", "Filtered 15x15", "Graph cut", "G
 
 def common_window(p1: float, p2: float) -> tuple[float, float, float]:
     """(window L px, f_lo, f_hi) of pitches ``p1 < p2`` px: the beat period and the pair's
-    frequencies over it (periods across the window)."""
-    L = p1 * p2 / (p2 - p1)
-    return L, L / p2, L / p1
+    frequencies over it (periods across the window): :func:`unwrap.common_window.common_window` of
+    the pair over a ``p1 p2``-px pattern."""
+    from unwrap.common_window import common_window as window
+
+    w = window(p1, p2, p1 * p2)           # (p1 and p2 periods of pitch p2 and p1 px)
+    return (w["window_px"], *w["frequencies"])
 
 
 def render(work: Path, scenes: int, quiet: bool) -> dict:

@@ -17,8 +17,9 @@ Rows, per model:
   torch on the CPU with 2 threads (the deployment target of docs/speed.md) and with all cores,
   onnxruntime on the CPU with 2 threads, torch on CUDA in fp32, fp16 and bf16 (autocast), and
   channels-last; ``batch 8``: 8 frames in one call, per frame.
-- **whole path** per frame (:func:`unwrap.learned.infer.unwrap_learned`: traditional prior, input
-  features and decode on the CPU, the forward where the predictor runs) on each frame of
+- **whole path** per frame (:func:`unwrap.learned.infer.unwrap_learned`: traditional prior on the
+  CPU; input features and decode on the CPU, or on CUDA for an MF frame on a CUDA predictor; the
+  forward where the predictor runs) on each frame of
   ``--frames``, beside the traditional decode of the same pair (the anchor: ``decode_pair``).
 - **orders**: on every valid pixel of each frame, the orders of each CUDA variant against torch fp32
   on the CPU. Differing pixels are counted; where they differ, the CPU's logit margin between its

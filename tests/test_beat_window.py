@@ -46,6 +46,12 @@ def test_circular_plane_filter_follows_a_wrapping_phase():
         np.testing.assert_allclose(got, Phi, atol=1e-9)
         plain = plane_filter(Phi, valid, (w,))[w]
         assert np.abs(plain - Phi).max() > 1.0             # the plain fit averages across each wrap
+    holes = np.random.default_rng(0).random(Phi.shape) > 0.3
+    Phi = np.remainder(true, TWO_PI) - 2.5
+    for w in (7, 15):                                      # invalid pixels keep Phi, bit for bit
+        got = circular_plane_filter(Phi, holes, -2.5, (w,), plane_filter)[w]
+        assert got[~holes].tobytes() == Phi[~holes].tobytes()
+        np.testing.assert_allclose(got[holes], Phi[holes], atol=1e-9)
 
 
 def test_nearest_branch_and_modulo_orders():

@@ -76,12 +76,14 @@ def test_the_on_device_path_gives_the_numpy_paths_orders(monkeypatch):
     from unwrap.learned.runtime import TorchPredictor
 
     phi, mods, valid, k = _frame()
+    mods[1][5, 7], mods[0][40, 60] = np.inf, np.nan      # an infinite input drops the pixel on both paths
     args = ("mf", phi[0], phi[1], mods[0], mods[1], valid, (1, 48))
     pred = load_predictor("learned", device="cpu")
     r_np = unwrap_learned(*args, width=912, model=pred, on_outside="ignore")
     monkeypatch.setattr(TorchPredictor, "features_on_device", property(lambda self: True))
     r_dev = unwrap_learned(*args, width=912, model=pred, on_outside="ignore")
-    assert np.array_equal(r_np.valid, r_dev.valid)
+    assert np.array_equal(r_np.valid, r_dev.valid) and np.array_equal(r_np.order < 0, r_dev.order < 0)
+    assert r_dev.order[5, 7] == -1 and r_dev.valid[5, 7]
     same = r_np.order == r_dev.order
     assert same.mean() > 0.999 and (r_dev.order[r_dev.valid] == k[r_dev.valid]).mean() > 0.99
     np.testing.assert_allclose(r_dev.confidence[same], r_np.confidence[same], atol=2e-4)

@@ -217,3 +217,39 @@ def _model():
     from test_learned_use import constant_model
 
     return constant_model(Path(tempfile.mkdtemp()) / "m.pt", kind="physics")
+
+
+def _fresh_c_kernel(monkeypatch, tmp_path, cc):
+    """``_plane_c.kernel()`` built afresh with ``$CC`` = ``cc`` into a cache under ``tmp_path``."""
+    from unwrap.learned import _plane_c
+
+    monkeypatch.setattr(_plane_c, "_LIB", [])
+    monkeypatch.setenv("SLTWIN_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("CC", cc)
+    return _plane_c.kernel()
+
+
+def test_c_kernel_takes_a_compiler_with_arguments_and_refuses_one_that_changes_the_bits(monkeypatch, tmp_path):
+    """``CC="gcc -std=gnu99"`` (a compiler with its own arguments, as ``ccache gcc``) builds the
+    kernel; a compiler whose arithmetic differs (here: one operation of the source changed on the
+    way, as a fast-math default would) is caught by the load-time check and the numpy replica runs;
+    a cache that cannot be written gives None, not an error."""
+    import shutil
+
+    from unwrap.learned import _plane_numpy as N
+
+    gcc = shutil.which("gcc") or pytest.skip("no gcc here")
+    Phi, valid = _scene(37, 150, seed=1)
+    f = _fresh_c_kernel(monkeypatch, tmp_path / "a", f"{gcc} -std=gnu99")
+    assert f is not None
+    assert np.array_equal(_bits(f(Phi, valid, 3)), _bits(N.plane_filter_numpy(Phi, valid, 3)))
+    odd = tmp_path / "oddcc"
+    odd.write_text("#!/bin/sh\nfor a; do last=$a; done\n"
+                   "sed -i 's|out\\[i\\] = num / det;|out[i] = num / det * 1.0000000000001;|' \"$last\"\n"
+                   f"exec {gcc} \"$@\"\n")
+    odd.chmod(0o755)
+    assert _fresh_c_kernel(monkeypatch, tmp_path / "b", str(odd)) is None
+    assert list((tmp_path / "b" / "cache" / "unwrap_kernels").glob("*.so"))     # it was built, and refused
+    assert _fresh_c_kernel(monkeypatch, tmp_path / "c", f'{gcc} "-O2') is None   # unbalanced quote: numpy
+    (tmp_path / "file").write_text("")
+    assert _fresh_c_kernel(monkeypatch, tmp_path / "file", gcc) is None          # cache under a regular file

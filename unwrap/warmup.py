@@ -98,7 +98,7 @@ def plane_filter() -> Warmup:
     """Load the learned path's plane-fit kernel (:mod:`unwrap.learned._plane_kernel`, both boxes:
     one overload). Only a process that decodes several captures asks for it: from then on
     :func:`unwrap.learned.fast_features.plane_filter` waits for it and runs the compiled kernel
-    instead of its numpy replica (the same bits)."""
+    instead of its C or numpy replica (the same bits)."""
     def run():
         from .learned._plane_kernel import plane_filter_kernel
 

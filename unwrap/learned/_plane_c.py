@@ -7,8 +7,11 @@ the same loops in C take ~10-20 ms a box and load in ~1 ms. The source below is
 system C compiler without fast-math and with ``-ffp-contract=off`` (no fused multiply-adds, as
 numba compiles), and cached on disk (``$SLTWIN_CACHE_DIR/unwrap_kernels``, else
 ``$XDG_CACHE_HOME/sltwin/unwrap_kernels``, else ``~/.cache/sltwin/unwrap_kernels``) under a hash of
-the source, the compiler and its flags. Same operations in the same order: the outputs are
-bitwise the compiled kernel's (tests/test_plane_numpy.py).
+the source, the compiler (``$CC``, which may carry arguments: ``ccache gcc``), its flags and the
+machine's architecture. Same operations in the same order: the outputs are bitwise the compiled
+kernel's (tests/test_plane_numpy.py); each process checks that on a small frame against the numpy
+replica before using the library (a compiler that defaults to fast-math, a foreign or damaged file)
+and falls back to numpy where the bits differ.
 
 :func:`kernel` returns ``plane_filter_c(Phi, valid, r)``, or None where there is no C compiler or
 the cache cannot be written (the caller then runs the numpy replica).
@@ -17,6 +20,8 @@ from __future__ import annotations
 
 import hashlib
 import os
+import platform
+import shlex
 import shutil
 import subprocess
 import tempfile
@@ -163,10 +168,13 @@ def _build():
     """The loaded library, compiling it unless cached; None when that cannot be done."""
     import ctypes
 
-    cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
-    if cc is None:
+    try:
+        cc = shlex.split(os.environ.get("CC", "")) or [shutil.which("cc") or shutil.which("gcc")]
+    except ValueError:                                  # an unbalanced quote in $CC: no compiler
         return None
-    key = hashlib.sha256("\0".join((_SOURCE, cc, *_FLAGS)).encode()).hexdigest()[:16]
+    if cc[0] is None:
+        return None
+    key = hashlib.sha256("\0".join((_SOURCE, *cc, *_FLAGS, platform.machine())).encode()).hexdigest()[:16]
     folder = cache_dir()
     lib = folder / f"plane_filter_{key}.so"
     try:
@@ -175,17 +183,32 @@ def _build():
             with tempfile.TemporaryDirectory(dir=folder) as tmp:
                 src, out = Path(tmp) / "plane.c", Path(tmp) / "plane.so"
                 src.write_text(_SOURCE)
-                proc = subprocess.run([cc, *_FLAGS, "-o", str(out), str(src)], capture_output=True, timeout=120)
+                proc = subprocess.run([*cc, *_FLAGS, "-o", str(out), str(src)], capture_output=True, timeout=120)
                 if proc.returncode != 0:
                     return None
                 os.replace(out, lib)                  # atomic: another process may build it too
         dll = ctypes.CDLL(str(lib))
-    except (OSError, subprocess.SubprocessError):
+        f = dll.plane_filter
+    except (OSError, AttributeError, ValueError, subprocess.SubprocessError):
         return None
-    f = dll.plane_filter
     ptr, lng = ctypes.c_void_p, ctypes.c_long
     f.argtypes, f.restype = [ptr, ptr, lng, lng, lng, lng, ptr, ptr, ptr], None
-    return f
+    return f if _same_bits(f) else None
+
+
+def _same_bits(f) -> bool:
+    """Whether the library gives the numpy replica's bits on a small noisy frame with holes, two
+    blocks each way and both boxes' radii (a few ms once per process; module docstring)."""
+    from ._plane_numpy import plane_filter_numpy
+
+    rng = np.random.default_rng(7)
+    Phi, valid = rng.normal(0.0, 3.0, (13, 11)), rng.random((13, 11)) > 0.2
+    for r in (3, 7):
+        h, S, out = np.empty((5, 13, 11)), np.empty((9, 11)), np.empty_like(Phi)       # held while f runs
+        f(Phi.ctypes.data, valid.ctypes.data, 13, 11, r, 8, h.ctypes.data, S.ctypes.data, out.ctypes.data)
+        if out.tobytes() != plane_filter_numpy(Phi, valid, r, block=8).tobytes():
+            return False
+    return True
 
 
 def kernel():

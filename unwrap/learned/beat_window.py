@@ -63,6 +63,7 @@ def circular_plane_filter(Phi, valid, cut: float, windows, plane_filter, fit: st
     plain = plane_filter(Phi, valid, windows, fit)
     rel = Phi - cut
     mid = (rel >= 0.5 * math.pi) & (rel < 1.5 * math.pi)
+    mid |= ~np.asarray(valid, dtype=bool)          # invalid pixels keep Phi (the plain fit's), bit for bit
     if mid.all():
         return plain
     shifted = np.remainder(Phi - cut - math.pi, TWO_PI) + cut + math.pi     # the cut half a period on

@@ -91,7 +91,7 @@ def unwrap_capture_learned(folder, method: str = "mf", model="learned", *, prese
     """Every orientation of a capture folder by the network: {"v": OrientationResult, ...}."""
     cap = load_capture(folder, preset, pose)
     net = load_predictor(model)          # loaded once (cached per process), shared by the orientations
-    # (the features' plane fits run in numpy unless the process warmed numba's kernel up: a batch)
+    # (the features' plane fits run in C, else numpy, unless the process warmed numba's kernel up: a batch)
     return each_orientation(cap, f"{method} + learned", lambda oc: learned_orientation(
         oc, method, net, min_modulation=min_modulation, on_outside=on_outside, check_prior=check_prior,
         camera_size=cap.camera_size, progress=progress), progress)

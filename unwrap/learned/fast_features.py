@@ -145,7 +145,7 @@ def coarse_cut(method: str, f_l: float, f_h: float, width=None) -> tuple[float, 
 def smoothed_priors(method: str, phi_l, phi_h, f_l: float, f_h: float, valid, windows=SMOOTH_WINDOWS,
                     fit: str = "plane", width=None):
     """({window: prior (H, W) float64 with the coarse phase plane-filtered}, usable): the high
-    frequency's prior from the filtered coarse phase (every window from one product stack). MW /
+    frequency's prior from the filtered coarse phase (one plane fit per window: :func:`plane_filter`). MW /
     NT: the beat is filtered as a periodic phase (:func:`unwrap.learned.beat_window.circular_plane_filter`)."""
     phi_l, phi_h = np.asarray(phi_l, np.float64), np.asarray(phi_h, np.float64)
     Phi, f_c, usable = coarse_phase(method, phi_l, phi_h, float(f_l), float(f_h), width)
