@@ -73,6 +73,9 @@ class TorchPredictor:
         if precision == "fp16" and self.device.type != "cuda":
             raise ModelError("precision fp16 needs a CUDA device (the CPU has no fast float16 convolutions); "
                              "use bf16 or fp32 on the CPU")
+        if precision == "bf16" and self.device.type == "cuda" and not torch.cuda.is_bf16_supported():
+            raise ModelError(f"precision bf16: this GPU ({torch.cuda.get_device_name(self.device)}) has no "
+                             "bfloat16 arithmetic; use fp16 or fp32")
         self.precision = precision
         self._dtype = {"fp16": torch.float16, "bf16": torch.bfloat16}.get(precision)
         self.channels_last = channels_last
