@@ -63,15 +63,16 @@ def capture_fringes(folder, orientation: str = "v") -> list:
 
 def _absolute_top(real_file, orientation: str):
     """Sample 0 of a capture file: (Phi_top (H, W) rad with the reference order where there is one
-    and the traditional elsewhere, its residual from the 5x5 plane after order outliers, the decoded
-    pixels, the labelled pixels, the reference orders (F, H, W), the frequencies)."""
+    and the traditional elsewhere, its order outliers moved by their whole turns, its residual from
+    the 5x5 plane (``Phi_top - residual`` is the plane: no 2 pi spike where an order was moved), the
+    decoded pixels, the labelled pixels, the reference orders (F, H, W), the frequencies)."""
     import h5py
     import torch
 
     from unwrap.dataset import FringeOrderDataset
     from unwrap.dataset_schema import read_attrs
 
-    from .plane_residual import order_outlier_residual
+    from .plane_residual import order_outlier_fit
 
     with h5py.File(real_file, "r") as h5:
         a = read_attrs(h5)
@@ -85,7 +86,7 @@ def _absolute_top(real_file, orientation: str):
     ok = it["valid"].numpy() & (k_trad >= 0)
     k = np.where(lab, it["order_true"].numpy(), k_trad)
     Phi = it["phase_high"][0].double().numpy() + TWO_PI * k
-    r = order_outlier_residual(torch.from_numpy(Phi), torch.from_numpy(ok)).numpy()
+    Phi, r = (x.numpy() for x in order_outlier_fit(torch.from_numpy(Phi), torch.from_numpy(ok)))
     return Phi, r, ok, lab, ref, freqs
 
 
