@@ -109,6 +109,10 @@ def main(argv=None) -> int:
     seeds = 1 if args.quick else args.seeds
     scale, stride = (4, 4) if args.quick else (args.scale, args.stride)
     sensor = capture_sensor(real, folder)
+    if sensor["full_well_e"] is None:     # sensor_fit: sigma_I^2 does not grow with the background A
+        print(f"{folder}: no sensor to fit (the noise does not grow with the background: {sensor['sigma_I']})",
+              file=sys.stderr)
+        return 2
     print(f"sensor fitted on the capture: full well {sensor['full_well_e']:.0f} e-, read noise "
           f"{sensor['read_noise_e']:.1f} e-, contrast B/A {sensor['contrast_median']:.2f}", flush=True)
     biases = {"sensor only": (None, "")}

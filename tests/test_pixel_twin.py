@@ -1,6 +1,7 @@
 """The skull parity's estimator fix and pixel twin (experiments.plane_residual.order_outlier_residual,
 experiments.pixel_twin, experiments.noise_split)."""
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -123,7 +124,7 @@ def test_verdict_compares_with_the_pixel_twin_when_there_is_one():
 
     rows = [row("real", 166, 99), row("twin", 92, 100), row("pixel twin", 29, 24)]
     v = verdict(rows)
-    assert "under-predicts real errors 5.7x" in v and "twin 0.032 %" in v
+    assert "under-predicts real errors 5.7x" in v and "pixel twin 0.032 %" in v and "pixel twin 0.83" in v
     assert "(ratio 5.7)" in traditional_gap(rows)
     assert "under-predicts real errors 1.8x" in verdict(rows[:2])     # without it: the rendered twin, as before
 
@@ -228,3 +229,18 @@ def _absolute_top_with_reference(path):
             n, f = h5["v/phase"].shape[:2]
             h5.create_dataset("v/reference_order", data=np.full((n, f) + h5["v/phase"].shape[2:], -1, np.int16))
     return _absolute_top(path, "v")
+
+
+def test_skull_parity_bench_refuses_a_capture_without_a_sensor_fit(tmp_path, monkeypatch, capsys):
+    """sensor_fit's None (noise not growing with the background) is a refusal (exit 2, a message),
+    not a TypeError from formatting None."""
+    import bench.skull_parity as sp
+    import experiments.pixel_twin as pt
+    import synth.export.capture as cap
+
+    (tmp_path / "data" / "skull_2x3").mkdir(parents=True)
+    monkeypatch.setattr(cap, "export_capture", lambda folder, out, **kw: Path(out).write_bytes(b""))
+    monkeypatch.setattr(pt, "capture_sensor", lambda real, folder: {"full_well_e": None, "read_noise_e": None,
+                                                                    "sigma_I": [0.004, 0.003], "A": [0.1, 0.2]})
+    assert sp.main(["--data", str(tmp_path / "data"), "--work", str(tmp_path / "work")]) == 2
+    assert "no sensor to fit" in capsys.readouterr().err
