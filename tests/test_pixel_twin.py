@@ -115,7 +115,8 @@ def test_pixel_twin_of_the_skull_keeps_the_masks_and_is_unchanged_by_a_zero_bias
 
 
 def test_verdict_compares_with_the_pixel_twin_when_there_is_one():
-    """The measured skull (docs/learned.md): real 166 wrong, rendered twin ~0.10 %, pixel twin 29."""
+    """Rows as the skull measured before f601c0e (docs/learned.md): real 166 wrong, rendered twin ~0.10 %,
+    pixel twin 29."""
     from reports.learned_parity import traditional_gap, verdict
     from unwrap.learned.metrics import ErrorCount
 
