@@ -32,6 +32,9 @@ import numpy as np
 from unwrap.safe_output import atomic_path, write_text
 
 ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "slstudio-ps2x3-calib"
+#: in the names of the cached renders and twins: bumped when what experiments.pixel_twin / capture_gi
+#: write changes (p2: the plane without the 2 pi spikes of moved orders), so that an old --work is not reused
+CACHE = "p2"
 
 
 def _errors(path) -> tuple[int, int]:
@@ -55,8 +58,8 @@ def _interreflection_rows(real, system, work: Path, scale: int, stride: int) -> 
     biases = {}
     measured15 = unit_phase_bias(real, window=15)
     for albedo, bounces in ((0.8, 1), (0.8, 2), (1.0, 2)):
-        cache = work / (f"gi_a{albedo}_b{bounces}_x{scale}.npz" if stride == scale else
-                        f"gi_a{albedo}_b{bounces}_x{scale}_s{stride}.npz")
+        cache = work / (f"gi_{CACHE}_a{albedo}_b{bounces}_x{scale}.npz" if stride == scale else
+                        f"gi_{CACHE}_a{albedo}_b{bounces}_x{scale}_s{stride}.npz")
         if cache.exists():
             z = np.load(cache)
             r = {"bias": z["bias"], "lit": z["lit"], "seconds": float(z["seconds"])}
@@ -109,6 +112,10 @@ def main(argv=None) -> int:
     seeds = 1 if args.quick else args.seeds
     scale, stride = (4, 4) if args.quick else (args.scale, args.stride)
     sensor = capture_sensor(real, folder)
+    if sensor["full_well_e"] is None:     # sensor_fit: sigma_I^2 does not grow with the background A
+        print(f"{folder}: no sensor to fit (the noise does not grow with the background: {sensor['sigma_I']})",
+              file=sys.stderr)
+        return 2
     print(f"sensor fitted on the capture: full well {sensor['full_well_e']:.0f} e-, read noise "
           f"{sensor['read_noise_e']:.1f} e-, contrast B/A {sensor['contrast_median']:.2f}", flush=True)
     biases = {"sensor only": (None, "")}
@@ -119,17 +126,17 @@ def main(argv=None) -> int:
     biases.update(_interreflection_rows(real, system, work, scale, stride))
     rows = []
     wrong_real, n_real = _errors(real)
-    spare = work / f"twin_{_slug('sensor only')}_seed{seeds}.h5"
+    spare = work / f"twin_{CACHE}_{_slug('sensor only')}_seed{seeds}.h5"
     if not spare.exists():
         pixel_twin(real, folder, spare, full_well_e=sensor["full_well_e"], read_noise_e=sensor["read_noise_e"], seed=seeds)
     for name, (bias, note) in biases.items():
         if name == "+ noise-only map 5x5 LOO":      # the 5x5 map of a sensor-only twin: no bias, its noise
-            b = unit_phase_bias(work / f"twin_{_slug('sensor only')}_seed{seeds}.h5", window=5, leave_one_out=True)
+            b = unit_phase_bias(spare, window=5, leave_one_out=True)
             bias, note = b["bias"], f"rms {b['rms']:.4f} rad"
         counts = []
         for seed in range(seeds):
             tag = f"_x{scale}_s{stride}" if "interreflection" in name and (scale, stride) != (2, 2) else ""
-            out = work / f"twin_{_slug(name)}{tag}_seed{seed}.h5"
+            out = work / f"twin_{CACHE}_{_slug(name)}{tag}_seed{seed}.h5"
             if not out.exists():
                 pixel_twin(real, folder, out, full_well_e=sensor["full_well_e"], read_noise_e=sensor["read_noise_e"],
                            seed=seed, unit_bias=bias)

@@ -30,7 +30,6 @@ full well ``1 / c1`` electrons, read noise ``sqrt(c0 - q^2) / c1`` electrons.
 from __future__ import annotations
 
 import math
-import os
 import shutil
 from pathlib import Path
 
@@ -63,15 +62,16 @@ def capture_fringes(folder, orientation: str = "v") -> list:
 
 def _absolute_top(real_file, orientation: str):
     """Sample 0 of a capture file: (Phi_top (H, W) rad with the reference order where there is one
-    and the traditional elsewhere, its residual from the 5x5 plane after order outliers, the decoded
-    pixels, the labelled pixels, the reference orders (F, H, W), the frequencies)."""
+    and the traditional elsewhere, its order outliers moved by their whole turns, its residual from
+    the 5x5 plane (``Phi_top - residual`` is the plane: no 2 pi spike where an order was moved), the
+    decoded pixels, the labelled pixels, the reference orders (F, H, W), the frequencies)."""
     import h5py
     import torch
 
     from unwrap.dataset import FringeOrderDataset
     from unwrap.dataset_schema import read_attrs
 
-    from .plane_residual import order_outlier_residual
+    from .plane_residual import order_outlier_fit
 
     with h5py.File(real_file, "r") as h5:
         a = read_attrs(h5)
@@ -85,7 +85,7 @@ def _absolute_top(real_file, orientation: str):
     ok = it["valid"].numpy() & (k_trad >= 0)
     k = np.where(lab, it["order_true"].numpy(), k_trad)
     Phi = it["phase_high"][0].double().numpy() + TWO_PI * k
-    r = order_outlier_residual(torch.from_numpy(Phi), torch.from_numpy(ok)).numpy()
+    Phi, r = (x.numpy() for x in order_outlier_fit(torch.from_numpy(Phi), torch.from_numpy(ok)))
     return Phi, r, ok, lab, ref, freqs
 
 
@@ -180,6 +180,7 @@ def pixel_twin(real_file, folder, out_file, *, full_well_e: float, read_noise_e:
     from unwrap.dataset_schema import decode_phase, encode_modulation, encode_phase
     from unwrap.dataset_schema import FLAG_LOW_MODULATION, FLAG_OUT_OF_RANGE, FLAG_SATURATED
     from unwrap.phase_shift import wrapped_phase
+    from unwrap.safe_output import atomic_path
 
     sets = capture_fringes(folder, orientation)
     Phi, r, ok, _, ref, freqs = _absolute_top(real_file, orientation)
@@ -210,9 +211,7 @@ def pixel_twin(real_file, folder, out_file, *, full_well_e: float, read_noise_e:
             (k <= math.floor(s["frequency"] + 0.5))
         refs.append(np.where(keep, k, -1).astype(np.int16))
     out = Path(out_file)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
-    try:
+    with atomic_path(out) as tmp:      # unwrap.safe_output: renamed onto out only when complete
         shutil.copyfile(real_file, tmp)
         with h5py.File(tmp, "r+") as h5:
             for name, arr in (("phase", phases), ("modulation", mods), ("flags", flags), ("reference_order", refs)):
@@ -220,10 +219,6 @@ def pixel_twin(real_file, folder, out_file, *, full_well_e: float, read_noise_e:
             h5.attrs["pixel_twin"] = (f"pixel twin of {Path(real_file).name}: capture A, B; sensor {full_well_e:.0f} e- "
                                       f"full well, {read_noise_e:.1f} e- read noise, seed {int(seed)}; unit bias "
                                       f"{'none' if unit_bias is None else 'given'}")
-        os.replace(tmp, out)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
     return {"file": str(out), "labelled": [int((x >= 0).sum()) for x in ref],
             "labelled_twin": [int((x >= 0).sum()) for x in refs], "seed": int(seed),
             "full_well_e": float(full_well_e), "read_noise_e": float(read_noise_e)}

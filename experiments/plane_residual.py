@@ -10,7 +10,16 @@ import torch
 def order_outlier_residual(Phi, ok, window: int = 5, passes: int = 1):
     """Residual (H, W) float64 of an absolute phase ``Phi`` (H, W) tensor, rad, from the plane
     through its ``window`` x ``window`` neighbours among ``ok`` (H, W) bool, after ``passes``
-    corrections of order outliers.
+    corrections of order outliers (:func:`order_outlier_fit`'s residual)."""
+    return order_outlier_fit(Phi, ok, window, passes)[1]
+
+
+def order_outlier_fit(Phi, ok, window: int = 5, passes: int = 1):
+    """(Phi moved (H, W) float64 rad, its residual (H, W) rad from the plane): ``Phi`` (H, W) tensor
+    rad with its order outliers moved by their whole turns, ``passes`` times, and the residual of
+    the moved phase from the plane through its ``window`` x ``window`` neighbours among ``ok``
+    (H, W) bool; the plane itself is ``moved - residual`` (with ``Phi - residual`` a pixel whose
+    order was moved keeps its whole turns).
 
     A pixel whose traditional order is wrong sits ~2 pi off the plane; left in, it moves the plane
     of each of its 24 neighbours by ~2 pi / 25 = 0.25 rad, so where orders fail often (dim pixels:
@@ -26,4 +35,4 @@ def order_outlier_residual(Phi, ok, window: int = 5, passes: int = 1):
     for _ in range(int(passes)):
         Phi = Phi - 2 * math.pi * torch.round(torch.where(ok, r, torch.zeros_like(r)) / (2 * math.pi))
         r = Phi - smooth_phase(Phi[None, None], v, window, "plane")[0, 0]
-    return r
+    return Phi, r

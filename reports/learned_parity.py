@@ -39,18 +39,20 @@ def verdict(rows) -> str:
     gap = real[0]["traditional"].rate / max(twin["traditional"].rate, 1e-12)
     if not small and gap > 1.5:       # issue 21: a twin that misses most real errors cannot vouch for the model
         return (f"Verdict: the twin under-predicts real errors {gap:.1f}x at f = {f:g} (traditional: real "
-                f"{100 * real[0]['traditional'].rate:.3f} %, twin {100 * twin['traditional'].rate:.3f} %), so it "
+                f"{100 * real[0]['traditional'].rate:.3f} %, {twin['data']} {100 * twin['traditional'].rate:.3f} %), "
+                f"so it "
                 f"cannot show that the model behaves on real captures as on the twin (learned/traditional error: "
-                f"real {rr:.2f}, twin {tr:.2f}).")
+                f"real {rr:.2f}, {twin['data']} {tr:.2f}).")
     if not small and gap < 1 / 1.5:   # the twin makes errors the capture does not: it cannot vouch either
         return (f"Verdict: the twin over-predicts real errors {1 / max(gap, 1e-12):.1f}x at f = {f:g} (traditional: "
-                f"real {100 * real[0]['traditional'].rate:.3f} %, twin {100 * twin['traditional'].rate:.3f} %), so it "
+                f"real {100 * real[0]['traditional'].rate:.3f} %, {twin['data']} {100 * twin['traditional'].rate:.3f} %), "
+                f"so it "
                 f"cannot show that the model behaves on real captures as on the twin (learned/traditional error: "
-                f"real {rr:.2f}, twin {tr:.2f}).")
+                f"real {rr:.2f}, {twin['data']} {tr:.2f}).")
     word = "behaves on the real capture as on its twin" if same and not_worse else \
         "does NOT behave on the real capture as on its twin"
     return (f"Verdict: the twin-trained model {word} at f = {f:g} (learned/traditional error: real {rr:.2f}, "
-            f"twin {tr:.2f}; real {100 * real[0]['learned'].rate:.3f} % vs traditional "
+            f"{twin['data']} {tr:.2f}; real {100 * real[0]['learned'].rate:.3f} % vs traditional "
             f"{100 * real[0]['traditional'].rate:.3f} %).")
 
 

@@ -1,6 +1,7 @@
 """The skull parity's estimator fix and pixel twin (experiments.plane_residual.order_outlier_residual,
 experiments.pixel_twin, experiments.noise_split)."""
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -114,7 +115,8 @@ def test_pixel_twin_of_the_skull_keeps_the_masks_and_is_unchanged_by_a_zero_bias
 
 
 def test_verdict_compares_with_the_pixel_twin_when_there_is_one():
-    """The measured skull (docs/learned.md): real 166 wrong, rendered twin ~0.10 %, pixel twin 29."""
+    """Rows as the skull measured before f601c0e (docs/learned.md): real 166 wrong, rendered twin ~0.10 %,
+    pixel twin 29."""
     from reports.learned_parity import traditional_gap, verdict
     from unwrap.learned.metrics import ErrorCount
 
@@ -123,7 +125,7 @@ def test_verdict_compares_with_the_pixel_twin_when_there_is_one():
 
     rows = [row("real", 166, 99), row("twin", 92, 100), row("pixel twin", 29, 24)]
     v = verdict(rows)
-    assert "under-predicts real errors 5.7x" in v and "twin 0.032 %" in v
+    assert "under-predicts real errors 5.7x" in v and "pixel twin 0.032 %" in v and "pixel twin 0.83" in v
     assert "(ratio 5.7)" in traditional_gap(rows)
     assert "under-predicts real errors 1.8x" in verdict(rows[:2])     # without it: the rendered twin, as before
 
@@ -177,3 +179,69 @@ def test_interreflection_on_the_skulls_own_geometry_makes_the_captures_unit_phas
     assert r["bias"].shape == (1352, 1688) and "interreflection: 1 bounce" in r["plan"]
     c = compare_bias(r["bias"], r["lit"], unit_phase_bias(real, window=15), 15)
     assert c["correlation"] > 0.6 and 1.0 < c["scale"] < 4.0
+
+
+def test_absolute_top_plane_has_no_spike_where_an_order_was_moved(tmp_path):
+    """A labelled pixel whose reference order is one too high sits 2 pi off its neighbours; the
+    order-outlier pass moves it back, so the plane ``Phi_top - r`` that the pixel twin renders, the
+    bias map and the capture's mesh use follows the surface there (was: the plane + 2 pi)."""
+    import sys
+    from pathlib import Path
+
+    import h5py
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from dataset_helpers import tiny_config
+    from experiments.pixel_twin import _absolute_top
+    from synth.export.config import load_config
+    from synth.export.dataset import export_dataset
+
+    path = tmp_path / "t.h5"
+    export_dataset(load_config(tiny_config(tmp_path, samples=1, frequencies="[1, 16]", steps=3,
+                                           effects="noise = { full_well_e = 20000.0, read_noise_e = 2.0 }")),
+                   path, progress=False)
+    _, r0, ok, _, _, _ = _absolute_top_with_reference(path)
+    inner = ok & (torch.nn.functional.avg_pool2d(torch.from_numpy(ok)[None, None].double(), 5, 1, 2)[0, 0].numpy()
+                  > 0.999)
+    ys, xs = np.nonzero(inner & (np.abs(r0) < 0.2))
+    y, x = int(ys[len(ys) // 2]), int(xs[len(xs) // 2])
+    with h5py.File(path, "r+") as h5:
+        import json
+        width = float(json.loads(h5.attrs["widths"])["v"])
+        h5["v/coordinate"][0, y, x] += width / 16.0          # the pixel's true order one too high
+    Phi, r, ok, lab, _, _ = _absolute_top(path, "v")
+    assert lab[y, x] and ok[y, x]
+    plane = Phi - r
+    ring = np.ones((3, 3), bool)
+    ring[1, 1] = False
+    neighbours = np.median(plane[y - 1:y + 2, x - 1:x + 2][ring])
+    assert abs(plane[y, x] - neighbours) < 0.5                # not ~2 pi
+    assert abs(r[y, x]) < 0.5
+
+
+def _absolute_top_with_reference(path):
+    """_absolute_top on a twin export given the (unused) reference_order a capture file has."""
+    import h5py
+
+    from experiments.pixel_twin import _absolute_top
+
+    with h5py.File(path, "r+") as h5:
+        if "v/reference_order" not in h5:
+            n, f = h5["v/phase"].shape[:2]
+            h5.create_dataset("v/reference_order", data=np.full((n, f) + h5["v/phase"].shape[2:], -1, np.int16))
+    return _absolute_top(path, "v")
+
+
+def test_skull_parity_bench_refuses_a_capture_without_a_sensor_fit(tmp_path, monkeypatch, capsys):
+    """sensor_fit's None (noise not growing with the background) is a refusal (exit 2, a message),
+    not a TypeError from formatting None."""
+    import bench.skull_parity as sp
+    import experiments.pixel_twin as pt
+    import synth.export.capture as cap
+
+    (tmp_path / "data" / "skull_2x3").mkdir(parents=True)
+    monkeypatch.setattr(cap, "export_capture", lambda folder, out, **kw: Path(out).write_bytes(b""))
+    monkeypatch.setattr(pt, "capture_sensor", lambda real, folder: {"full_well_e": None, "read_noise_e": None,
+                                                                    "sigma_I": [0.004, 0.003], "A": [0.1, 0.2]})
+    assert sp.main(["--data", str(tmp_path / "data"), "--work", str(tmp_path / "work")]) == 2
+    assert "no sensor to fit" in capsys.readouterr().err
