@@ -135,7 +135,10 @@ def _orders_on_device(pred, method, prior, phi_lo, phi_hi, m_lo, m_hi, order_tra
     dev = pred.device
 
     def f32(a):
-        a = np.where(valid, np.nan_to_num(np.asarray(a, dtype=np.float64)), 0.0).astype(np.float32)
+        # as fast_features: NaN -> 0, +-inf stays infinite (features.valid_mask drops the pixel; a plain
+        # nan_to_num would make it a float64 max that overflows float32 with a warning)
+        a = np.nan_to_num(np.asarray(a, dtype=np.float64), nan=0.0, posinf=np.inf, neginf=-np.inf)
+        a = np.where(valid, a, 0.0).astype(np.float32)
         return torch.from_numpy(a)[None, None].to(dev)
 
     batch = {"prior": f32(prior), "phase_low": f32(phi_lo), "phase_high": f32(phi_hi),
