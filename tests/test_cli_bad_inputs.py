@@ -367,8 +367,8 @@ CASES = [
     ("export-ladder-no-redundancy", "export --capture {cap}/good --reference ladder -o {out}.h5", "three or more"),
     ("train-init-other-kind", "train model.kind=prior_free data.synthetic_samples=4 data.synthetic_size=[32,32] "
      "--init learned -o {out}", "prior_free"),
-    ("train-init-other-width", "train model.width=8 data.synthetic_samples=4 data.synthetic_size=[32,32] "
-     "--init learned -o {out}", "width: checkpoint 16, run 8"),
+    ("train-init-other-width", "train model.width=16 data.synthetic_samples=4 data.synthetic_size=[32,32] "
+     "--init learned -o {out}", "width: checkpoint 8, run 16"),
     ("train-init-corrupt", "train data.synthetic_samples=4 --init {bad}/corrupt.pt -o {out}", "corrupt.pt"),
     ("eval-corrupt-checkpoint", "eval --model {bad}/corrupt.pt --synthetic 1 --no-speed -o {out}", "corrupt.pt"),
     ("eval-no-test", "eval -o {out}", "--test"),
