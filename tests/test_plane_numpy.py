@@ -253,3 +253,22 @@ def test_c_kernel_takes_a_compiler_with_arguments_and_refuses_one_that_changes_t
     assert _fresh_c_kernel(monkeypatch, tmp_path / "c", f'{gcc} "-O2') is None   # unbalanced quote: numpy
     (tmp_path / "file").write_text("")
     assert _fresh_c_kernel(monkeypatch, tmp_path / "file", gcc) is None          # cache under a regular file
+
+
+def test_c_kernel_is_not_loaded_from_a_folder_others_can_write(monkeypatch, tmp_path):
+    """A library loaded from the cache runs in our process: a cache folder (or file) writable by
+    group or others is not used, the numpy replica runs instead."""
+    import shutil
+
+    gcc = shutil.which("gcc") or pytest.skip("no gcc here")
+    assert _fresh_c_kernel(monkeypatch, tmp_path, gcc) is not None
+    folder = tmp_path / "cache" / "unwrap_kernels"
+    folder.chmod(0o777)
+    assert _fresh_c_kernel(monkeypatch, tmp_path, gcc) is None
+    folder.chmod(0o755)
+    (lib,) = folder.glob("*.so")
+    lib.chmod(0o666)
+    assert _fresh_c_kernel(monkeypatch, tmp_path, gcc) is None
+    lib.chmod(0o755)
+    assert _fresh_c_kernel(monkeypatch, tmp_path, gcc) is not None
+

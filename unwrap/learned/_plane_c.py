@@ -179,14 +179,17 @@ def _build():
     lib = folder / f"plane_filter_{key}.so"
     try:
         if not lib.is_file():
-            folder.mkdir(parents=True, exist_ok=True)
+            folder.mkdir(mode=0o755, parents=True, exist_ok=True)      # writable by this user only
             with tempfile.TemporaryDirectory(dir=folder) as tmp:
                 src, out = Path(tmp) / "plane.c", Path(tmp) / "plane.so"
                 src.write_text(_SOURCE)
                 proc = subprocess.run([*cc, *_FLAGS, "-o", str(out), str(src)], capture_output=True, timeout=120)
                 if proc.returncode != 0:
                     return None
+                os.chmod(out, 0o755)
                 os.replace(out, lib)                  # atomic: another process may build it too
+        if not (_trusted(folder) and _trusted(lib)):
+            return None
         dll = ctypes.CDLL(str(lib))
         f = dll.plane_filter
     except (OSError, AttributeError, ValueError, subprocess.SubprocessError):
@@ -194,6 +197,14 @@ def _build():
     ptr, lng = ctypes.c_void_p, ctypes.c_long
     f.argtypes, f.restype = [ptr, ptr, lng, lng, lng, lng, ptr, ptr, ptr], None
     return f if _same_bits(f) else None
+
+
+def _trusted(path: Path) -> bool:
+    """Whether ``path`` is this user's and writable by no one else: a library loaded from it runs
+    inside this process, so a cache folder others can write to (``$SLTWIN_CACHE_DIR=/tmp``, a
+    shared folder) is not used (the numpy replica runs)."""
+    st = path.stat()
+    return st.st_uid == os.getuid() and not st.st_mode & 0o022
 
 
 def _same_bits(f) -> bool:
