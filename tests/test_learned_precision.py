@@ -100,6 +100,7 @@ def test_unsupported_devices_and_precisions_are_refused_by_name():
         load_predictor("learned", device="tpu")
     with pytest.raises(ModelError, match="an ONNX model runs in float32"):
         load_predictor("whatever.onnx", precision="bf16")
+    assert load_predictor("learned") is load_predictor("learned", device="cpu")      # one model loaded once
     if not CUDA:
         with pytest.raises(ModelError, match="torch sees no CUDA device"):
             load_predictor("learned", device="cuda")

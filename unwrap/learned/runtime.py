@@ -215,7 +215,9 @@ def load_predictor(model="learned", device=None, precision: str = "fp32"):
     path = model_path(model)
     try:
         st = path.stat()
-        key = (str(path.resolve()), st.st_size, st.st_mtime_ns, device, precision)
+        # a .pt on None and "cpu" is one predictor (an .onnx's None means "CUDA where offered")
+        key = (str(path.resolve()), st.st_size, st.st_mtime_ns, device if is_onnx(path) else device or "cpu",
+               precision)
     except OSError:
         key = None
     if key is not None and key in _CACHE:
