@@ -1,0 +1,279 @@
+"""A few plot panels drawn with Pillow directly: what ``calib run``'s summary figure needs, at a
+fraction of matplotlib's cost (its import and its per-axes tick and text machinery cost ~1 s of
+CPU against ~0.1 s here; docs/speed.md "The summary figure without matplotlib").
+
+A :class:`Canvas` is a white RGB image drawn at ``SUPERSAMPLE`` times its final size and reduced
+by a box filter when saved (anti-aliased edges without per-primitive anti-aliasing); a
+:class:`Panel` is one axes on it: a data rectangle with linear x and linear or log10 y, filled
+steps, dots (all of one panel in one numpy pass), crosses, lines, a vertical dashed line, then
+the frame, ticks at 1-2-2.5-5 steps (decades on a log axis), labels, title and legend.
+
+Coordinates: data (x, y) map to the panel's pixel rectangle, x to the right and y up; pixel
+coordinates are those of the supersampled canvas, (column, row) from its top-left corner. Sizes
+given to the public methods (radii, line widths, font sizes) are final-image pixels.
+
+    >>> import numpy as np
+    >>> from calib.io.raster_plot import Canvas
+    >>> c = Canvas(200, 150)
+    >>> p = c.panel((0, 0, 200, 150), xlim=(0, 2), ylim=(0, 1), margins=(40, 10, 20, 30))
+    >>> p.stairs([0.5, 0.8], [0, 1, 2], color=(31, 119, 180))
+    >>> p.finish(xlabel="x", ylabel="y", title="t")
+    >>> c.image().size
+    (200, 150)
+"""
+from __future__ import annotations
+
+import importlib.util
+import math
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, ImageDraw, ImageFont
+
+#: The canvas is drawn at this multiple of its final size (anti-aliasing by a box reduction).
+SUPERSAMPLE = 2
+#: matplotlib's default colour cycle's first colour ("C0") and its "red".
+C0, RED, BLACK, GREY = (31, 119, 180), (255, 0, 0), (0, 0, 0), (204, 204, 204)
+#: viridis (van der Walt & Smith, matplotlib's default colour map, CC0) sampled at 17 evenly spaced
+#: points, 0-255 RGB; linear between them it is within 6/255 of the 256-entry map.
+_VIRIDIS = np.array([[68, 1, 84], [72, 24, 106], [71, 45, 123], [66, 64, 134], [59, 82, 139], [51, 99, 141],
+                     [44, 114, 142], [38, 130, 142], [33, 145, 140], [31, 160, 136], [40, 174, 128],
+                     [63, 188, 115], [94, 201, 98], [132, 212, 75], [173, 220, 48], [216, 226, 25],
+                     [253, 231, 37]], dtype=float)
+_MINUS = "\u2212"
+_SUPERSCRIPT = str.maketrans("-0123456789", "\u207b\u2070\u00b9\u00b2\u00b3\u2074\u2075\u2076\u2077\u2078\u2079")
+_fonts: dict = {}
+
+
+def viridis(t) -> np.ndarray:
+    """Colours of viridis at ``t`` (any shape, clipped to [0, 1]): uint8 (..., 3)."""
+    t = np.clip(np.asarray(t, dtype=float), 0.0, 1.0)
+    k = np.linspace(0.0, 1.0, len(_VIRIDIS))
+    return np.stack([np.interp(t, k, _VIRIDIS[:, c]) for c in range(3)], axis=-1).round().astype(np.uint8)
+
+
+def font(size_px: float):
+    """DejaVu Sans (matplotlib's default font, from its data folder: found, not imported) at
+    ``size_px`` final-image pixels; Pillow's own scalable font where it is missing. Cached."""
+    size = max(1, round(size_px * SUPERSAMPLE))
+    if size not in _fonts:
+        spec = importlib.util.find_spec("matplotlib")
+        ttf = Path(spec.origin).parent / "mpl-data/fonts/ttf/DejaVuSans.ttf" if spec and spec.origin else None
+        _fonts[size] = (ImageFont.truetype(str(ttf), size) if ttf is not None and ttf.is_file()
+                        else ImageFont.load_default(size=size))
+    return _fonts[size]
+
+
+def nice_ticks(lo: float, hi: float, n: int = 5) -> tuple[np.ndarray, int]:
+    """About ``n`` ticks in [lo, hi] at a 1, 2, 2.5 or 5 x 10^k step, and the decimals that show
+    them apart. Returns (ticks, decimals)."""
+    span = hi - lo
+    if not span > 0 or not np.isfinite(span):
+        return np.array([lo]), 2
+    raw = span / max(n, 1)
+    mag = 10.0 ** math.floor(math.log10(raw))
+    step = next(m * mag for m in (1, 2, 2.5, 5, 10) if m * mag >= raw * (1 - 1e-9))
+    ticks = np.arange(math.ceil(lo / step - 1e-9), math.floor(hi / step + 1e-9) + 1) * step
+    decimals = max(0, -math.floor(math.log10(step) + 1e-9) + (1 if round(step / mag, 6) == 2.5 else 0))
+    return ticks, decimals
+
+
+def tick_label(v: float, decimals: int) -> str:
+    """``v`` with ``decimals`` decimals, a typographic minus, no negative zero."""
+    s = f"{v:.{decimals}f}"
+    return "0" if float(s) == 0 else s.replace("-", _MINUS)
+
+
+class Canvas:
+    """A white image of ``width`` x ``height`` final pixels (drawn at :data:`SUPERSAMPLE` times that)."""
+
+    def __init__(self, width: int, height: int):
+        self.size = (int(width), int(height))
+        self.im = Image.new("RGB", (self.size[0] * SUPERSAMPLE, self.size[1] * SUPERSAMPLE), "white")
+        self.draw = ImageDraw.Draw(self.im)
+
+    def panel(self, cell, xlim, ylim, *, ylog: bool = False, margins=(75, 15, 45, 50)) -> "Panel":
+        """An axes in ``cell`` = (left, top, width, height) final pixels, its data rectangle inset by
+        ``margins`` = (left, right, top, bottom) final pixels; ``xlim``, ``ylim``: data ranges
+        (``ylog``: y on a log10 scale, ``ylim`` > 0)."""
+        s = SUPERSAMPLE
+        l, t, w, h = cell
+        ml, mr, mt, mb = margins
+        box = (round((l + ml) * s), round((t + mt) * s), round((l + w - mr) * s), round((t + h - mb) * s))
+        return Panel(self, box, xlim, ylim, ylog)
+
+    def text(self, xy, text: str, size_px: float, anchor: str = "la", fill=BLACK, angle: int = 0) -> None:
+        """``text`` at canvas pixel ``xy`` (Pillow's ``anchor``; ``angle`` 90: read bottom to top)."""
+        f = font(size_px)
+        if angle == 0:
+            self.draw.text(xy, text, font=f, fill=fill, anchor=anchor)
+            return
+        l, t, r, b = self.draw.textbbox((0, 0), text, font=f, anchor="lt")
+        tile = Image.new("L", (r - l + 2, b - t + 2), 0)
+        ImageDraw.Draw(tile).text((1 - l, 1 - t), text, font=f, fill=255, anchor="lt")
+        tile = tile.rotate(angle, expand=True)
+        x, y = xy          # anchor "mm": the rotated text centred on xy
+        pos = (round(x - tile.width / 2), round(y - tile.height / 2))
+        self.im.paste(Image.new("RGB", tile.size, fill), pos, tile)
+
+    def image(self) -> Image.Image:
+        """The final image (box-reduced from the supersampled drawing)."""
+        return self.im.reduce(SUPERSAMPLE) if SUPERSAMPLE > 1 else self.im.copy()
+
+
+class Panel:
+    """One axes on a :class:`Canvas` (see :meth:`Canvas.panel`); data drawn before :meth:`finish`
+    are clipped to the data rectangle."""
+
+    def __init__(self, canvas: Canvas, box, xlim, ylim, ylog: bool):
+        self.canvas, self.box, self.ylog = canvas, box, ylog
+        self.xlim, self.ylim = tuple(map(float, xlim)), tuple(map(float, ylim))
+        self.w, self.h = box[2] - box[0], box[3] - box[1]
+        self.im = Image.new("RGB", (self.w, self.h), "white")      # the data layer: clipped by its size
+        self.draw = ImageDraw.Draw(self.im)
+        self.legend_items: list = []
+
+    def _fy(self, y) -> np.ndarray:
+        y = np.asarray(y, dtype=float)
+        if not self.ylog:
+            return y, self.ylim
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.log10(np.where(y > 0, y, np.nan)), tuple(math.log10(v) for v in self.ylim)
+
+    def px(self, x, y) -> tuple[np.ndarray, np.ndarray]:
+        """Data (x, y) -> pixel (column, row) in the data layer (float; a log axis' y <= 0: -inf
+        maps to below the bottom)."""
+        (x0, x1), (fy, (y0, y1)) = self.xlim, self._fy(y)
+        u = (np.asarray(x, dtype=float) - x0) / (x1 - x0) * self.w
+        v = (1.0 - (fy - y0) / (y1 - y0)) * self.h
+        return u, np.where(np.isnan(v), self.h * 4.0, v)
+
+    def dots(self, x, y, colors, radius_px: float) -> None:
+        """Filled discs of ``radius_px`` at (x, y), ``colors`` (N, 3) uint8 or one colour; drawn in
+        order (a later dot covers an earlier one), in one numpy pass over the disc's pixels."""
+        u, v = self.px(x, y)
+        n = len(u)
+        if n == 0:
+            return
+        colors = np.broadcast_to(np.asarray(colors, dtype=np.uint8), (n, 3))
+        r = radius_px * SUPERSAMPLE
+        k = np.arange(-math.ceil(r), math.ceil(r) + 1)
+        du, dv = np.meshgrid(k, k)
+        inside = du ** 2 + dv ** 2 <= r * r
+        cu = (np.round(u).astype(np.int64)[:, None] + du[inside]).ravel()
+        cv = (np.round(v).astype(np.int64)[:, None] + dv[inside]).ravel()
+        who = np.repeat(np.arange(n), inside.sum())
+        ok = (cu >= 0) & (cu < self.w) & (cv >= 0) & (cv < self.h)
+        flat = cv[ok] * self.w + cu[ok]
+        top = np.full(self.w * self.h, -1, dtype=np.int64)
+        np.maximum.at(top, flat, who[ok])       # the last dot drawn on a pixel is the one seen
+        hit = top >= 0
+        a = np.asarray(self.im).reshape(-1, 3).copy()
+        a[hit] = colors[top[hit]]
+        self.im = Image.fromarray(a.reshape(self.h, self.w, 3))
+        self.draw = ImageDraw.Draw(self.im)
+
+    def crosses(self, x, y, color, size_px: float = 5.0, width_px: float = 1.3) -> None:
+        """'x' markers of ``size_px`` across at (x, y)."""
+        u, v = self.px(x, y)
+        d, w = size_px * SUPERSAMPLE / 2, max(1, round(width_px * SUPERSAMPLE))
+        for a, b in zip(u, v):
+            self.draw.line([(a - d, b - d), (a + d, b + d)], fill=color, width=w)
+            self.draw.line([(a - d, b + d), (a + d, b - d)], fill=color, width=w)
+
+    def stairs(self, values, edges, color, baseline: float = 0.0) -> None:
+        """Filled steps: ``values[i]`` over [edges[i], edges[i+1]] down to ``baseline`` (one polygon)."""
+        values, edges = np.asarray(values, dtype=float), np.asarray(edges, dtype=float)
+        xs = np.concatenate([[edges[0]], np.repeat(edges[1:-1], 2), [edges[-1]]])
+        ys = np.repeat(values, 2)
+        u, v = self.px(np.concatenate([[edges[0]], xs, [edges[-1]]]), np.concatenate([[baseline], ys, [baseline]]))
+        v = np.clip(v, -2.0 * self.h, 3.0 * self.h)
+        self.draw.polygon(list(zip(u.tolist(), v.tolist())), fill=color)
+
+    def line(self, x, y, color, width_px: float = 1.5, dash_px: float | None = None) -> None:
+        """A polyline through (x, y) (dashed with ``dash_px`` dashes and gaps when given)."""
+        u, v = self.px(x, y)
+        v = np.clip(v, -2.0 * self.h, 3.0 * self.h)
+        w = max(1, round(width_px * SUPERSAMPLE))
+        if dash_px is None:
+            self.draw.line(list(zip(u.tolist(), v.tolist())), fill=color, width=w, joint="curve")
+            return
+        d = dash_px * SUPERSAMPLE
+        for (a0, b0), (a1, b1) in zip(zip(u, v), zip(u[1:], v[1:])):
+            length = math.hypot(a1 - a0, b1 - b0)
+            for s in np.arange(0.0, length, 2 * d):
+                e = min(s + d, length)
+                self.draw.line([(a0 + (a1 - a0) * s / length, b0 + (b1 - b0) * s / length),
+                                (a0 + (a1 - a0) * e / length, b0 + (b1 - b0) * e / length)], fill=color, width=w)
+
+    def vline(self, x, color, width_px: float = 1.5, dash_px: float | None = 4.0) -> None:
+        """A vertical line at data ``x`` over the panel's height."""
+        y0, y1 = self.ylim
+        self.line([x, x], [y0, y1], color, width_px, dash_px)
+
+    def legend(self, label: str, kind: str, color) -> None:
+        """A legend entry: ``kind`` "patch" (filled square), "line", "cross" or "dot"."""
+        self.legend_items.append((label, kind, color))
+
+    def _ticks(self, lo, hi, n, log):
+        if not log:
+            t, d = nice_ticks(lo, hi, n)
+            return [(v, tick_label(v, d)) for v in t]
+        exps = range(math.ceil(math.log10(lo) - 1e-9), math.floor(math.log10(hi) + 1e-9) + 1)
+        return [(10.0 ** e, "10" + str(e).translate(_SUPERSCRIPT)) for e in exps]
+
+    def finish(self, *, xlabel="", ylabel="", title="", xticks: int = 5, yticks: int = 5, legend_loc="upper right",
+               font_px: float = 12.5, title_px: float = 15.0, legend_px: float = 10.0) -> None:
+        """Paste the data layer, then draw the frame, ticks and their labels, the axis labels, the
+        title (lines split on newlines, centred above) and the legend."""
+        c, s = self.canvas, SUPERSAMPLE
+        l, t, r, b = self.box
+        c.im.paste(self.im, (l, t))
+        c.draw.rectangle((l - s // 2, t - s // 2, r + s // 2 - 1, b + s // 2 - 1), outline=BLACK, width=s)
+        tick, gap = round(3.5 * s), round(3.5 * s)
+        for v, text in self._ticks(*self.xlim, xticks, False):
+            u = l + self.px([v], [self.ylim[0]])[0][0]
+            c.draw.line([(u, b), (u, b + tick)], fill=BLACK, width=s)
+            c.text((u, b + tick + gap), text, font_px, anchor="mt")
+        for v, text in self._ticks(*self.ylim, yticks, self.ylog):
+            y = t + self.px([self.xlim[0]], [v])[1][0]
+            c.draw.line([(l - tick, y), (l, y)], fill=BLACK, width=s)
+            c.text((l - tick - gap, y), text, font_px, anchor="rm")
+        if xlabel:
+            c.text(((l + r) / 2, b + tick + gap + round(1.6 * font_px * s)), xlabel, font_px, anchor="mt")
+        if ylabel:
+            widest = max((c.draw.textlength(lab, font=font(font_px))
+                          for _, lab in self._ticks(*self.ylim, yticks, self.ylog)), default=0)
+            c.text((l - tick - 2 * gap - widest - round(0.7 * font_px * s), (t + b) / 2), ylabel, font_px,
+                   anchor="mm", angle=90)
+        for k, line in enumerate(reversed(title.split("\n"))):
+            c.text(((l + r) / 2, t - round(0.5 * title_px * s) - k * round(1.2 * title_px * s)), line, title_px,
+                   anchor="md")
+        self._draw_legend(legend_loc, legend_px)
+
+    def _draw_legend(self, loc: str, size_px: float) -> None:
+        if not self.legend_items:
+            return
+        c, s = self.canvas, SUPERSAMPLE
+        f = font(size_px)
+        row, key, pad = round(1.4 * size_px * s), round(2.0 * size_px * s), round(0.5 * size_px * s)
+        width = key + pad * 3 + max(c.draw.textlength(label, font=f) for label, _, _ in self.legend_items)
+        height = row * len(self.legend_items) + pad
+        l, t, r, _ = self.box
+        x0 = (r - pad - width) if loc.endswith("right") else (l + pad)
+        y0 = t + pad
+        c.draw.rounded_rectangle((x0, y0, x0 + width, y0 + height), radius=2 * s, fill="white", outline=GREY, width=s)
+        for k, (label, kind, color) in enumerate(self.legend_items):
+            ym, xk = y0 + pad / 2 + row * (k + 0.5), x0 + pad
+            if kind == "patch":
+                c.draw.rectangle((xk, ym - 0.35 * row, xk + key, ym + 0.35 * row), fill=color)
+            elif kind == "line":
+                c.draw.line([(xk, ym), (xk + key, ym)], fill=color, width=round(1.5 * s))
+            elif kind == "cross":
+                d, m = 0.25 * row, xk + key / 2
+                c.draw.line([(m - d, ym - d), (m + d, ym + d)], fill=color, width=round(1.3 * s))
+                c.draw.line([(m - d, ym + d), (m + d, ym - d)], fill=color, width=round(1.3 * s))
+            else:
+                d, m = 0.2 * row, xk + key / 2
+                c.draw.ellipse((m - d, ym - d, m + d, ym + d), fill=color)
+            c.draw.text((xk + key + pad, ym), label, font=f, fill=BLACK, anchor="lm")
