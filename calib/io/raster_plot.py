@@ -65,16 +65,19 @@ def font(size_px: float):
 
 
 def nice_ticks(lo: float, hi: float, n: int = 5) -> tuple[np.ndarray, int]:
-    """About ``n`` ticks in [lo, hi] at a 1, 2, 2.5 or 5 x 10^k step, and the decimals that show
-    them apart. Returns (ticks, decimals)."""
+    """At most ``n`` + 1 ticks in [lo, hi] at the smallest 1, 2, 2.5 or 5 x 10^k step that keeps
+    them that few (matplotlib's MaxNLocator), and the decimals that show them apart.
+    Returns (ticks, decimals)."""
     span = hi - lo
     if not span > 0 or not np.isfinite(span):
         return np.array([lo]), 2
-    raw = span / max(n, 1)
-    mag = 10.0 ** math.floor(math.log10(raw))
-    step = next(m * mag for m in (1, 2, 2.5, 5, 10) if m * mag >= raw * (1 - 1e-9))
-    ticks = np.arange(math.ceil(lo / step - 1e-9), math.floor(hi / step + 1e-9) + 1) * step
-    decimals = max(0, -math.floor(math.log10(step) + 1e-9) + (1 if round(step / mag, 6) == 2.5 else 0))
+    mag = 10.0 ** (math.floor(math.log10(span / max(n, 1))) - 1)
+    for step, m in ((m * mag * 10.0 ** e, m) for e in range(4) for m in (1, 2, 2.5, 5)):
+        first, last = math.ceil(lo / step - 1e-9), math.floor(hi / step + 1e-9)
+        if last - first + 1 <= n + 1:
+            break
+    ticks = np.arange(first, last + 1) * step
+    decimals = max(0, -math.floor(math.log10(step) + 1e-9) + (1 if m == 2.5 else 0))
     return ticks, decimals
 
 
