@@ -216,6 +216,13 @@ def _plot_board(ba, obs, devices, diagnostics, path):
             ax.plot(g[:, 0], g[:, 1], "o-", label=d)
     ax.axhline(0, color="grey", lw=0.8)
     ax.set_xscale("log")
+    # plain tick labels (decades, and 2, 3, 5 x 10^k between them): the default ones (10^k, 3x10^k)
+    # go through mathtext, whose parser costs ~0.2 s to build, a fifth of this figure
+    from matplotlib.ticker import FuncFormatter
+
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.xaxis.set_minor_formatter(FuncFormatter(
+        lambda v, _: f"{v:g}" if v > 0 and round(v / 10 ** np.floor(np.log10(v))) in (2, 3, 5) else ""))
     ax.set_xlabel("distance on the board (mm)")
     ax.set_ylabel("residual correlation within a pose")
     ax.set_title("correlogram (independent errors: 0)", fontsize=8)
