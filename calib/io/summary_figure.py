@@ -3,8 +3,8 @@ scatter coloured by view, the per-view RMS and the residual distribution beside 
 the rejection threshold, drawn with Pillow (:mod:`calib.io.raster_plot`), not matplotlib: the
 figure then costs ~0.1 s instead of ~1 s (matplotlib's import and axes; docs/speed.md).
 
-    >>> from calib.io.summary_figure import summary_figure   # doctest: +SKIP
-    >>> summary_figure(cal, obs, "out/residuals.png")          # doctest: +SKIP
+    from calib.io.summary_figure import summary_figure
+    summary_figure(run.calibration, fitted, "out/residuals.png")   # fitted: obs as the adjustment weighted them
 """
 from __future__ import annotations
 
