@@ -103,3 +103,21 @@ def test_viridis_is_matplotlibs():
     t = np.linspace(0, 1, 257)
     want = colormaps["viridis"](t)[:, :3] * 255
     assert np.abs(RP.viridis(t).astype(float) - want).max() <= 6
+
+
+def test_one_device_and_no_rejection_rule_draw_one_column(tmp_path):
+    """Single-device mode, ``--outlier-threshold 0`` (no rule: no threshold line, no rejected points)."""
+    from calib.adjustment.problem import BAConfig
+
+    obs, _ = simulate_observations(default_system().ideal(), Board("checkerboard", 6, 8, 20.0), 5, 0.05,
+                                   np.random.default_rng(2), poses=board_poses_world(5, np.random.default_rng(3)),
+                                   projector_from_camera=True, noise_prj_px=0.0125)
+    for v in obs.views:
+        v.q.pop("projector", None)
+    run = calibrate_observations(obs, tmp_path / "out", BAConfig(mode="single", outlier_threshold=None),
+                                 skew_check=False, view_noise=False)
+    assert run.calibration.outlier_threshold is None and not run.calibration.ba.rejected
+    path = tmp_path / "out" / "residuals.png"
+    with Image.open(path) as im:
+        assert im.size == (CELL_W, 3 * CELL_H)
+    assert not _near(_colours(path), RP.RED, tol=40)       # nothing rejected, no threshold drawn
