@@ -12,8 +12,9 @@ included), for ``calib run --observations ... -q``:
 
 Columns: minimum and median wall seconds over ``--repeats`` runs, the mean CPU seconds (user +
 system of the child process: what a loaded machine's wall time hides), the largest peak memory
-(VmHWM), the ratio after / before of the median wall and of the CPU (``--baseline``), and the stage profile the command itself records (``calibration.json`` ``run.stages_s``, of its
-fastest run; an older checkout without it shows "-"; the rest of the wall time is start-up, imports,
+(VmHWM), the ratio after / before of the median wall and of the CPU (``--baseline``), and the
+stage profile the command itself records (``calibration.json`` ``run.stages_s``, of its fastest
+run; an older checkout without it shows "-"; the rest of the wall time is start-up, imports,
 reading the inputs and writing calibration.json). Anchors (same run): the solve of
 ``bench.ba_scale`` (ours joint, ours single camera, ``mrcal.optimize`` single camera) on 9 and
 ``--views`` simulated views. ``--baseline DIR``: an older checkout (``git archive REV | tar -x -C

@@ -34,6 +34,9 @@ from PIL import Image, ImageDraw, ImageFont
 SUPERSAMPLE = 2
 #: matplotlib's default colour cycle's first colour ("C0") and its "red".
 C0, RED, BLACK, GREY = (31, 119, 180), (255, 0, 0), (0, 0, 0), (204, 204, 204)
+#: matplotlib's default colour cycle ("C0" ... "C9", tab10).
+CYCLE = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189), (140, 86, 75),
+         (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207))
 #: viridis (van der Walt & Smith, matplotlib's default colour map, CC0) sampled at 17 evenly spaced
 #: points, 0-255 RGB; linear between them it is within 6/255 of the 256-entry map.
 _VIRIDIS = np.array([[68, 1, 84], [72, 24, 106], [71, 45, 123], [66, 64, 134], [59, 82, 139], [51, 99, 141],
@@ -95,15 +98,27 @@ class Canvas:
         self.im = Image.new("RGB", (self.size[0] * SUPERSAMPLE, self.size[1] * SUPERSAMPLE), "white")
         self.draw = ImageDraw.Draw(self.im)
 
-    def panel(self, cell, xlim, ylim, *, ylog: bool = False, margins=(75, 15, 45, 50)) -> "Panel":
+    def panel(self, cell, xlim, ylim, *, ylog: bool = False, xlog: bool = False, margins=(75, 15, 45, 50),
+              equal: bool = False) -> "Panel":
         """An axes in ``cell`` = (left, top, width, height) final pixels, its data rectangle inset by
         ``margins`` = (left, right, top, bottom) final pixels; ``xlim``, ``ylim``: data ranges
-        (``ylog``: y on a log10 scale, ``ylim`` > 0)."""
+        (``ylog`` / ``xlog``: that axis on a log10 scale, its limits > 0; ``ylim`` = (bottom, top):
+        (H, 0) puts 0 at the top, as an image's rows). ``equal``: the rectangle shrunk about its
+        centre so that one data unit is as long on x as on y (matplotlib's ``set_aspect("equal")``)."""
         s = SUPERSAMPLE
         l, t, w, h = cell
         ml, mr, mt, mb = margins
-        box = (round((l + ml) * s), round((t + mt) * s), round((l + w - mr) * s), round((t + h - mb) * s))
-        return Panel(self, box, xlim, ylim, ylog)
+        box = [round((l + ml) * s), round((t + mt) * s), round((l + w - mr) * s), round((t + h - mb) * s)]
+        if equal:
+            bw, bh = box[2] - box[0], box[3] - box[1]
+            ratio = abs(ylim[1] - ylim[0]) / max(abs(xlim[1] - xlim[0]), 1e-300)      # data height / width
+            if bh > bw * ratio:
+                cut = round((bh - bw * ratio) / 2)
+                box[1], box[3] = box[1] + cut, box[3] - cut
+            else:
+                cut = round((bw - bh / ratio) / 2)
+                box[0], box[2] = box[0] + cut, box[2] - cut
+        return Panel(self, tuple(box), xlim, ylim, ylog, xlog)
 
     def text(self, xy, text: str, size_px: float, anchor: str = "la", fill=BLACK, angle: int = 0) -> None:
         """``text`` at canvas pixel ``xy`` (Pillow's ``anchor``; ``angle`` 90: read bottom to top)."""
@@ -128,28 +143,30 @@ class Panel:
     """One axes on a :class:`Canvas` (see :meth:`Canvas.panel`); data drawn before :meth:`finish`
     are clipped to the data rectangle."""
 
-    def __init__(self, canvas: Canvas, box, xlim, ylim, ylog: bool):
-        self.canvas, self.box, self.ylog = canvas, box, ylog
+    def __init__(self, canvas: Canvas, box, xlim, ylim, ylog: bool = False, xlog: bool = False):
+        self.canvas, self.box, self.ylog, self.xlog = canvas, box, ylog, xlog
         self.xlim, self.ylim = tuple(map(float, xlim)), tuple(map(float, ylim))
         self.w, self.h = box[2] - box[0], box[3] - box[1]
         self.im = Image.new("RGB", (self.w, self.h), "white")      # the data layer: clipped by its size
         self.draw = ImageDraw.Draw(self.im)
         self.legend_items: list = []
 
-    def _fy(self, y) -> np.ndarray:
-        y = np.asarray(y, dtype=float)
-        if not self.ylog:
-            return y, self.ylim
+    @staticmethod
+    def _scaled(values, lim, log: bool):
+        values = np.asarray(values, dtype=float)
+        if not log:
+            return values, lim
         with np.errstate(divide="ignore", invalid="ignore"):
-            return np.log10(np.where(y > 0, y, np.nan)), tuple(math.log10(v) for v in self.ylim)
+            return np.log10(np.where(values > 0, values, np.nan)), tuple(math.log10(v) for v in lim)
 
     def px(self, x, y) -> tuple[np.ndarray, np.ndarray]:
-        """Data (x, y) -> pixel (column, row) in the data layer (float; a log axis' y <= 0: -inf
-        maps to below the bottom)."""
-        (x0, x1), (fy, (y0, y1)) = self.xlim, self._fy(y)
-        u = (np.asarray(x, dtype=float) - x0) / (x1 - x0) * self.w
+        """Data (x, y) -> pixel (column, row) in the data layer (float; a log axis' value <= 0 maps
+        far outside the panel: left of it, or below it)."""
+        fx, (x0, x1) = self._scaled(x, self.xlim, self.xlog)
+        fy, (y0, y1) = self._scaled(y, self.ylim, self.ylog)
+        u = (fx - x0) / (x1 - x0) * self.w
         v = (1.0 - (fy - y0) / (y1 - y0)) * self.h
-        return u, np.where(np.isnan(v), self.h * 4.0, v)
+        return np.where(np.isnan(u), -self.w * 4.0, u), np.where(np.isnan(v), self.h * 4.0, v)
 
     def dots(self, x, y, colors, radius_px: float) -> None:
         """Filled discs of ``radius_px`` at (x, y), ``colors`` (N, 3) uint8 or one colour; drawn in
@@ -184,6 +201,26 @@ class Panel:
             self.draw.line([(a - d, b - d), (a + d, b + d)], fill=color, width=w)
             self.draw.line([(a - d, b + d), (a + d, b - d)], fill=color, width=w)
 
+    def arrows(self, x, y, dx, dy, colors, width_px: float = 1.0, head_px: float = 5.0) -> None:
+        """Arrows from (x, y) to (x + dx, y + dy), data units (matplotlib's ``quiver`` with
+        ``angles="xy", scale_units="xy"``): a shaft ``width_px`` wide and a head up to ``head_px``
+        long (at most 60 % of a short arrow); ``colors``: one colour or (N, 3)."""
+        u0, v0 = self.px(x, y)
+        u1, v1 = self.px(np.asarray(x, float) + dx, np.asarray(y, float) + dy)
+        colors = np.broadcast_to(np.asarray(colors, dtype=np.uint8), (len(u0), 3))
+        w = max(1, round(width_px * SUPERSAMPLE))
+        length = np.hypot(u1 - u0, v1 - v0)
+        head = np.minimum(head_px * SUPERSAMPLE, 0.6 * length)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            eu, ev = (u1 - u0) / length, (v1 - v0) / length
+        for k in np.flatnonzero(length > 0.5):
+            c = tuple(int(a) for a in colors[k])
+            bu, bv = u1[k] - head[k] * eu[k], v1[k] - head[k] * ev[k]      # the head's base centre
+            self.draw.line([(u0[k], v0[k]), (bu, bv)], fill=c, width=w)
+            hw = max(0.45 * head[k], 0.75 * w)
+            self.draw.polygon([(u1[k], v1[k]), (bu - hw * ev[k], bv + hw * eu[k]), (bu + hw * ev[k], bv - hw * eu[k])],
+                              fill=c)
+
     def stairs(self, values, edges, color, baseline: float = 0.0) -> None:
         """Filled steps: ``values[i]`` over [edges[i], edges[i+1]] down to ``baseline`` (one polygon)."""
         values, edges = np.asarray(values, dtype=float), np.asarray(edges, dtype=float)
@@ -214,39 +251,53 @@ class Panel:
         y0, y1 = self.ylim
         self.line([x, x], [y0, y1], color, width_px, dash_px)
 
+    def hline(self, y, color, width_px: float = 1.0) -> None:
+        """A horizontal line at data ``y`` over the panel's width."""
+        v = float(self.px([self.xlim[0]], [y])[1][0])
+        self.draw.line([(0, v), (self.w, v)], fill=color, width=max(1, round(width_px * SUPERSAMPLE)))
+
     def legend(self, label: str, kind: str, color) -> None:
         """A legend entry: ``kind`` "patch" (filled square), "line", "cross" or "dot"."""
         self.legend_items.append((label, kind, color))
 
-    def _ticks(self, lo, hi, n, log):
+    def _ticks(self, lo, hi, n, log, plain: bool = False):
+        """[(value, label)]: ``n`` 0: none; linear: :func:`nice_ticks`; log: the decades, labelled
+        10^k, or (``plain``) in plain numbers with 2, 3 and 5 x 10^k between them where fewer than
+        three decades are in view."""
+        lo, hi = min(lo, hi), max(lo, hi)
+        if n == 0:
+            return []
         if not log:
             t, d = nice_ticks(lo, hi, n)
             return [(v, tick_label(v, d)) for v in t]
-        exps = range(math.ceil(math.log10(lo) - 1e-9), math.floor(math.log10(hi) + 1e-9) + 1)
-        return [(10.0 ** e, "10" + str(e).translate(_SUPERSCRIPT)) for e in exps]
+        exps = range(math.floor(math.log10(lo)), math.ceil(math.log10(hi)) + 1)
+        mants = (1, 2, 3, 5) if plain and math.log10(hi / lo) < 2 else (1,)
+        ticks = [m * 10.0 ** e for e in exps for m in mants if lo * (1 - 1e-9) <= m * 10.0 ** e <= hi * (1 + 1e-9)]
+        return [(v, f"{v:g}" if plain else "10" + str(round(math.log10(v))).translate(_SUPERSCRIPT)) for v in ticks]
 
     def finish(self, *, xlabel="", ylabel="", title="", xticks: int = 5, yticks: int = 5, legend_loc="upper right",
-               font_px: float = 12.5, title_px: float = 15.0, legend_px: float = 10.0) -> None:
-        """Paste the data layer, then draw the frame, ticks and their labels, the axis labels, the
-        title (lines split on newlines, centred above) and the legend."""
+               font_px: float = 12.5, title_px: float = 15.0, legend_px: float = 10.0, plain_log: bool = False) -> None:
+        """Paste the data layer, then draw the frame, ticks and their labels (``xticks``/``yticks``:
+        about how many, 0: none; ``plain_log``: a log axis labelled in plain numbers), the axis
+        labels, the title (lines split on newlines, centred above) and the legend."""
         c, s = self.canvas, SUPERSAMPLE
         l, t, r, b = self.box
         c.im.paste(self.im, (l, t))
         c.draw.rectangle((l - s // 2, t - s // 2, r + s // 2 - 1, b + s // 2 - 1), outline=BLACK, width=s)
         tick, gap = round(3.5 * s), round(3.5 * s)
-        for v, text in self._ticks(*self.xlim, xticks, False):
+        for v, text in self._ticks(*self.xlim, xticks, self.xlog, plain_log):
             u = l + self.px([v], [self.ylim[0]])[0][0]
             c.draw.line([(u, b), (u, b + tick)], fill=BLACK, width=s)
             c.text((u, b + tick + gap), text, font_px, anchor="mt")
-        for v, text in self._ticks(*self.ylim, yticks, self.ylog):
+        ylabels = self._ticks(*self.ylim, yticks, self.ylog, plain_log)
+        for v, text in ylabels:
             y = t + self.px([self.xlim[0]], [v])[1][0]
             c.draw.line([(l - tick, y), (l, y)], fill=BLACK, width=s)
             c.text((l - tick - gap, y), text, font_px, anchor="rm")
         if xlabel:
             c.text(((l + r) / 2, b + tick + gap + round(1.6 * font_px * s)), xlabel, font_px, anchor="mt")
         if ylabel:
-            widest = max((c.draw.textlength(lab, font=font(font_px))
-                          for _, lab in self._ticks(*self.ylim, yticks, self.ylog)), default=0)
+            widest = max((c.draw.textlength(lab, font=font(font_px)) for _, lab in ylabels), default=0)
             c.text((l - tick - 2 * gap - widest - round(0.7 * font_px * s), (t + b) / 2), ylabel, font_px,
                    anchor="mm", angle=90)
         for k, line in enumerate(reversed(title.split("\n"))):
