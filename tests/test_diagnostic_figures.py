@@ -1,0 +1,52 @@
+"""The per-pose figures of `calib run --figures all` drawn with Pillow
+(calib/uncertainty/diagnostic_figures.py, issue 22): valid PNGs, one panel per device and view;
+arrows run from the point along the residual in the panel's own axes (an image's rows down)."""
+import numpy as np
+import pytest
+from PIL import Image
+
+from calib import default_system
+from calib.board import Board
+from calib.io import raster_plot as RP
+from calib.pipeline import calibrate_observations
+from calib.simulate import board_poses_world, simulate_observations
+from calib.uncertainty.diagnostic_figures import BOARD_CELL, POSE_CELL, POSE_TOP
+from calib.uncertainty.diagnostics import plot_residual_diagnostics
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    obs, _ = simulate_observations(default_system().ideal(), Board("checkerboard", 6, 8, 20.0), 5, 0.05,
+                                   np.random.default_rng(5), poses=board_poses_world(5, np.random.default_rng(11)),
+                                   projector_from_camera=True, noise_prj_px=0.0125)
+    return calibrate_observations(obs, tmp_path_factory.mktemp("out"), figures="none", skew_check=False)
+
+
+def test_both_figures_are_pngs_with_a_panel_per_device_and_view(run, tmp_path):
+    cal, obs = run.calibration, run.observations
+    paths = plot_residual_diagnostics(cal, obs, cal.uncertainty.diagnostics, tmp_path)
+    assert sorted(paths) == ["residuals_on_board.png", "residuals_per_pose.png"]
+    sizes = {}
+    for name, path in paths.items():
+        with Image.open(path) as im:
+            im.verify()
+        with Image.open(path) as im:
+            sizes[name] = im.size
+    n = len(obs.views)
+    assert sizes["residuals_per_pose.png"] == (POSE_CELL[0] * n, 2 * POSE_CELL[1] + POSE_TOP)
+    assert sizes["residuals_on_board.png"] == (3 * BOARD_CELL[0], BOARD_CELL[1])
+    a = np.asarray(Image.open(paths["residuals_per_pose.png"]).convert("RGB")).reshape(-1, 3)
+    assert (np.abs(a.astype(int) - RP.C0).max(axis=1) <= 8).sum() > 50 * n            # the arrows are there
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(paths)
+
+
+def test_an_arrow_points_along_its_vector_on_an_image_axis():
+    c = RP.Canvas(100, 100)
+    p = c.panel((0, 0, 100, 100), xlim=(0, 100), ylim=(100, 0), margins=(0, 0, 0, 0))    # rows down
+    p.arrows([50.0], [20.0], [0.0], [60.0], (255, 0, 0), width_px=1.0, head_px=5.0)
+    a = np.asarray(p.im)
+    rows = np.flatnonzero((a == (255, 0, 0)).all(axis=2).any(axis=1)) / RP.SUPERSAMPLE
+    assert rows.min() == pytest.approx(20, abs=1.5) and rows.max() == pytest.approx(80, abs=1.5)
+    head = (a == (255, 0, 0)).all(axis=2)
+    widths = head.sum(axis=1)
+    assert widths[round(77 * RP.SUPERSAMPLE)] > widths[round(40 * RP.SUPERSAMPLE)]        # the head is at the end
