@@ -45,8 +45,8 @@ def test_an_arrow_points_along_its_vector_on_an_image_axis():
     p = c.panel((0, 0, 100, 100), xlim=(0, 100), ylim=(100, 0), margins=(0, 0, 0, 0))    # rows down
     p.arrows([50.0], [20.0], [0.0], [60.0], (255, 0, 0), width_px=1.0, head_px=5.0)
     a = np.asarray(p.im)
-    rows = np.flatnonzero((a == (255, 0, 0)).all(axis=2).any(axis=1)) / RP.SUPERSAMPLE
+    rows = np.flatnonzero((a == (255, 0, 0)).all(axis=2).any(axis=1)) / c.s
     assert rows.min() == pytest.approx(20, abs=1.5) and rows.max() == pytest.approx(80, abs=1.5)
     head = (a == (255, 0, 0)).all(axis=2)
     widths = head.sum(axis=1)
-    assert widths[round(77 * RP.SUPERSAMPLE)] > widths[round(40 * RP.SUPERSAMPLE)]        # the head is at the end
+    assert widths[round(77 * c.s)] > widths[round(40 * c.s)]        # the head is at the end

@@ -66,7 +66,7 @@ def test_dots_land_at_their_data_coordinates_the_last_on_top_clipped_to_the_pane
     red, blue = (255, 0, 0), (0, 0, 255)
     p.dots([2.5, 2.5, 7.5, 20.0], [7.5, 7.5, 2.5, 5.0], np.array([red, blue, red, blue], np.uint8), radius_px=3)
     a = np.asarray(p.im)
-    s = RP.SUPERSAMPLE
+    s = c.s
     assert tuple(a[round(0.25 * 200 * s), round(0.25 * 200 * s)]) == blue    # (2.5, 7.5): top left, the later dot
     assert tuple(a[round(0.75 * 200 * s), round(0.75 * 200 * s)]) == red     # (7.5, 2.5): bottom right
     assert (a == blue).all(axis=2).sum() == (a == red).all(axis=2).sum()     # x = 20 is outside: not drawn

@@ -2,11 +2,12 @@
 fraction of matplotlib's cost (its import and its per-axes tick and text machinery cost ~1 s of
 CPU against ~0.1 s here; docs/speed.md "The summary figure without matplotlib").
 
-A :class:`Canvas` is a white RGB image drawn at ``SUPERSAMPLE`` times its final size and reduced
-by a box filter when saved (anti-aliased edges without per-primitive anti-aliasing); a
-:class:`Panel` is one axes on it: a data rectangle with linear x and linear or log10 y, filled
-steps, dots (all of one panel in one numpy pass), crosses, lines, a vertical dashed line, then
-the frame, ticks at 1-2-2.5-5 steps (decades on a log axis), labels, title and legend.
+A :class:`Canvas` is a white RGB image drawn at ``SUPERSAMPLE`` times its final size (1 for a very
+large one) and reduced by a box filter when saved (anti-aliased edges without per-primitive
+anti-aliasing); a :class:`Panel` is one axes on it: a data rectangle with linear or log10 axes
+(equal aspect on request), filled steps, dots (all of one panel in one numpy pass), crosses,
+arrows, lines, vertical and horizontal lines, then the frame, ticks at 1-2-2.5-5 steps (decades
+on a log axis), labels, title and legend.
 
 Coordinates: data (x, y) map to the panel's pixel rectangle, x to the right and y up; pixel
 coordinates are those of the supersampled canvas, (column, row) from its top-left corner. Sizes
@@ -30,8 +31,11 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-#: The canvas is drawn at this multiple of its final size (anti-aliasing by a box reduction).
+#: The canvas is drawn at this multiple of its final size (anti-aliasing by a box reduction) ...
 SUPERSAMPLE = 2
+#: ... up to this many final pixels; a larger one (the per-pose figure of 100 views: 28800 x 562)
+#: is drawn at its final size, so that its drawing stays ~50 MB instead of ~200.
+SUPERSAMPLE_MAX_PIXELS = 4_000_000
 #: matplotlib's default colour cycle's first colour ("C0") and its "red".
 C0, RED, BLACK, GREY = (31, 119, 180), (255, 0, 0), (0, 0, 0), (204, 204, 204)
 #: matplotlib's default colour cycle ("C0" ... "C9", tab10).
@@ -55,10 +59,11 @@ def viridis(t) -> np.ndarray:
     return np.stack([np.interp(t, k, _VIRIDIS[:, c]) for c in range(3)], axis=-1).round().astype(np.uint8)
 
 
-def font(size_px: float):
+def font(size_px: float, scale: int = SUPERSAMPLE):
     """DejaVu Sans (matplotlib's default font, from its data folder: found, not imported) at
-    ``size_px`` final-image pixels; Pillow's own scalable font where it is missing. Cached."""
-    size = max(1, round(size_px * SUPERSAMPLE))
+    ``size_px`` final-image pixels drawn at ``scale``; Pillow's own scalable font where it is
+    missing. Cached."""
+    size = max(1, round(size_px * scale))
     if size not in _fonts:
         spec = importlib.util.find_spec("matplotlib")
         ttf = Path(spec.origin).parent / "mpl-data/fonts/ttf/DejaVuSans.ttf" if spec and spec.origin else None
@@ -91,11 +96,13 @@ def tick_label(v: float, decimals: int) -> str:
 
 
 class Canvas:
-    """A white image of ``width`` x ``height`` final pixels (drawn at :data:`SUPERSAMPLE` times that)."""
+    """A white image of ``width`` x ``height`` final pixels, drawn at ``s`` (:data:`SUPERSAMPLE`,
+    or 1 above :data:`SUPERSAMPLE_MAX_PIXELS`) times that."""
 
     def __init__(self, width: int, height: int):
         self.size = (int(width), int(height))
-        self.im = Image.new("RGB", (self.size[0] * SUPERSAMPLE, self.size[1] * SUPERSAMPLE), "white")
+        self.s = SUPERSAMPLE if self.size[0] * self.size[1] <= SUPERSAMPLE_MAX_PIXELS else 1
+        self.im = Image.new("RGB", (self.size[0] * self.s, self.size[1] * self.s), "white")
         self.draw = ImageDraw.Draw(self.im)
 
     def panel(self, cell, xlim, ylim, *, ylog: bool = False, xlog: bool = False, margins=(75, 15, 45, 50),
@@ -105,7 +112,7 @@ class Canvas:
         (``ylog`` / ``xlog``: that axis on a log10 scale, its limits > 0; ``ylim`` = (bottom, top):
         (H, 0) puts 0 at the top, as an image's rows). ``equal``: the rectangle shrunk about its
         centre so that one data unit is as long on x as on y (matplotlib's ``set_aspect("equal")``)."""
-        s = SUPERSAMPLE
+        s = self.s
         l, t, w, h = cell
         ml, mr, mt, mb = margins
         box = [round((l + ml) * s), round((t + mt) * s), round((l + w - mr) * s), round((t + h - mb) * s)]
@@ -122,7 +129,7 @@ class Canvas:
 
     def text(self, xy, text: str, size_px: float, anchor: str = "la", fill=BLACK, angle: int = 0) -> None:
         """``text`` at canvas pixel ``xy`` (Pillow's ``anchor``; ``angle`` 90: read bottom to top)."""
-        f = font(size_px)
+        f = font(size_px, self.s)
         if angle == 0:
             self.draw.text(xy, text, font=f, fill=fill, anchor=anchor)
             return
@@ -135,8 +142,9 @@ class Canvas:
         self.im.paste(Image.new("RGB", tile.size, fill), pos, tile)
 
     def image(self) -> Image.Image:
-        """The final image (box-reduced from the supersampled drawing)."""
-        return self.im.reduce(SUPERSAMPLE) if SUPERSAMPLE > 1 else self.im.copy()
+        """The final image (box-reduced from the supersampled drawing; the drawing itself, not a
+        copy, when it is drawn at the final size)."""
+        return self.im.reduce(self.s) if self.s > 1 else self.im
 
 
 class Panel:
@@ -144,7 +152,7 @@ class Panel:
     are clipped to the data rectangle."""
 
     def __init__(self, canvas: Canvas, box, xlim, ylim, ylog: bool = False, xlog: bool = False):
-        self.canvas, self.box, self.ylog, self.xlog = canvas, box, ylog, xlog
+        self.canvas, self.box, self.ylog, self.xlog, self.s = canvas, box, ylog, xlog, canvas.s
         self.xlim, self.ylim = tuple(map(float, xlim)), tuple(map(float, ylim))
         self.w, self.h = box[2] - box[0], box[3] - box[1]
         self.im = Image.new("RGB", (self.w, self.h), "white")      # the data layer: clipped by its size
@@ -176,7 +184,7 @@ class Panel:
         if n == 0:
             return
         colors = np.broadcast_to(np.asarray(colors, dtype=np.uint8), (n, 3))
-        r = radius_px * SUPERSAMPLE
+        r = radius_px * self.s
         k = np.arange(-math.ceil(r), math.ceil(r) + 1)
         du, dv = np.meshgrid(k, k)
         inside = du ** 2 + dv ** 2 <= r * r
@@ -196,7 +204,7 @@ class Panel:
     def crosses(self, x, y, color, size_px: float = 5.0, width_px: float = 1.3) -> None:
         """'x' markers of ``size_px`` across at (x, y)."""
         u, v = self.px(x, y)
-        d, w = size_px * SUPERSAMPLE / 2, max(1, round(width_px * SUPERSAMPLE))
+        d, w = size_px * self.s / 2, max(1, round(width_px * self.s))
         for a, b in zip(u, v):
             self.draw.line([(a - d, b - d), (a + d, b + d)], fill=color, width=w)
             self.draw.line([(a - d, b + d), (a + d, b - d)], fill=color, width=w)
@@ -208,9 +216,9 @@ class Panel:
         u0, v0 = self.px(x, y)
         u1, v1 = self.px(np.asarray(x, float) + dx, np.asarray(y, float) + dy)
         colors = np.broadcast_to(np.asarray(colors, dtype=np.uint8), (len(u0), 3))
-        w = max(1, round(width_px * SUPERSAMPLE))
+        w = max(1, round(width_px * self.s))
         length = np.hypot(u1 - u0, v1 - v0)
-        head = np.minimum(head_px * SUPERSAMPLE, 0.6 * length)
+        head = np.minimum(head_px * self.s, 0.6 * length)
         with np.errstate(invalid="ignore", divide="ignore"):
             eu, ev = (u1 - u0) / length, (v1 - v0) / length
         for k in np.flatnonzero(length > 0.5):
@@ -234,11 +242,11 @@ class Panel:
         """A polyline through (x, y) (dashed with ``dash_px`` dashes and gaps when given)."""
         u, v = self.px(x, y)
         v = np.clip(v, -2.0 * self.h, 3.0 * self.h)
-        w = max(1, round(width_px * SUPERSAMPLE))
+        w = max(1, round(width_px * self.s))
         if dash_px is None:
             self.draw.line(list(zip(u.tolist(), v.tolist())), fill=color, width=w, joint="curve")
             return
-        d = dash_px * SUPERSAMPLE
+        d = dash_px * self.s
         for (a0, b0), (a1, b1) in zip(zip(u, v), zip(u[1:], v[1:])):
             length = math.hypot(a1 - a0, b1 - b0)
             for s in np.arange(0.0, length, 2 * d):
@@ -254,7 +262,7 @@ class Panel:
     def hline(self, y, color, width_px: float = 1.0) -> None:
         """A horizontal line at data ``y`` over the panel's width."""
         v = float(self.px([self.xlim[0]], [y])[1][0])
-        self.draw.line([(0, v), (self.w, v)], fill=color, width=max(1, round(width_px * SUPERSAMPLE)))
+        self.draw.line([(0, v), (self.w, v)], fill=color, width=max(1, round(width_px * self.s)))
 
     def legend(self, label: str, kind: str, color) -> None:
         """A legend entry: ``kind`` "patch" (filled square), "line", "cross" or "dot"."""
@@ -280,7 +288,7 @@ class Panel:
         """Paste the data layer, then draw the frame, ticks and their labels (``xticks``/``yticks``:
         about how many, 0: none; ``plain_log``: a log axis labelled in plain numbers), the axis
         labels, the title (lines split on newlines, centred above) and the legend."""
-        c, s = self.canvas, SUPERSAMPLE
+        c, s = self.canvas, self.s
         l, t, r, b = self.box
         c.im.paste(self.im, (l, t))
         c.draw.rectangle((l - s // 2, t - s // 2, r + s // 2 - 1, b + s // 2 - 1), outline=BLACK, width=s)
@@ -297,7 +305,7 @@ class Panel:
         if xlabel:
             c.text(((l + r) / 2, b + tick + gap + round(1.6 * font_px * s)), xlabel, font_px, anchor="mt")
         if ylabel:
-            widest = max((c.draw.textlength(lab, font=font(font_px)) for _, lab in ylabels), default=0)
+            widest = max((c.draw.textlength(lab, font=font(font_px, s)) for _, lab in ylabels), default=0)
             c.text((l - tick - 2 * gap - widest - round(0.7 * font_px * s), (t + b) / 2), ylabel, font_px,
                    anchor="mm", angle=90)
         for k, line in enumerate(reversed(title.split("\n"))):
@@ -308,8 +316,8 @@ class Panel:
     def _draw_legend(self, loc: str, size_px: float) -> None:
         if not self.legend_items:
             return
-        c, s = self.canvas, SUPERSAMPLE
-        f = font(size_px)
+        c, s = self.canvas, self.s
+        f = font(size_px, s)
         row, key, pad = round(1.4 * size_px * s), round(2.0 * size_px * s), round(0.5 * size_px * s)
         width = key + pad * 3 + max(c.draw.textlength(label, font=f) for label, _, _ in self.legend_items)
         height = row * len(self.legend_items) + pad

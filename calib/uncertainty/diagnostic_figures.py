@@ -21,7 +21,7 @@ from PIL import Image
 
 from unwrap.safe_output import atomic_path
 
-from ..io.raster_plot import C0, CYCLE, RED, SUPERSAMPLE, Canvas
+from ..io.raster_plot import C0, CYCLE, RED, Canvas
 
 #: A pose panel's cell and a board panel's cell, final pixels.
 POSE_CELL, BOARD_CELL = (288, 261), (414, 378)
@@ -79,7 +79,7 @@ def per_pose_figure(cal, obs, devices, points, path) -> Path:
             rms = np.sqrt(np.mean(res[m][good] ** 2)) if good.any() else np.nan
             p.finish(title=f"{d} {obs.views[v].name}\nRMS {rms:.3f} px, {int((~good).sum())} rejected",
                      xticks=0, yticks=0, title_px=8.75)
-    canvas.text((canvas.size[0] * SUPERSAMPLE / 2, 12 * SUPERSAMPLE),
+    canvas.text((canvas.size[0] * canvas.s / 2, 12 * canvas.s),
                 "residual vectors (" + ", ".join(f"{d} x {sc:.0f}" for d, sc in zip(devices, scales))
                 + ") at the observed pixels (each panel: the whole image); red x: rejected", 11.25, anchor="mt")
     return save_png(canvas, path)
