@@ -1,6 +1,6 @@
-"""A few plot panels drawn with Pillow directly: what ``calib run``'s summary figure needs, at a
-fraction of matplotlib's cost (its import and its per-axes tick and text machinery cost ~1 s of
-CPU against ~0.1 s here; docs/speed.md "The summary figure without matplotlib").
+"""A few plot panels drawn with Pillow directly: what ``calib run``'s figures need, at a fraction
+of matplotlib's cost (its import and its per-axes tick and text machinery cost ~1 s of CPU for the
+summary figure against ~0.1 s here; docs/speed.md "`calib run`'s figures without matplotlib").
 
 A :class:`Canvas` is a white RGB image drawn at ``SUPERSAMPLE`` times its final size (1 for a very
 large one) and reduced by a box filter when saved (anti-aliased edges without per-primitive
