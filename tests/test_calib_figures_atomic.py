@@ -1,6 +1,6 @@
 """The figures of `calib run` are written atomically (temporary file + rename,
 unwrap.safe_output.save_figure): a drawing that fails half way leaves the previous file whole and
-no temporary file behind (the summary figure is Pillow's, the others matplotlib's)."""
+no temporary file behind (the residual figures are Pillow's, detections.png matplotlib's)."""
 from types import SimpleNamespace
 
 import numpy as np

@@ -61,6 +61,15 @@ def test_the_default_run_draws_the_summary_figure_without_matplotlib(tmp_path):
     assert not (out / "residuals_per_pose.png").exists() and not (out / "residuals_on_board.png").exists()
 
 
+def test_the_per_pose_figures_are_drawn_without_matplotlib_too(tmp_path):
+    modules = _run(tmp_path, "all")
+    assert "calib.uncertainty.diagnostic_figures" in modules
+    assert not [m for m in NOT_NEEDED + ("matplotlib",) if m in modules], sorted(modules)
+    out = tmp_path / "out"
+    assert all((out / n).stat().st_size > 10_000 for n in ("residuals.png", "residuals_per_pose.png",
+                                                             "residuals_on_board.png"))
+
+
 def test_the_analytic_jacobian_is_the_central_differences_one():
     """The adjustment's kernel (exact derivatives) against central differences of the independent
     DeviceModel rebuild: the columns agree to the differences' rounding (~1e-7 of a column's
