@@ -121,3 +121,14 @@ def test_one_device_and_no_rejection_rule_draw_one_column(tmp_path):
     with Image.open(path) as im:
         assert im.size == (CELL_W, 3 * CELL_H)
     assert not _near(_colours(path), RP.RED, tol=40)       # nothing rejected, no threshold drawn
+
+
+def test_noise_free_residuals_draw_without_dividing_by_zero(run, tmp_path):
+    from dataclasses import replace
+
+    ba = run.calibration.ba
+    cal = replace(run.calibration, ba=replace(ba, residuals_px=np.zeros_like(ba.residuals_px)))
+    z, _ = distribution(cal, run.observations, "camera")
+    assert np.all(z == 0)
+    with Image.open(summary_figure(cal, run.observations, tmp_path / "residuals.png")) as im:
+        assert im.size == (2 * CELL_W, 3 * CELL_H)

@@ -39,7 +39,9 @@ def distribution(cal, obs, device: str, sigma_pt=None):
     m = ba.point_device == device
     sig = sigma_of_points(obs, ba) if sigma_pt is None else sigma_pt
     e = np.linalg.norm(ba.residuals_px[m], axis=1) / sig[m]
-    sigma = np.sqrt(np.median(e[ba.inlier[m]] ** 2) / (2 * np.log(2)))
+    sigma = np.sqrt(np.median(e[ba.inlier[m]] ** 2) / (2 * np.log(2))) if ba.inlier[m].any() else np.nan
+    if not sigma > 0:           # noise-free (all kept residuals 0) or nothing kept: |e| unnormalised
+        sigma = 1.0
     return e / sigma, ba.inlier[m]
 
 
