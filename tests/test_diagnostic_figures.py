@@ -5,21 +5,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from calib import default_system
-from calib.board import Board
 from calib.io import raster_plot as RP
-from calib.pipeline import calibrate_observations
-from calib.simulate import board_poses_world, simulate_observations
 from calib.uncertainty.diagnostic_figures import BOARD_CELL, POSE_CELL, POSE_TOP
 from calib.uncertainty.diagnostics import plot_residual_diagnostics
-
-
-@pytest.fixture(scope="module")
-def run(tmp_path_factory):
-    obs, _ = simulate_observations(default_system().ideal(), Board("checkerboard", 6, 8, 20.0), 5, 0.05,
-                                   np.random.default_rng(5), poses=board_poses_world(5, np.random.default_rng(11)),
-                                   projector_from_camera=True, noise_prj_px=0.0125)
-    return calibrate_observations(obs, tmp_path_factory.mktemp("out"), figures="none", skew_check=False)
+from tests.test_summary_figure import run  # noqa: F401  (the fixture: 6 simulated views, one outlier)
 
 
 def test_both_figures_are_pngs_with_a_panel_per_device_and_view(run, tmp_path):
