@@ -1,11 +1,12 @@
 """The figures of `calib run` are written atomically (temporary file + rename,
 unwrap.safe_output.save_figure): a drawing that fails half way leaves the previous file whole and
-no temporary file behind."""
+no temporary file behind (the residual figures are Pillow's, detections.png matplotlib's)."""
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from matplotlib.figure import Figure
+from PIL import Image
 
 from calib import default_system
 from calib.board import Board
@@ -38,6 +39,7 @@ def test_a_failed_figure_write_leaves_the_previous_file(run, tmp_path, monkeypat
     for n in names:
         (tmp_path / n).write_bytes(b"previous")
     monkeypatch.setattr(Figure, "savefig", _failing_savefig)
+    monkeypatch.setattr(Image.Image, "save", _failing_savefig)      # the summary figure: Pillow's PNG
     with pytest.raises(OSError):
         if which == "summary":
             plot_residuals(cal, obs, tmp_path / "residuals.png")

@@ -1,7 +1,8 @@
 """`calib run` does what its solver needs and no more (issue 22): an observation-only run imports
-neither the board detection nor the plotting, learning or optimisation libraries it does not use;
-the uncertainty model's Jacobian is the adjustment's own (analytic), the same as central
-differences of an independent rebuild of the model; the numpy NNLS is scipy's."""
+neither the board detection nor matplotlib (its summary figure is drawn with Pillow) nor the
+learning or optimisation libraries it does not use; the uncertainty model's Jacobian is the
+adjustment's own (analytic), the same as central differences of an independent rebuild of the
+model; the numpy NNLS is scipy's."""
 import json
 import os
 import subprocess
@@ -51,13 +52,22 @@ def test_an_observation_only_run_imports_only_what_its_stages_use(tmp_path):
     assert (tmp_path / "out" / "calibration.json").is_file() and not (tmp_path / "out" / "residuals.png").exists()
 
 
-def test_the_default_run_draws_the_summary_figure_with_agg_alone(tmp_path):
+def test_the_default_run_draws_the_summary_figure_without_matplotlib(tmp_path):
     modules = _run(tmp_path, "summary")
-    assert "matplotlib.backends.backend_agg" in modules
-    assert not [m for m in NOT_NEEDED if m in modules], sorted(modules)
+    assert "calib.io.summary_figure" in modules                  # drawn with Pillow (calib.io.raster_plot)
+    assert not [m for m in NOT_NEEDED + ("matplotlib",) if m in modules], sorted(modules)
     out = tmp_path / "out"
     assert (out / "residuals.png").stat().st_size > 10_000
     assert not (out / "residuals_per_pose.png").exists() and not (out / "residuals_on_board.png").exists()
+
+
+def test_the_per_pose_figures_are_drawn_without_matplotlib_too(tmp_path):
+    modules = _run(tmp_path, "all")
+    assert "calib.uncertainty.diagnostic_figures" in modules
+    assert not [m for m in NOT_NEEDED + ("matplotlib",) if m in modules], sorted(modules)
+    out = tmp_path / "out"
+    assert all((out / n).stat().st_size > 10_000 for n in ("residuals.png", "residuals_per_pose.png",
+                                                             "residuals_on_board.png"))
 
 
 def test_the_analytic_jacobian_is_the_central_differences_one():

@@ -7,8 +7,6 @@ from pathlib import Path
 
 import numpy as np
 
-from unwrap.safe_output import save_figure
-
 from ..calibrate import Calibration
 from ..errors import FormatError
 from .calibration_json import write_calibration_json
@@ -131,81 +129,14 @@ def outlier_summary(cal: Calibration, obs) -> dict:
     return out
 
 
-def _plot_distribution(ax, cal, obs, d) -> None:
-    """Histogram of |e| / robust sigma of one device beside the Rayleigh density, threshold marked
-    (one filled step artist per histogram)."""
-    from ..calibrate import sigma_of_points
-
-    ba = cal.ba
-    m = ba.point_device == d
-    e = np.linalg.norm(ba.residuals_px[m], axis=1) / sigma_of_points(obs, ba)[m]
-    sigma = np.sqrt(np.median(e[ba.inlier[m]] ** 2) / (2 * np.log(2)))
-    z = e / sigma
-    top = max(float(z.max()), (cal.outlier_threshold or 0) + 1)
-    bins = np.linspace(0, top, 40)
-    kept = np.histogram(z[ba.inlier[m]], bins)[0]
-    ax.stairs(np.maximum(kept, 1e-3), bins, fill=True, color="C0", label="kept", baseline=1e-3)
-    if (~ba.inlier[m]).any():
-        rejected = np.histogram(z[~ba.inlier[m]], bins)[0]
-        ax.stairs(np.maximum(rejected, 1e-3), bins, fill=True, color="red", label="rejected", baseline=1e-3)
-    x = np.linspace(0, top, 200)
-    ax.plot(x, len(z) * (bins[1] - bins[0]) * x * np.exp(-x * x / 2), "k-", label="Gaussian (Rayleigh)")
-    if cal.outlier_threshold is not None:
-        ax.axvline(cal.outlier_threshold, color="red", ls="--")
-    ax.set_yscale("log")
-    ax.set_ylim(0.5, 2.0 * len(z))
-    ax.set_xlabel("|residual| / robust sigma")
-    ax.set_ylabel("points")
-    ax.set_title(f"{d}: residual distribution")
-    ax.legend(fontsize=8)
-
-
 def plot_residuals(cal: Calibration, obs, path) -> Path:
     """Residual scatter per device (coloured by view), per-view RMS and the residual distribution
-    beside a Gaussian's, with the rejection threshold (PNG).
+    beside a Gaussian's, with the rejection threshold (PNG, written atomically): the figure
+    ``calib run`` draws by default, drawn with Pillow, not matplotlib
+    (:func:`calib.io.summary_figure.summary_figure`, ~0.1 s against ~1 s; docs/speed.md)."""
+    from .summary_figure import summary_figure
 
-    Drawn for cost (the figure ``calib run`` draws by default): Agg without pyplot, fixed margins,
-    one artist per scatter, per-view RMS and histogram (filled steps, not one bar per bin or
-    view), no colour bar (the colour scale is named in the title), few ticks."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure   # no pyplot: no global state, a faster import
-    from matplotlib.ticker import NullLocator
-
-    ba = cal.ba
-    devices = [d for d in ("camera", "projector") if d in ba.stats]
-    n_views = len(ba.stats["views"])
-    fig = Figure(figsize=(5 * len(devices), 12))
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(3, len(devices), squeeze=False)
-    for k, d in enumerate(devices):
-        m = ba.point_device == d
-        ax = axes[0, k]
-        ax.scatter(ba.residuals_px[m & ba.inlier, 0], ba.residuals_px[m & ba.inlier, 1], s=6,
-                   c=ba.point_view[m & ba.inlier] + 1, cmap="viridis", vmin=1, vmax=max(n_views, 2))
-        if (m & ~ba.inlier).any():
-            ax.scatter(ba.residuals_px[m & ~ba.inlier, 0], ba.residuals_px[m & ~ba.inlier, 1], s=18,
-                       marker="x", c="red", label="rejected")
-            ax.legend()
-        ax.set_title(f"{d}: residuals (px), RMS {ba.stats[d]['rms_px']:.4f}\n"
-                     f"colour: view 1 (purple) to {n_views} (yellow)", fontsize=10)
-        ax.set_xlabel("du (px)")
-        ax.set_ylabel("dv (px)")
-        ax.axis("equal")
-        ax = axes[1, k]
-        rms = [v[d]["rms_px"] or 0.0 for v in ba.stats["views"]]
-        ax.stairs(rms, np.arange(len(rms) + 1) + 0.5, fill=True, color="C0")
-        ax.set_xlabel("view")
-        ax.set_ylabel("RMS residual (px)")
-        ax.set_title(f"{d}: per-view RMS")
-        _plot_distribution(axes[2, k], cal, obs, d)
-    for ax in axes[:2].ravel():
-        ax.locator_params(nbins=5)
-    for ax in axes[2]:
-        ax.locator_params(axis="x", nbins=6)
-        ax.yaxis.set_minor_locator(NullLocator())
-    # fixed margins: tight_layout would draw the figure once more to measure it (a third of the time)
-    fig.subplots_adjust(left=0.1, right=0.97, bottom=0.05, top=0.95, wspace=0.3, hspace=0.35)
-    return save_figure(fig, path, dpi=90)     # atomic: a failed write leaves the previous file
+    return summary_figure(cal, obs, path)
 
 
 def summary_table(cal: Calibration, obs=None, skipped=None) -> str:

@@ -25,8 +25,6 @@ from pathlib import Path
 
 import numpy as np
 
-from unwrap.safe_output import save_figure
-
 log = logging.getLogger(__name__)
 
 CORRELATION_FLAG = 0.2
@@ -143,82 +141,14 @@ def diagnose_residuals(cal, obs, *, draws: int = 500, seed: int = 0) -> Residual
     return ResidualDiagnostics(rho1, gram, clusters, warnings)
 
 
-def _figure(nrows, ncols, w, h):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(w * ncols, h * nrows))
-    FigureCanvasAgg(fig)
-    return fig, fig.subplots(nrows, ncols, squeeze=False)
-
-
 def plot_residual_diagnostics(cal, obs, diagnostics: ResidualDiagnostics, out_dir) -> dict:
-    """Write ``residuals_per_pose.png`` and ``residuals_on_board.png`` into ``out_dir``; returns
-    {name: path}."""
+    """Write ``residuals_per_pose.png`` and ``residuals_on_board.png`` into ``out_dir`` (drawn with
+    Pillow: :mod:`calib.uncertainty.diagnostic_figures`); returns {name: path}."""
+    from .diagnostic_figures import board_figure, per_pose_figure
+
     ba, out = cal.ba, Path(out_dir)
     devices = [d for d in ("camera", "projector") if np.any(ba.point_device == d)]
-    n = len(obs.views)
-    fig, axes = _figure(len(devices), n, 3.2, 2.9)
-    for row, d in enumerate(devices):
-        views, _, res, ok = _points(ba, obs, d)
-        q_all = np.concatenate([obs.views[v].q[d][obs.views[v].seen(d)] for v in range(n) if d in obs.views[v].q])
-        scale = 0.05 * max(np.ptp(q_all[:, 0]), 1.0) / max(np.sqrt(np.mean(res[ok] ** 2)), 1e-12)
-        for v in range(n):
-            ax = axes[row, v]
-            m = views == v
-            ids = ba.point_id[ba.point_device == d][m]
-            q = np.array([obs.views[v].q[d][np.flatnonzero(obs.views[v].ids == i)[0]] for i in ids]).reshape(-1, 2)
-            good = ok[m]
-            ax.quiver(q[good, 0], q[good, 1], res[m][good, 0], -res[m][good, 1], angles="xy", scale_units="xy",
-                      scale=1 / scale, width=0.004, color="tab:blue")
-            ax.scatter(q[~good, 0], q[~good, 1], marker="x", c="red", s=16)
-            ax.set_xlim(0, obs.sizes[d][0])
-            ax.set_ylim(obs.sizes[d][1], 0)
-            ax.set_aspect("equal")
-            rms = np.sqrt(np.mean(res[m][good] ** 2)) if good.any() else np.nan
-            ax.set_title(f"{d} {obs.views[v].name}\nRMS {rms:.3f} px, {int((~good).sum())} rejected", fontsize=7)
-            # the frame is the device's image (limits above); tick labels on every small panel cost
-            # half of `calib run`'s drawing time and are unreadable at this size
-            ax.set_xticks([])
-            ax.set_yticks([])
-    fig.suptitle(f"residual vectors (x {scale:.0f}) at the observed pixels (each panel: the whole image); "
-                 "red x: rejected", fontsize=9)
-    fig.subplots_adjust(left=0.03, right=0.99, bottom=0.04, top=0.86, wspace=0.25, hspace=0.5)
-    paths = {"residuals_per_pose.png": out / "residuals_per_pose.png"}
-    save_figure(fig, paths["residuals_per_pose.png"], dpi=90)
-    paths["residuals_on_board.png"] = _plot_board(ba, obs, devices, diagnostics, out / "residuals_on_board.png")
-    return paths
-
-
-def _plot_board(ba, obs, devices, diagnostics, path):
-    fig, axes = _figure(1, len(devices) + 1, 4.6, 4.2)
-    colours = [f"C{k % 10}" for k in range(len(obs.views))]
-    for k, d in enumerate(devices):
-        ax = axes[0, k]
-        views, xy, res, ok = _points(ba, obs, d)
-        scale = 0.04 * max(np.ptp(xy[:, 0]), 1.0) / max(np.sqrt(np.mean(res[ok] ** 2)), 1e-12)
-        for v in np.unique(views):
-            m = (views == v) & ok
-            ax.quiver(xy[m, 0], xy[m, 1], res[m, 0], -res[m, 1], angles="xy", scale_units="xy", scale=1 / scale,
-                      width=0.003, color=colours[int(v)], label=obs.views[int(v)].name)
-        ax.scatter(xy[~ok, 0], xy[~ok, 1], marker="x", c="red", s=22, label="rejected")
-        ax.set_aspect("equal")
-        ax.set_xlabel("board x (mm)")
-        ax.set_ylabel("board y (mm)")
-        rho = diagnostics.neighbour_correlation.get(d)
-        ax.set_title(f"{d}: residuals on the board (x {scale:.0f})\nneighbour correlation "
-                     f"{'n/a' if rho is None else f'{rho:.2f}'}", fontsize=8)
-        ax.legend(fontsize=5, loc="upper right")
-    ax = axes[0, -1]
-    for d in devices:
-        g = np.array(diagnostics.correlogram.get(d, [])).reshape(-1, 3)
-        if len(g):
-            ax.plot(g[:, 0], g[:, 1], "o-", label=d)
-    ax.axhline(0, color="grey", lw=0.8)
-    ax.set_xscale("log")
-    ax.set_xlabel("distance on the board (mm)")
-    ax.set_ylabel("residual correlation within a pose")
-    ax.set_title("correlogram (independent errors: 0)", fontsize=8)
-    ax.legend(fontsize=7)
-    fig.subplots_adjust(left=0.06, right=0.98, bottom=0.12, top=0.88, wspace=0.3)
-    return save_figure(fig, path, dpi=90)
+    points = {d: _points(ba, obs, d) for d in devices}
+    return {"residuals_per_pose.png": per_pose_figure(cal, obs, devices, points, out / "residuals_per_pose.png"),
+            "residuals_on_board.png": board_figure(cal, obs, devices, points, diagnostics,
+                                                   out / "residuals_on_board.png")}

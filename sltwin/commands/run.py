@@ -83,8 +83,7 @@ def add_arguments(p):
                         "(calib.uncertainty.skew_check; run when skew is not estimated; a needed skew is a warning)")
     p.add_argument("--figures", choices=("summary", "all", "auto", "none"), default="summary",
                    help="summary (default): residuals.png; all: also the per-pose panels (residuals_per_pose.png, "
-                        "residuals_on_board.png; they cost more than the calibration); auto: all up to 12 views; "
-                        "none")
+                        "residuals_on_board.png; one panel per device and view); auto: all up to 12 views; none")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
 
 
