@@ -266,8 +266,8 @@ def _sigmas(it):
     return (phase_noise(it["m_low"], it["steps"], it["sigma_I"]), phase_noise(it["m_high"], it["steps"], it["sigma_I"]))
 
 
-def decode_item(it, params, *, learned=True, filtered=True, model="learned"):
-    """Every row's orders (and confidences) for one item; times in ms. ``model``: the learned rows'
+def decode_item(it, params, *, learned=True, filtered=True, network="learned"):
+    """Every row's orders (and confidences) for one item; times in ms. ``network``: the learned rows'
     network (:func:`unwrap.learned.infer.unwrap_learned`; one per process: the output is cached on ``it``)."""
     from unwrap.temporal import decode_pair as traditional
     from unwrap.spatial_orders import graphcut_orders
@@ -296,7 +296,7 @@ def decode_item(it, params, *, learned=True, filtered=True, model="learned"):
         if "_learned" not in it:          # the network once per item (calibration decodes items many times)
             t0 = time.perf_counter()
             r = unwrap_learned("mf", it["phase_low"], it["phase_high"], it["m_low"], it["m_high"], ok, it["freqs"],
-                               width=it["width"], model=model, on_outside="warn", log_probs=True)
+                               width=it["width"], model=network, on_outside="warn", log_probs=True)
             it["_learned"] = (r, 1e3 * (time.perf_counter() - t0))
         r, t["Learned"] = it["_learned"]
         out["Learned"] = r.order
@@ -346,7 +346,7 @@ CONF_GRID = (0.0, 0.5, 0.7, 0.9, 0.97, 0.99)
 BREAK_RATIO = 0.05
 
 
-def calibrate(items, *, gate_only: bool = False, gate_items=None, model="learned"):
+def calibrate(items, *, gate_only: bool = False, gate_items=None, network="learned"):
     """Smoothness / outlier (unless ``gate_only``: the shipped :data:`unwrap.spatial_orders.DEFAULTS`),
     the traditional decision's error model (:func:`bench.decision_error_fit.fit_items`), then the
     gate thresholds on that model's probability that minimise the validation error subject to
@@ -362,7 +362,7 @@ def calibrate(items, *, gate_only: bool = False, gate_items=None, model="learned
     print("  decision error model: " + json.dumps(model), file=sys.stderr, flush=True)
     if gate_only:
         params = dict(DEFAULTS, decision_error=model)
-        return params, _calibrate_gate(items if gate_items is None else gate_items, params, model)
+        return params, _calibrate_gate(items if gate_items is None else gate_items, params, network)
     items = items if gate_items is None else gate_items      # the energy's constants: the gate's scenes
     best = None
     wrong = counted = 0
@@ -391,19 +391,19 @@ def calibrate(items, *, gate_only: bool = False, gate_items=None, model="learned
         params["smoothness_learned"] = lam
         wrong = 0
         for it in items:
-            out, _, extra = decode_item(it, params, filtered=False, model=model)
+            out, _, extra = decode_item(it, params, filtered=False, network=network)
             m = extra["valid"] & (it["ref"] >= 0)
             wrong += int((out["Learned + graph cut"] != it["ref"])[m].sum())
         print(f"  learned + graph cut smoothness {lam:g}: {wrong} wrong", file=sys.stderr)
         if lam_l is None or wrong < lam_l[0]:
             lam_l = (wrong, lam)
     params["smoothness_learned"] = lam_l[1]
-    return params, _calibrate_gate(items if gate_items is None else gate_items, params, model)
+    return params, _calibrate_gate(items if gate_items is None else gate_items, params, network)
 
 
-def _calibrate_gate(items, params, model="learned"):
+def _calibrate_gate(items, params, network="learned"):
     """The gate thresholds of each row (see :func:`calibrate`)."""
-    decoded = [decode_item(it, params, filtered=False, model=model) for it in items]
+    decoded = [decode_item(it, params, filtered=False, network=network) for it in items]
     gates = {}
     from unwrap.spatial_orders import gate
     for row, conf_key in (("Graph cut", None), ("Learned", "confidence"), ("Learned + graph cut", "confidence_lgc")):
@@ -433,12 +433,12 @@ def _calibrate_gate(items, params, model="learned"):
 
 
 # ---------------------------------------------------------------- tables
-def score(items, params, gates, *, learned=True, model="learned"):
+def score(items, params, gates, *, learned=True, network="learned"):
     """{capture label: {"rows": {row: (wrong, counted, dropped)}, "curves": ..., "ms": ...}} pooled per label."""
     res = {}
     for it in items:
         label = it["name"].split(" #")[0]
-        out, t, extra = decode_item(it, params, learned=learned, model=model)
+        out, t, extra = decode_item(it, params, learned=learned, network=network)
         out.update(gated(out, extra, gates))
         m = extra["valid"] & (it["ref"] >= 0)
         R = res.setdefault(label, {"rows": {}, "ms": {}, "scores": {}, "pixels": 0})
@@ -516,7 +516,7 @@ def main(argv=None) -> int:
         params, gates = calibrate(val, gate_only=not args.calibrate,
                                   gate_items=None if args.gate_set == "all" else [it for it in val
                                                                                    if "bias-val" not in it["name"]],
-                                  model=args.model)
+                                  network=args.model)
         print("calibrated (validation twin scenes):", json.dumps({"params": params, "gate": gates}), flush=True)
     sources = [("pyramid", lambda: _pyramid_items(("v",) if args.quick else ("v", "h")))]
     if not args.quick:
@@ -531,7 +531,7 @@ def main(argv=None) -> int:
         if not items:
             print(f"\n({name}: not found under {SHARED}, skipped)")
             continue
-        res = score(items, params, gates, model=args.model)
+        res = score(items, params, gates, network=args.model)
         all_res.update(res)
         print(table(res), flush=True)
     print("\nNot scored (no reference pair for a two-frequency decode):")
