@@ -1,6 +1,6 @@
 """Spatial fringe-order correction on real captures with a reference and on twin scenes (issue 21).
 
-    python -m bench.spatial_unwrap [--quick] [--work DIR] [--json OUT.json] [--calibrate]
+    python -m bench.spatial_unwrap [--quick] [--work DIR] [--json OUT.json] [--calibrate] [--model PATH]
 
 Rows per capture (error rate = wrong orders / pixels with valid inputs and a reference order, all
 rows on the same pixels; % dropped where a row drops pixels):
@@ -25,7 +25,8 @@ dp-tpu carry no two-frequency pair the MF / MW paths decode (listed with the rea
 ``--calibrate`` redoes the smoothness, decision error model and gate calibration on the
 validation scenes (``--calibrate-gate``: the model and the gate only) and prints the constants to
 put in ``unwrap/spatial_orders.py`` and ``unwrap/decision_error.py``. ``--quick``: the pyramid's vertical
-orientation only, shipped constants.
+orientation only, shipped constants. ``--model``: a checkpoint (``.pt`` / ``.onnx``) in place of
+the shipped one for every learned row (e.g. the width-16 model of git history, to compare gates).
 """
 from __future__ import annotations
 
@@ -265,8 +266,9 @@ def _sigmas(it):
     return (phase_noise(it["m_low"], it["steps"], it["sigma_I"]), phase_noise(it["m_high"], it["steps"], it["sigma_I"]))
 
 
-def decode_item(it, params, *, learned=True, filtered=True):
-    """Every row's orders (and confidences) for one item; times in ms."""
+def decode_item(it, params, *, learned=True, filtered=True, network="learned"):
+    """Every row's orders (and confidences) for one item; times in ms. ``network``: the learned rows'
+    network (:func:`unwrap.learned.infer.unwrap_learned`; one per process: the output is cached on ``it``)."""
     from unwrap.temporal import decode_pair as traditional
     from unwrap.spatial_orders import graphcut_orders
 
@@ -294,7 +296,7 @@ def decode_item(it, params, *, learned=True, filtered=True):
         if "_learned" not in it:          # the network once per item (calibration decodes items many times)
             t0 = time.perf_counter()
             r = unwrap_learned("mf", it["phase_low"], it["phase_high"], it["m_low"], it["m_high"], ok, it["freqs"],
-                               width=it["width"], on_outside="warn", log_probs=True)
+                               width=it["width"], model=network, on_outside="warn", log_probs=True)
             it["_learned"] = (r, 1e3 * (time.perf_counter() - t0))
         r, t["Learned"] = it["_learned"]
         out["Learned"] = r.order
@@ -344,7 +346,7 @@ CONF_GRID = (0.0, 0.5, 0.7, 0.9, 0.97, 0.99)
 BREAK_RATIO = 0.05
 
 
-def calibrate(items, *, gate_only: bool = False, gate_items=None):
+def calibrate(items, *, gate_only: bool = False, gate_items=None, network="learned"):
     """Smoothness / outlier (unless ``gate_only``: the shipped :data:`unwrap.spatial_orders.DEFAULTS`),
     the traditional decision's error model (:func:`bench.decision_error_fit.fit_items`), then the
     gate thresholds on that model's probability that minimise the validation error subject to
@@ -360,7 +362,7 @@ def calibrate(items, *, gate_only: bool = False, gate_items=None):
     print("  decision error model: " + json.dumps(model), file=sys.stderr, flush=True)
     if gate_only:
         params = dict(DEFAULTS, decision_error=model)
-        return params, _calibrate_gate(items if gate_items is None else gate_items, params)
+        return params, _calibrate_gate(items if gate_items is None else gate_items, params, network)
     items = items if gate_items is None else gate_items      # the energy's constants: the gate's scenes
     best = None
     wrong = counted = 0
@@ -389,19 +391,19 @@ def calibrate(items, *, gate_only: bool = False, gate_items=None):
         params["smoothness_learned"] = lam
         wrong = 0
         for it in items:
-            out, _, extra = decode_item(it, params, filtered=False)
+            out, _, extra = decode_item(it, params, filtered=False, network=network)
             m = extra["valid"] & (it["ref"] >= 0)
             wrong += int((out["Learned + graph cut"] != it["ref"])[m].sum())
         print(f"  learned + graph cut smoothness {lam:g}: {wrong} wrong", file=sys.stderr)
         if lam_l is None or wrong < lam_l[0]:
             lam_l = (wrong, lam)
     params["smoothness_learned"] = lam_l[1]
-    return params, _calibrate_gate(items if gate_items is None else gate_items, params)
+    return params, _calibrate_gate(items if gate_items is None else gate_items, params, network)
 
 
-def _calibrate_gate(items, params):
+def _calibrate_gate(items, params, network="learned"):
     """The gate thresholds of each row (see :func:`calibrate`)."""
-    decoded = [decode_item(it, params, filtered=False) for it in items]
+    decoded = [decode_item(it, params, filtered=False, network=network) for it in items]
     gates = {}
     from unwrap.spatial_orders import gate
     for row, conf_key in (("Graph cut", None), ("Learned", "confidence"), ("Learned + graph cut", "confidence_lgc")):
@@ -431,12 +433,12 @@ def _calibrate_gate(items, params):
 
 
 # ---------------------------------------------------------------- tables
-def score(items, params, gates, *, learned=True):
+def score(items, params, gates, *, learned=True, network="learned"):
     """{capture label: {"rows": {row: (wrong, counted, dropped)}, "curves": ..., "ms": ...}} pooled per label."""
     res = {}
     for it in items:
         label = it["name"].split(" #")[0]
-        out, t, extra = decode_item(it, params, learned=learned)
+        out, t, extra = decode_item(it, params, learned=learned, network=network)
         out.update(gated(out, extra, gates))
         m = extra["valid"] & (it["ref"] >= 0)
         R = res.setdefault(label, {"rows": {}, "ms": {}, "scores": {}, "pixels": 0})
@@ -500,6 +502,8 @@ def main(argv=None) -> int:
                     help="scenes the gate is calibrated on: spatial_val.toml only (default, the shipped gate) or "
                          "every validation scene, the interreflection ones included; the error model is fitted on "
                          "all of them either way")
+    ap.add_argument("--model", default="learned",
+                    help="the learned rows' network: a .pt / .onnx checkpoint (default: the shipped model)")
     ap.add_argument("--no-twin", action="store_true", help="skip the twin scenes (rendering takes minutes)")
     args = ap.parse_args(argv)
     from unwrap.spatial_orders import DEFAULTS, GATE
@@ -511,7 +515,8 @@ def main(argv=None) -> int:
         val = validation_items(work)
         params, gates = calibrate(val, gate_only=not args.calibrate,
                                   gate_items=None if args.gate_set == "all" else [it for it in val
-                                                                                   if "bias-val" not in it["name"]])
+                                                                                   if "bias-val" not in it["name"]],
+                                  network=args.model)
         print("calibrated (validation twin scenes):", json.dumps({"params": params, "gate": gates}), flush=True)
     sources = [("pyramid", lambda: _pyramid_items(("v",) if args.quick else ("v", "h")))]
     if not args.quick:
@@ -526,7 +531,7 @@ def main(argv=None) -> int:
         if not items:
             print(f"\n({name}: not found under {SHARED}, skipped)")
             continue
-        res = score(items, params, gates)
+        res = score(items, params, gates, network=args.model)
         all_res.update(res)
         print(table(res), flush=True)
     print("\nNot scored (no reference pair for a two-frequency decode):")
@@ -535,7 +540,7 @@ def main(argv=None) -> int:
     if args.json:
         from unwrap.safe_output import write_text
 
-        write_text(Path(args.json), json.dumps({"params": params, "gate": gates, "results": {
+        write_text(Path(args.json), json.dumps({"model": str(args.model), "params": params, "gate": gates, "results": {
             k: {"rows": v["rows"], "curves": v["curves"], "ms": {r: float(np.median(m)) for r, m in v["ms"].items()},
                 "pixels": v["pixels"]} for k, v in all_res.items()}}, indent=1))
     return 0

@@ -162,6 +162,20 @@ def test_the_gate_never_changes_an_order_the_model_is_sure_of(row):
     assert np.array_equal(out[r.valid & ~sure], wrong[r.valid & ~sure])
 
 
+def test_the_shipped_gate_lies_on_the_calibration_grid_above_the_models_no_cue_floor():
+    """GATE holds a point of bench.spatial_unwrap's grid (what --calibrate-gate can return), and the
+    grid's first error-probability threshold is still twice MODEL's probability where no bias cue
+    speaks (a refit that moves that floor must move the grid too, or the gate's "sure" set changes)."""
+    from bench.spatial_unwrap import CONF_GRID, P_WRONG_GRID
+
+    for row, g in GATE.items():
+        assert g["min_p_wrong"] in P_WRONG_GRID, row
+        assert g["min_confidence"] in CONF_GRID, row
+    floor = error_probability(*_plane(p_noise=0.0))[40, 60]
+    assert 0.0 < floor and abs(2 * floor / P_WRONG_GRID[0] - 1) < 0.1
+    assert min(g["min_p_wrong"] for g in GATE.values()) >= P_WRONG_GRID[0]
+
+
 def test_a_biased_band_beside_a_shadow_is_less_sure_than_the_noise_model_says():
     """0.45 fringe of coherent bias beside the shadow: the noise model still calls most of the
     band's (right and wrong) decisions sure; the decision error model raises them above its
