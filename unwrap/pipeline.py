@@ -26,7 +26,7 @@ from ._xp import wrap
 from .capture import Capture, FrameReader, OrientationCapture, load_capture
 from .consistency import check_priors, prior_check
 from .errors import UnwrapError
-from .fused_mf import mf_unwrap_stacks
+from .fused_mf import mf_unwrap_stacks, native_kernel
 from .graycode import binarize, complementary_gray_unwrap, gray_coarse_unwrap, gray_code_unwrap, gray_to_index
 from .methods import METHODS, PAIR_METHODS
 from .patterns import projector_coordinate
@@ -92,9 +92,10 @@ def check_min_modulation(value, dtype) -> float:
 
 
 def _kernel_cold() -> bool:
-    """True when the fused kernel is neither compiled in this process nor cached on disk."""
-    from .fused_mf import fast_available
-    if not fast_available():
+    """True when the fused kernel is neither compiled in this process nor cached on disk (numba's;
+    the C replica, where it loads, is never cold: its ~0.5 s compile is not worth a line)."""
+    from .fused_mf import fast_available, native_kernel
+    if native_kernel() is not None or not fast_available():
         return False
     from . import _fused_kernel
     if _fused_kernel.mf_kernel.signatures:
@@ -181,7 +182,8 @@ def unwrap_orientation(oc: OrientationCapture, method: str, *, min_modulation=No
         return out
     sets = sorted(oc.sets, key=lambda s: s.frequency)
     warm = (warmup.fused_mf_for(sets[0].files[0], len(sets), max(len(s.files) for s in sets))
-            if method == "mf" and len(sets) >= 2 else None)   # the kernel loads while the frames are read
+            if method == "mf" and len(sets) >= 2 and native_kernel() is None
+            else None)   # numba's kernel loads while the frames are read (the C replica needs no warm-up)
     stacks = read_orientation(oc, reader, progress)
     model = _reliability_model(oc, method)
     sigma = _noise_sigma(stacks, sets, noise_sigma)
