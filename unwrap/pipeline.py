@@ -186,7 +186,12 @@ def unwrap_orientation(oc: OrientationCapture, method: str, *, min_modulation=No
             else None)   # numba's kernel loads while the frames are read (the C replica needs no warm-up)
     stacks = read_orientation(oc, reader, progress)
     model = _reliability_model(oc, method)
-    sigma = _noise_sigma(stacks, sets, noise_sigma)
+    if noise_sigma is None and max_error_rate is None:   # not needed before the decode: estimated beside it
+        from ._threads import pool
+        sigma_job = pool("noise").submit(_noise_sigma, stacks, sets, None)
+        sigma = None
+    else:
+        sigma_job, sigma = None, _noise_sigma(stacks, sets, noise_sigma)
     if max_error_rate is not None:
         if model is None:
             raise UnwrapError(f"max_error_rate: no reliability model for method {method!r} on this capture "
@@ -203,6 +208,8 @@ def unwrap_orientation(oc: OrientationCapture, method: str, *, min_modulation=No
         mm = check_min_modulation(min_modulation, stacks[0].dtype)
     out = _decode(oc, sets, stacks, reader, method, mm, gray_min_contrast, progress, warm)
     _check_some_valid(out, mm)
+    if sigma_job is not None:
+        sigma = sigma_job.result()
     out.min_modulation, out.noise_sigma = mm, sigma
     out.prior_check = prior_check(out.result) if method != "gray" else []
     if check_prior:
@@ -349,13 +356,18 @@ def write_results(results: dict, out_dir, *, previews: bool = True, attrs: dict 
                                **r.extras},
                      "attrs": {"method": u.method, "width": r.width, "valid_fraction": float(np.mean(u.valid)),
                                **({} if r.quantisation_px is None else {"quantisation_px": r.quantisation_px})}}
+    drawn = None
+    if previews:        # drawn and encoded on a thread while the file is compressed; written after it
+        from ._threads import pool
+        from .previews import encode_previews
+        drawn = pool("previews").submit(encode_previews, results)
     path = write_phase_file(Path(out_dir) / "unwrap.h5", groups, attrs=attrs)
-    if previews:
-        _previews(results, Path(out_dir))
+    if drawn is not None:
+        _previews(results, Path(out_dir), drawn.result())
     return path
 
 
-def _previews(results, out: Path):
+def _previews(results, out: Path, encoded=None):
     """PNG previews, drawn with OpenCV (:mod:`unwrap.previews`)."""
     from .previews import write_previews
-    write_previews(results, out)
+    write_previews(results, out, encoded)

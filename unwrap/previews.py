@@ -75,15 +75,22 @@ def preview_image(o: str, r) -> np.ndarray:
     return np.vstack([body, foot])
 
 
-def write_previews(results: dict, out: Path) -> list:
-    """Write ``out/{o}_unwrap.png`` for every orientation of ``results`` ({o: OrientationResult}),
-    atomically (:func:`unwrap.safe_output.write_bytes`); returns the paths."""
+def encode_previews(results: dict) -> dict:
+    """``{orientation: PNG bytes}`` of every orientation of ``results`` ({o: OrientationResult})."""
     import cv2
 
-    paths = []
+    out = {}
     for o, r in results.items():
         ok, png = cv2.imencode(".png", preview_image(o, r))
         if not ok:
             raise OSError(f"cannot encode the preview of orientation {o}")
-        paths.append(write_bytes(Path(out) / f"{o}_unwrap.png", png.tobytes()))
-    return paths
+        out[o] = png.tobytes()
+    return out
+
+
+def write_previews(results: dict, out: Path, encoded: dict | None = None) -> list:
+    """Write ``out/{o}_unwrap.png`` for every orientation of ``results`` ({o: OrientationResult}),
+    atomically (:func:`unwrap.safe_output.write_bytes`); returns the paths. ``encoded``: the
+    :func:`encode_previews` of ``results`` when already made (drawn beside the ``unwrap.h5`` write)."""
+    encoded = encode_previews(results) if encoded is None else encoded
+    return [write_bytes(Path(out) / f"{o}_unwrap.png", encoded[o]) for o in results]
