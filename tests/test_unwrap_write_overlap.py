@@ -103,3 +103,38 @@ def test_a_failing_preview_is_reported_after_the_file_is_written(capture, tmp_pa
     with pytest.raises(OSError, match="preview of orientation v"):
         write_results(res, tmp_path / "o")
     assert (tmp_path / "o" / "unwrap.h5").is_file() and not list((tmp_path / "o").glob("*.png"))
+
+
+def test_the_next_orientations_frames_decoded_ahead_give_the_same_maps(capture):
+    from unwrap import capture as capture_mod
+    from unwrap.capture import load_capture
+    from unwrap.pipeline import unwrap_capture, unwrap_orientation
+
+    res = unwrap_capture(capture)
+    assert not capture_mod._AHEAD                     # every prefetched frame was taken or dropped
+    cap = load_capture(capture)
+    for o, oc in cap.orientations.items():
+        alone = unwrap_orientation(oc, "mf", camera_size=cap.camera_size)
+        for a, b in ((alone.result.phase, res[o].result.phase), (alone.result.order, res[o].result.order),
+                     (alone.modulation, res[o].modulation)):
+            assert a.tobytes() == b.tobytes()
+
+
+def test_a_bad_frame_decoded_ahead_is_reported_in_its_turn(capture, tmp_path):
+    import shutil
+
+    from unwrap import capture as capture_mod
+    from unwrap.errors import UnwrapError
+    from unwrap.pipeline import unwrap_capture
+
+    bad = tmp_path / "cap"
+    shutil.copytree(capture, bad)
+    (bad / "pose_00" / "h_f048_n01.png").write_bytes(b"not a png")
+    (bad / "pose_00" / "h_f008_n02.png").write_bytes(b"not a png")     # the first bad one in reading order
+    with pytest.raises(UnwrapError, match="h_f008_n02"):
+        unwrap_capture(bad)
+    assert not capture_mod._AHEAD
+    (bad / "pose_00" / "v_f001_n00.png").write_bytes(b"not a png")      # v fails: h's frames were never read
+    with pytest.raises(UnwrapError, match="v_f001_n00"):
+        unwrap_capture(bad)
+    assert not capture_mod._AHEAD

@@ -23,7 +23,7 @@ import numpy as np
 
 from . import warmup
 from ._xp import wrap
-from .capture import Capture, FrameReader, OrientationCapture, load_capture
+from .capture import Capture, FrameReader, OrientationCapture, forget_prefetched, load_capture, prefetch
 from .consistency import check_priors, prior_check
 from .errors import UnwrapError
 from .fused_mf import mf_unwrap_stacks, native_kernel
@@ -147,7 +147,7 @@ def _noise_sigma(stacks, sets, noise_sigma):
 
 def unwrap_orientation(oc: OrientationCapture, method: str, *, min_modulation=None, max_error_rate=None,
                        noise_sigma=None, check_prior: bool = True, camera_size=None,
-                       gray_min_contrast: float = 4.0, progress: bool = False) -> OrientationResult:
+                       gray_min_contrast: float = 4.0, progress: bool = False, then=()) -> OrientationResult:
     """Wrapped phases of every fringe set, then the chosen temporal method, for one orientation.
 
     ARGUMENTS
@@ -161,6 +161,8 @@ def unwrap_orientation(oc: OrientationCapture, method: str, *, min_modulation=No
     - check_prior: refuse a decode whose priors are not clustered near integers
       (:func:`unwrap.consistency.check_priors`: wrong ladder or phase-shift convention).
     - camera_size: (W, H) the frames must have.
+    - then: frames to start decoding (:func:`unwrap.capture.prefetch`) once this orientation's
+      phase-shift frames are read: the next orientation's, decoded while this one is.
     An orientation of Gray code only (no fringe sets) decodes with method "gray" alone (block
     centres, ``quantisation_px``; no reliability model, so no ``max_error_rate``).
     Refused (UnwrapError): mixed bit depth or size, no valid pixel, inconsistent priors.
@@ -185,6 +187,7 @@ def unwrap_orientation(oc: OrientationCapture, method: str, *, min_modulation=No
             if method == "mf" and len(sets) >= 2 and native_kernel() is None
             else None)   # numba's kernel loads while the frames are read (the C replica needs no warm-up)
     stacks = read_orientation(oc, reader, progress)
+    prefetch(then)
     model = _reliability_model(oc, method)
     if noise_sigma is None and max_error_rate is None:   # not needed before the decode: estimated beside it
         from ._threads import pool
@@ -326,9 +329,16 @@ def unwrap_capture(folder, method: str | None = None, *, preset: str | None = No
     Options as :func:`unwrap_orientation`; the frames must have the description's camera size."""
     cap: Capture = load_capture(folder, preset, pose)
     method = method or cap.default_method
-    return each_orientation(cap, method, lambda oc: unwrap_orientation(
-        oc, method, min_modulation=min_modulation, max_error_rate=max_error_rate, noise_sigma=noise_sigma,
-        check_prior=check_prior, camera_size=cap.camera_size, progress=progress), progress)
+    ocs = list(cap.orientations.values())
+    after = {oc.orientation: [f for s in sorted(nxt.sets, key=lambda s: s.frequency) for f in s.files]
+             for oc, nxt in zip(ocs, ocs[1:])}     # the next orientation's frames, decoded while this one is
+    try:
+        return each_orientation(cap, method, lambda oc: unwrap_orientation(
+            oc, method, min_modulation=min_modulation, max_error_rate=max_error_rate, noise_sigma=noise_sigma,
+            check_prior=check_prior, camera_size=cap.camera_size, progress=progress,
+            then=after.get(oc.orientation, ())), progress)
+    finally:
+        forget_prefetched([f for files in after.values() for f in files])
 
 
 def each_orientation(cap: Capture, label: str, decode, progress: bool = False) -> dict:
