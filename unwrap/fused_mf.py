@@ -2,13 +2,13 @@
 
 ``mf_unwrap_stacks`` gives the result of the readable reference
 (:func:`unwrap.phase_shift.wrapped_phase` on each stack, then :func:`unwrap.temporal.mf_unwrap`
-with the AND of the phase-shift masks), but, for 8/16-bit stacks with numba installed, runs one
-compiled kernel (:mod:`unwrap._fused_kernel`; its C replica :mod:`unwrap._fused_c` where the system
-has a C compiler: the same bits without numba's ~1 s start-up) that reads the frames of every frequency once per
-pixel block, forms exact integer sums of the frames sharing a least-squares weight
+with the AND of the phase-shift masks), but, for 8/16-bit stacks, runs one compiled kernel
+(:mod:`unwrap._fused_kernel` with numba; its C replica :mod:`unwrap._fused_c`, first choice where the
+system has a C compiler: the same bits without numba's ~1 s start-up) that reads the frames of every
+frequency once per pixel block, forms exact integer sums of the frames sharing a least-squares weight
 (:func:`factor_weights`) and the float64 sums from them, and writes the absolute phase, fringe
 order, validity, physics prior and the highest frequency's A and B, multithreaded over pixel
-blocks. Otherwise (float input, torch, no numba) it runs the reference.
+blocks. Otherwise (float input, torch, neither a C compiler nor numba) it runs the reference.
 
 Agreement with the reference (tests/test_unwrap_fused.py: noisy 8/16-bit stacks with flat,
 dark, saturated, low-modulation and clipped pixels, unequal shifts, a real capture): ``valid``
