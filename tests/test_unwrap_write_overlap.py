@@ -138,3 +138,18 @@ def test_a_bad_frame_decoded_ahead_is_reported_in_its_turn(capture, tmp_path):
     with pytest.raises(UnwrapError, match="v_f001_n00"):
         unwrap_capture(bad)
     assert not capture_mod._AHEAD
+
+
+def test_frames_prefetched_before_a_fork_are_forgotten_in_the_child(capture):
+    import os
+
+    from unwrap import capture as capture_mod
+
+    files = sorted((capture / "pose_00").glob("h_*.png"))
+    capture_mod.prefetch(files)
+    pid = os.fork()
+    if pid == 0:                                   # the child: nothing pending from the parent's pool
+        os._exit(0 if not capture_mod._AHEAD else 1)
+    assert os.waitpid(pid, 0)[1] == 0
+    capture_mod.forget_prefetched(files)
+    assert not capture_mod._AHEAD

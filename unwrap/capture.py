@@ -34,6 +34,7 @@ argument, or recognised from the files present.
 from __future__ import annotations
 
 import math
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -159,7 +160,10 @@ def check_distinct_frames(stack: np.ndarray, files) -> None:
 
 
 _AHEAD: dict = {}
-"""Frames being decoded ahead of their turn: {path: Future of :func:`read_image`} (:func:`prefetch`)."""
+"""Frames being decoded ahead of their turn: {path: Future of :func:`read_image`} (:func:`prefetch`).
+Forgotten in a forked child, whose copy of the pool has no threads to finish them."""
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_AHEAD.clear)
 
 
 def prefetch(files) -> None:
