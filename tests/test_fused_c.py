@@ -14,7 +14,7 @@ from unwrap import _fused_c, _fused_numpy, fused_mf
 from unwrap.fused_mf import mf_unwrap_stacks
 
 ROOT = Path(__file__).resolve().parent.parent
-needs_c = pytest.mark.skipif(_fused_c.kernel() is None, reason="no C compiler (the numba kernel runs)")
+needs_c = pytest.mark.skipif(fused_mf.native_kernel() is None, reason="no C compiler (the numba kernel runs)")
 
 
 def _numba():
@@ -94,8 +94,8 @@ def test_out_arrays_are_reused_by_the_c_kernel():
     (3, np.uint8, (6, 6, 6), True, 250.0, 2.0, np.inf)])
 def test_numpy_replica_is_numbas_bit_for_bit(seed, dtype, steps, levels, sat, lo, hi):
     K = _numba()
-    stacks, args, a = _fused_c._check_case(seed, dtype, steps, levels, sat, lo, hi)
-    _, _, b = _fused_c._check_case(seed, dtype, steps, levels, sat, lo, hi)
+    stacks, args, a = _fused_c._check_case(fused_mf._kernel_weights, seed, dtype, steps, levels, sat, lo, hi)
+    _, _, b = _fused_c._check_case(fused_mf._kernel_weights, seed, dtype, steps, levels, sat, lo, hi)
     _fused_numpy.mf_kernel(stacks, *args, *a)
     K.mf_kernel(tuple(stacks), np.empty(0, np.int32), *args, *b)
     assert all(x.tobytes() == y.tobytes() for x, y in zip(a, b, strict=True))
@@ -115,8 +115,8 @@ def test_numpy_arctangent_is_the_kernels():
 @needs_c
 def test_a_library_with_other_bits_is_not_used(monkeypatch):
     """The per-process check: a library whose outputs differ from the numpy replica's is refused."""
-    funcs = _fused_c.kernel()
-    assert _fused_c._same_bits(funcs)
+    funcs = fused_mf.native_kernel()
+    assert _fused_c._same_bits(funcs, fused_mf._kernel_weights)
     real = _fused_c._call
 
     def off_by_one_ulp(f, stacks, *rest):
@@ -124,7 +124,7 @@ def test_a_library_with_other_bits_is_not_used(monkeypatch):
         phase = rest[16]
         phase[np.isfinite(phase)] = np.nextafter(phase[np.isfinite(phase)], np.inf)
     monkeypatch.setattr(_fused_c, "_call", off_by_one_ulp)
-    assert not _fused_c._same_bits(funcs)
+    assert not _fused_c._same_bits(funcs, fused_mf._kernel_weights)
 
 
 def test_no_compiler_or_a_shared_cache_falls_back(tmp_path, monkeypatch):

@@ -229,8 +229,9 @@ def source() -> str:
 _LIB = []
 
 
-def _load():
-    """``{dtype: ctypes function}`` of the checked library, or None (module docstring)."""
+def _load(weights):
+    """``{dtype: ctypes function}`` of the checked library, or None (module docstring); ``weights``:
+    :func:`unwrap.fused_mf._kernel_weights` (passed in: this module imports nothing of fused_mf)."""
     import ctypes
 
     from ._native import build
@@ -249,7 +250,7 @@ def _load():
             funcs[dtype] = f
     except AttributeError:
         return None
-    return funcs if _same_bits(funcs) else None
+    return funcs if _same_bits(funcs, weights) else None
 
 
 def _call(f, stacks, W, goff, grp_start, ent_n, ent_s, sum_all, ratios, cut, sat, lo, hi, min_mod, kmax, p_lo, p_hi,
@@ -272,10 +273,10 @@ def _call(f, stacks, W, goff, grp_start, ent_n, ent_s, sum_all, ratios, cut, sat
         raise MemoryError("the fused MF kernel could not allocate its block buffers")
 
 
-def _check_case(seed: int, dtype, steps, levels: bool, sat: float, lo: float, hi: float):
+def _check_case(weights, seed: int, dtype, steps, levels: bool, sat: float, lo: float, hi: float):
     """A small noisy MF input with dark, flat, saturated and out-of-range pixels, in the kernel's
-    flat layout: (stacks, the scalar and weight arguments, fresh outputs)."""
-    from .fused_mf import _kernel_weights
+    flat layout: (stacks, the scalar and weight arguments, fresh outputs); ``weights``:
+    :func:`unwrap.fused_mf._kernel_weights`."""
     from .phase_shift import equal_shifts
 
     rng = np.random.default_rng(seed)
@@ -290,7 +291,7 @@ def _check_case(seed: int, dtype, steps, levels: bool, sat: float, lo: float, hi
         I[:, 40:45] = top                                 # saturated
         stacks.append(np.clip(np.rint(I), 0, top).astype(dtype))
     stacks[-1][0, 60:64] = top                             # one saturated frame
-    W, goff, grp_start, ent_n, ent_s, sum_all = _kernel_weights(tuple(tuple(equal_shifts(N).tolist()) for N in steps))
+    W, goff, grp_start, ent_n, ent_s, sum_all = weights(tuple(tuple(equal_shifts(N).tolist()) for N in steps))
     ratios = np.array([0.0, 6.0, 6.0])
     n_lev = 2 if levels else 0
     outs = (np.empty(n_pix), np.empty(n_pix, np.int32), np.empty(n_pix, bool), np.empty(n_pix), np.empty(n_pix),
@@ -300,7 +301,7 @@ def _check_case(seed: int, dtype, steps, levels: bool, sat: float, lo: float, hi
     return stacks, args, outs
 
 
-def _same_bits(funcs) -> bool:
+def _same_bits(funcs, weights) -> bool:
     """Whether the library gives the numpy replica's bits (:mod:`unwrap._fused_numpy`) on small inputs
     of both pixel types: equal and unequal step counts, with and without levels, saturation and a
     valid range (a few ms once per process)."""
@@ -310,8 +311,8 @@ def _same_bits(funcs) -> bool:
              (1, np.uint16, (4, 7, 5), False, np.inf, 30.0, 60000.0),
              (2, np.uint8, (3, 9, 12), False, np.inf, -np.inf, np.inf))
     for seed, dtype, steps, levels, sat, lo, hi in cases:
-        stacks, args, a = _check_case(seed, dtype, steps, levels, sat, lo, hi)
-        _, _, b = _check_case(seed, dtype, steps, levels, sat, lo, hi)
+        stacks, args, a = _check_case(weights, seed, dtype, steps, levels, sat, lo, hi)
+        _, _, b = _check_case(weights, seed, dtype, steps, levels, sat, lo, hi)
         _call(funcs[np.dtype(dtype)], stacks, *args, *a, 0, a[0].size)
         reference(stacks, *args, *b)
         if any(x.tobytes() != y.tobytes() for x, y in zip(a, b)):
@@ -319,11 +320,12 @@ def _same_bits(funcs) -> bool:
     return True
 
 
-def kernel():
+def kernel(weights):
     """``{dtype: function}`` of the checked library (uint8, uint16), or None where there is no C
-    compiler, the cache cannot be used or the bits differ (then numba's kernel runs)."""
+    compiler, the cache cannot be used or the bits differ (then numba's kernel runs). ``weights``:
+    :func:`unwrap.fused_mf._kernel_weights` (for the check)."""
     if not _LIB:
-        _LIB.append(_load())
+        _LIB.append(_load(weights))
     return _LIB[0]
 
 

@@ -73,7 +73,7 @@ def native_kernel():
     """The C replica of the kernel (:mod:`unwrap._fused_c`, loaded and checked once per process), or
     None where it cannot be built (no C compiler, a cache that cannot be used)."""
     from ._fused_c import kernel
-    return kernel()
+    return kernel(_kernel_weights)
 
 
 def fast_available() -> bool:
