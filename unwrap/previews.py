@@ -51,14 +51,16 @@ def preview_image(o: str, r) -> np.ndarray:
     import cv2
 
     u = r.result
-    coord = projector_coordinate(np.asarray(u.phase), u.frequency, r.width)
-    order = np.where(u.valid, u.order, np.nan)
-    panels = [(coord, cv2.COLORMAP_VIRIDIS, f"projector coordinate ({o}) px"),
-              (order, cv2.COLORMAP_TURBO, f"fringe order k (f = {u.frequency:g})"),
-              (r.modulation, None, "modulation B")]
+    # each panel's map made when drawn (one map-sized temporary at a time: the previews are drawn
+    # beside the unwrap.h5 write); the orders in float32 directly (exact), as colour_panel reads them
+    panels = [(lambda: projector_coordinate(np.asarray(u.phase), u.frequency, r.width), cv2.COLORMAP_VIRIDIS,
+               f"projector coordinate ({o}) px"),
+              (lambda: np.where(u.valid, np.asarray(u.order).astype(np.float32), np.float32(np.nan)),
+               cv2.COLORMAP_TURBO, f"fringe order k (f = {u.frequency:g})"),
+              (lambda: r.modulation, None, "modulation B")]
     drawn = []
     for img, cmap, title in panels:
-        bgr, lo, hi = colour_panel(img, cmap)
+        bgr, lo, hi = colour_panel(img(), cmap)
         top = np.full((_TITLE_H, bgr.shape[1], 3), 255, np.uint8)
         cv2.putText(top, f"{title} [{lo:.4g}, {hi:.4g}]", (3, 15), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1,
                     cv2.LINE_AA)
