@@ -181,3 +181,11 @@ def test_real_slstudio_capture_c_equals_numba(monkeypatch):
                      width=oc.width, min_modulation=0.02 * 255, levels=True)
         assert c.result.valid.sum() > 80_000
         _assert_bitwise(c, n)
+
+
+@needs_c
+def test_frames_without_pixels(monkeypatch):
+    stacks = [np.zeros((12, 0, 5), np.uint8)] * 3
+    c, n = _both(monkeypatch, stacks, (1, 8, 48), width=W_P, levels=True)
+    assert c.result.phase.shape == (0, 5)
+    _assert_bitwise(c, n)

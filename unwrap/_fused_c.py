@@ -344,6 +344,8 @@ def run(funcs, stacks, W, goff, grp_start, ent_n, ent_s, sum_all, ratios, cut, s
 
     f = funcs[stacks[0].dtype]
     n_pix = phase.size
+    if n_pix == 0:
+        return
     args = (stacks, W, goff, grp_start, ent_n, ent_s, sum_all, ratios, cut, sat, lo, hi, min_mod, kmax, p_lo, p_hi,
             wrap, phase, order, valid, prior, A_out, B_out, lev_prior, lev_k)
     parts = min(os.cpu_count() or 1, 4) if n_pix >= SPLIT_MIN else 1
