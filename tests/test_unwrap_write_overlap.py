@@ -89,6 +89,9 @@ def test_previews_drawn_beside_the_write_are_the_previews(capture, tmp_path):
     assert (tmp_path / "a" / "unwrap.h5").is_file()
     write_results(res, tmp_path / "c", previews=False)
     assert not list((tmp_path / "c").glob("*.png"))
+    write_results(res, tmp_path / "d", previews_beside=False)        # drawn after the file (--model)
+    for o in res:
+        assert (tmp_path / "d" / f"{o}_unwrap.png").read_bytes() == (tmp_path / "b" / f"{o}_unwrap.png").read_bytes()
 
 
 def test_a_failing_preview_is_reported_after_the_file_is_written(capture, tmp_path, monkeypatch):
@@ -100,9 +103,10 @@ def test_a_failing_preview_is_reported_after_the_file_is_written(capture, tmp_pa
     def broken(results):
         raise OSError("cannot encode the preview of orientation v")
     monkeypatch.setattr(previews, "encode_previews", broken)
-    with pytest.raises(OSError, match="preview of orientation v"):
-        write_results(res, tmp_path / "o")
-    assert (tmp_path / "o" / "unwrap.h5").is_file() and not list((tmp_path / "o").glob("*.png"))
+    for beside in (True, False):
+        with pytest.raises(OSError, match="preview of orientation v"):
+            write_results(res, tmp_path / f"o{beside}", previews_beside=beside)
+        assert (tmp_path / f"o{beside}" / "unwrap.h5").is_file() and not list((tmp_path / f"o{beside}").glob("*.png"))
 
 
 def test_the_next_orientations_frames_decoded_ahead_give_the_same_maps(capture):

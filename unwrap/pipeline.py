@@ -352,9 +352,12 @@ def each_orientation(cap: Capture, label: str, decode, progress: bool = False) -
     return out
 
 
-def write_results(results: dict, out_dir, *, previews: bool = True, attrs: dict | None = None) -> Path:
+def write_results(results: dict, out_dir, *, previews: bool = True, attrs: dict | None = None,
+                  previews_beside: bool = True) -> Path:
     """Write ``unwrap.h5`` (DESIGN.md layout, :mod:`unwrap.phase_io`) and PNG previews into
-    ``out_dir``; returns the h5 path."""
+    ``out_dir``; returns the h5 path. ``previews_beside``: draw the previews on a thread while the
+    file is compressed (written after it either way); False draws them after the file, which keeps
+    their temporaries apart from the write's (the learned command's peak: docs/speed.md)."""
     groups = {}
     for o, r in results.items():
         u = r.result
@@ -367,13 +370,13 @@ def write_results(results: dict, out_dir, *, previews: bool = True, attrs: dict 
                      "attrs": {"method": u.method, "width": r.width, "valid_fraction": float(np.mean(u.valid)),
                                **({} if r.quantisation_px is None else {"quantisation_px": r.quantisation_px})}}
     drawn = None
-    if previews:        # drawn and encoded on a thread while the file is compressed; written after it
+    if previews and previews_beside:     # drawn and encoded on a thread while the file is compressed
         from ._threads import pool
         from .previews import encode_previews
         drawn = pool("previews").submit(encode_previews, results)
     path = write_phase_file(Path(out_dir) / "unwrap.h5", groups, attrs=attrs)
-    if drawn is not None:
-        _previews(results, Path(out_dir), drawn.result())
+    if previews:
+        _previews(results, Path(out_dir), None if drawn is None else drawn.result())
     return path
 
 
