@@ -93,7 +93,7 @@ def check_min_modulation(value, dtype) -> float:
 
 def _kernel_cold() -> bool:
     """True when the fused kernel is neither compiled in this process nor cached on disk (numba's;
-    the C replica, where it loads, is never cold: its ~0.5 s compile is not worth a line)."""
+    the C replica, where it loads, is never cold: its one compile, 1-2 s, is not worth a line)."""
     from .fused_mf import fast_available, native_kernel
     if native_kernel() is not None or not fast_available():
         return False
