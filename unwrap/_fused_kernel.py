@@ -29,20 +29,17 @@ import math
 import numba as nb
 import numpy as np
 
-# atan(u) = u + u*z*R(z), z = u^2, |u| <= tan(pi/8): R is the degree-10 polynomial interpolating
-# (atan(u)/u - 1)/z at 11 Chebyshev nodes of [0, tan(pi/8)^2], computed with mpmath at 50 digits
-# (max |error| of atan 5.6e-17 rad on the interval, below half an ulp of tan(pi/8))
-_R = (-0.3333333333333333, 0.1999999999999552, -0.14285714284666542, 0.11111111015256361,
-      -0.09090904578123903, 0.07692183190826087, -0.06664511447381948, 0.0585814891280221,
-      -0.0508544973794026, 0.03923165829558719, -0.01917688711906226)
+from ._fused_consts import BLOCK as _BLOCK
+from ._fused_consts import HALF_TIE as _HALF_TIE
+from ._fused_consts import PI as _PI
+from ._fused_consts import PI_2 as _PI_2
+from ._fused_consts import PI_4 as _PI_4
+from ._fused_consts import PI_4_LO as _PI_4_LO
+from ._fused_consts import R as _R
+from ._fused_consts import TAN_PI_8 as _TAN_PI_8
+from ._fused_consts import TWO_PI as _TWO_PI
+
 _R0, _R1, _R2, _R3, _R4, _R5, _R6, _R7, _R8, _R9, _R10 = _R
-_TAN_PI_8 = 0.41421356237309503
-_PI = math.pi
-_PI_2 = 0.5 * math.pi
-_PI_4 = 0.25 * math.pi
-_PI_4_LO = 3.061616997868383e-17  # pi/4 - float(pi/4)
-_TWO_PI = 2.0 * math.pi
-_HALF_TIE = 0.5 + 1e-9  # unwrap._xp.round_order: ceil(prior - 1/2 - TIE_BAND), ties down
 _JIT = dict(cache=True, error_model="numpy", nogil=True)
 
 
@@ -77,7 +74,6 @@ def atan2_array(y, x, out):
         out[i] = _atan2(y[i], x[i])
 
 
-_BLOCK = 4096  # pixels per block (measured: 2048-8192 within noise, 512 is 20 % slower)
 
 
 @nb.njit(**_JIT)

@@ -34,6 +34,7 @@ argument, or recognised from the files present.
 from __future__ import annotations
 
 import math
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -158,13 +159,42 @@ def check_distinct_frames(stack: np.ndarray, files) -> None:
                               "capture)")
 
 
+_AHEAD: dict = {}
+"""Frames being decoded ahead of their turn: {path: Future of :func:`read_image`} (:func:`prefetch`).
+Forgotten in a forked child, whose copy of the pool has no threads to finish them."""
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_AHEAD.clear)
+
+
+def prefetch(files) -> None:
+    """Start decoding ``files`` on the pool now (the next orientation's frames while this one is
+    decoded); :func:`read_images` then takes the decoded frame, or the error, when its turn comes.
+    :func:`forget_prefetched` drops what was never asked for."""
+    from ._threads import pool
+
+    for f in files:
+        if f not in _AHEAD:
+            _AHEAD[f] = pool("read-frames").submit(read_image, f)
+
+
+def forget_prefetched(files=None) -> None:
+    """Drop the frames :func:`prefetch` decoded for ``files`` (default: all) and nobody read."""
+    for f in list(_AHEAD) if files is None else files:
+        _AHEAD.pop(f, None)
+
+
 def read_images(files):
     """:func:`read_image` of each of ``files``, decoded on a thread pool (OpenCV's decoders release
     the GIL; :mod:`unwrap._threads`) and yielded in order; a frame that cannot be read raises when
-    its turn comes."""
+    its turn comes. Frames :func:`prefetch` started are taken from there (once)."""
     from ._threads import pool
 
-    return pool("read-frames").map(read_image, files)
+    files = list(files)
+    ahead = [_AHEAD.pop(f, None) for f in files]
+    if not any(ahead):
+        return pool("read-frames").map(read_image, files)
+    rest = iter(pool("read-frames").map(read_image, [f for f, a in zip(files, ahead) if a is None]))
+    return (a.result() if a is not None else next(rest) for a in ahead)
 
 
 class FrameReader:

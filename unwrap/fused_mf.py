@@ -2,12 +2,13 @@
 
 ``mf_unwrap_stacks`` gives the result of the readable reference
 (:func:`unwrap.phase_shift.wrapped_phase` on each stack, then :func:`unwrap.temporal.mf_unwrap`
-with the AND of the phase-shift masks), but, for 8/16-bit stacks with numba installed, runs one
-compiled kernel (:mod:`unwrap._fused_kernel`) that reads the frames of every frequency once per
-pixel block, forms exact integer sums of the frames sharing a least-squares weight
+with the AND of the phase-shift masks), but, for 8/16-bit stacks, runs one compiled kernel
+(:mod:`unwrap._fused_kernel` with numba; its C replica :mod:`unwrap._fused_c`, first choice where the
+system has a C compiler: the same bits without numba's ~1 s start-up) that reads the frames of every
+frequency once per pixel block, forms exact integer sums of the frames sharing a least-squares weight
 (:func:`factor_weights`) and the float64 sums from them, and writes the absolute phase, fringe
 order, validity, physics prior and the highest frequency's A and B, multithreaded over pixel
-blocks. Otherwise (float input, torch, no numba) it runs the reference.
+blocks. Otherwise (float input, torch, neither a C compiler nor numba) it runs the reference.
 
 Agreement with the reference (tests/test_unwrap_fused.py: noisy 8/16-bit stacks with flat,
 dark, saturated, low-modulation and clipped pixels, unequal shifts, a real capture): ``valid``
@@ -68,8 +69,17 @@ class StackUnwrapped:
     fast: bool
 
 
+def native_kernel():
+    """The C replica of the kernel (:mod:`unwrap._fused_c`, loaded and checked once per process), or
+    None where it cannot be built (no C compiler, a cache that cannot be used)."""
+    from ._fused_c import kernel
+    return kernel(_kernel_weights)
+
+
 def fast_available() -> bool:
-    """True when numba is importable (the compiled kernel can run)."""
+    """True when a compiled kernel can run: the C replica (no numba imported), else numba's."""
+    if native_kernel() is not None:
+        return True
     try:
         from . import _fused_kernel  # noqa: F401
     except ImportError:
@@ -129,7 +139,7 @@ def mf_unwrap_stacks(stacks, frequencies, *, shifts=None, width=None, min_modula
 def _why_not_fast(stacks, f, width, saturation, valid_range):
     """None when the kernel applies, else the reason (a phrase)."""
     if not fast_available():
-        return "numba is not installed"
+        return "neither a C compiler nor numba is available"
     if any(type(s).__module__.startswith("torch") for s in stacks):
         return "torch tensors (the kernel reads numpy arrays)"
     arrays = [s for s in stacks if isinstance(s, np.ndarray)]
@@ -264,7 +274,7 @@ def _outputs(out, n_pix, n_lev):
 
 def _fused(stacks, f, shift_list, width, min_modulation, saturation, valid_range, levels,
            out=None):
-    from . import _fused_kernel as K
+    native = native_kernel()
     pix_shape = stacks[0].shape[1:]
     n_pix = int(np.prod(pix_shape))
     flat = tuple(np.ascontiguousarray(s).reshape(s.shape[0], n_pix) for s in stacks)
@@ -295,9 +305,14 @@ def _fused(stacks, f, shift_list, width, min_modulation, saturation, valid_range
     sum_type = np.empty(0, np.int16 if n_max * max_value < 2 ** 15 else np.int32)
     p_lo, p_hi = pattern_range(float(f[-1]), width)
     wrap = float(ladder_wrap_orders(f, f[0]) or 0)
-    K.mf_kernel(flat, sum_type, W, goff, grp_start, ent_n, ent_s, sum_all, ratios,
-                base_cut(f[0], width), sat, lo, hi, float(min_modulation or 0.0), kmax, p_lo, p_hi, wrap,
-                phase, order, valid, prior, A, B, lev_prior, lev_k)
+    args = (W, goff, grp_start, ent_n, ent_s, sum_all, ratios, base_cut(f[0], width), sat, lo, hi,
+            float(min_modulation or 0.0), kmax, p_lo, p_hi, wrap, phase, order, valid, prior, A, B, lev_prior, lev_k)
+    if native is not None:     # the same bits as numba's kernel, without importing numba (module docstring)
+        from ._fused_c import run
+        run(native, flat, *args)
+    else:
+        from . import _fused_kernel as K
+        K.mf_kernel(flat, sum_type, *args)
     r = lambda x: x.reshape(pix_shape)  # noqa: E731
     lev = [(float(f[i + 1]), r(lev_prior[i]), r(lev_k[i])) for i in range(n_lev)]
     res = Unwrapped(r(phase), r(order), r(valid), r(prior), float(f[-1]), "mf", lev)

@@ -23,10 +23,10 @@ import numpy as np
 
 from . import warmup
 from ._xp import wrap
-from .capture import Capture, FrameReader, OrientationCapture, load_capture
+from .capture import Capture, FrameReader, OrientationCapture, forget_prefetched, load_capture, prefetch
 from .consistency import check_priors, prior_check
 from .errors import UnwrapError
-from .fused_mf import mf_unwrap_stacks
+from .fused_mf import mf_unwrap_stacks, native_kernel
 from .graycode import binarize, complementary_gray_unwrap, gray_coarse_unwrap, gray_code_unwrap, gray_to_index
 from .methods import METHODS, PAIR_METHODS
 from .patterns import projector_coordinate
@@ -92,9 +92,10 @@ def check_min_modulation(value, dtype) -> float:
 
 
 def _kernel_cold() -> bool:
-    """True when the fused kernel is neither compiled in this process nor cached on disk."""
-    from .fused_mf import fast_available
-    if not fast_available():
+    """True when the fused kernel is neither compiled in this process nor cached on disk (numba's;
+    the C replica, where it loads, is never cold: its one compile, 1-2 s, is not worth a line)."""
+    from .fused_mf import fast_available, native_kernel
+    if native_kernel() is not None or not fast_available():
         return False
     from . import _fused_kernel
     if _fused_kernel.mf_kernel.signatures:
@@ -146,7 +147,7 @@ def _noise_sigma(stacks, sets, noise_sigma):
 
 def unwrap_orientation(oc: OrientationCapture, method: str, *, min_modulation=None, max_error_rate=None,
                        noise_sigma=None, check_prior: bool = True, camera_size=None,
-                       gray_min_contrast: float = 4.0, progress: bool = False) -> OrientationResult:
+                       gray_min_contrast: float = 4.0, progress: bool = False, then=()) -> OrientationResult:
     """Wrapped phases of every fringe set, then the chosen temporal method, for one orientation.
 
     ARGUMENTS
@@ -160,6 +161,8 @@ def unwrap_orientation(oc: OrientationCapture, method: str, *, min_modulation=No
     - check_prior: refuse a decode whose priors are not clustered near integers
       (:func:`unwrap.consistency.check_priors`: wrong ladder or phase-shift convention).
     - camera_size: (W, H) the frames must have.
+    - then: frames to start decoding (:func:`unwrap.capture.prefetch`) once this orientation's
+      phase-shift frames are read: the next orientation's, decoded while this one is.
     An orientation of Gray code only (no fringe sets) decodes with method "gray" alone (block
     centres, ``quantisation_px``; no reliability model, so no ``max_error_rate``).
     Refused (UnwrapError): mixed bit depth or size, no valid pixel, inconsistent priors.
@@ -181,10 +184,17 @@ def unwrap_orientation(oc: OrientationCapture, method: str, *, min_modulation=No
         return out
     sets = sorted(oc.sets, key=lambda s: s.frequency)
     warm = (warmup.fused_mf_for(sets[0].files[0], len(sets), max(len(s.files) for s in sets))
-            if method == "mf" and len(sets) >= 2 else None)   # the kernel loads while the frames are read
+            if method == "mf" and len(sets) >= 2 and native_kernel() is None
+            else None)   # numba's kernel loads while the frames are read (the C replica needs no warm-up)
     stacks = read_orientation(oc, reader, progress)
+    prefetch(then)
     model = _reliability_model(oc, method)
-    sigma = _noise_sigma(stacks, sets, noise_sigma)
+    if noise_sigma is None and max_error_rate is None:   # not needed before the decode: estimated beside it
+        from ._threads import pool
+        sigma_job = pool("noise").submit(_noise_sigma, stacks, sets, None)
+        sigma = None
+    else:
+        sigma_job, sigma = None, _noise_sigma(stacks, sets, noise_sigma)
     if max_error_rate is not None:
         if model is None:
             raise UnwrapError(f"max_error_rate: no reliability model for method {method!r} on this capture "
@@ -201,6 +211,8 @@ def unwrap_orientation(oc: OrientationCapture, method: str, *, min_modulation=No
         mm = check_min_modulation(min_modulation, stacks[0].dtype)
     out = _decode(oc, sets, stacks, reader, method, mm, gray_min_contrast, progress, warm)
     _check_some_valid(out, mm)
+    if sigma_job is not None:
+        sigma = sigma_job.result()
     out.min_modulation, out.noise_sigma = mm, sigma
     out.prior_check = prior_check(out.result) if method != "gray" else []
     if check_prior:
@@ -317,9 +329,16 @@ def unwrap_capture(folder, method: str | None = None, *, preset: str | None = No
     Options as :func:`unwrap_orientation`; the frames must have the description's camera size."""
     cap: Capture = load_capture(folder, preset, pose)
     method = method or cap.default_method
-    return each_orientation(cap, method, lambda oc: unwrap_orientation(
-        oc, method, min_modulation=min_modulation, max_error_rate=max_error_rate, noise_sigma=noise_sigma,
-        check_prior=check_prior, camera_size=cap.camera_size, progress=progress), progress)
+    ocs = list(cap.orientations.values())
+    after = {oc.orientation: [f for s in sorted(nxt.sets, key=lambda s: s.frequency) for f in s.files]
+             for oc, nxt in zip(ocs, ocs[1:])}     # the next orientation's frames, decoded while this one is
+    try:
+        return each_orientation(cap, method, lambda oc: unwrap_orientation(
+            oc, method, min_modulation=min_modulation, max_error_rate=max_error_rate, noise_sigma=noise_sigma,
+            check_prior=check_prior, camera_size=cap.camera_size, progress=progress,
+            then=after.get(oc.orientation, ())), progress)
+    finally:
+        forget_prefetched([f for files in after.values() for f in files])
 
 
 def each_orientation(cap: Capture, label: str, decode, progress: bool = False) -> dict:
@@ -333,9 +352,12 @@ def each_orientation(cap: Capture, label: str, decode, progress: bool = False) -
     return out
 
 
-def write_results(results: dict, out_dir, *, previews: bool = True, attrs: dict | None = None) -> Path:
+def write_results(results: dict, out_dir, *, previews: bool = True, attrs: dict | None = None,
+                  previews_beside: bool = True) -> Path:
     """Write ``unwrap.h5`` (DESIGN.md layout, :mod:`unwrap.phase_io`) and PNG previews into
-    ``out_dir``; returns the h5 path."""
+    ``out_dir``; returns the h5 path. ``previews_beside``: draw the previews on a thread while the
+    file is compressed (written after it either way); False draws them after the file, which keeps
+    their temporaries apart from the write's (the learned command's peak: docs/speed.md)."""
     groups = {}
     for o, r in results.items():
         u = r.result
@@ -347,13 +369,18 @@ def write_results(results: dict, out_dir, *, previews: bool = True, attrs: dict 
                                **r.extras},
                      "attrs": {"method": u.method, "width": r.width, "valid_fraction": float(np.mean(u.valid)),
                                **({} if r.quantisation_px is None else {"quantisation_px": r.quantisation_px})}}
+    drawn = None
+    if previews and previews_beside:     # drawn and encoded on a thread while the file is compressed
+        from ._threads import pool
+        from .previews import encode_previews
+        drawn = pool("previews").submit(encode_previews, results)
     path = write_phase_file(Path(out_dir) / "unwrap.h5", groups, attrs=attrs)
     if previews:
-        _previews(results, Path(out_dir))
+        _previews(results, Path(out_dir), None if drawn is None else drawn.result())
     return path
 
 
-def _previews(results, out: Path):
+def _previews(results, out: Path, encoded=None):
     """PNG previews, drawn with OpenCV (:mod:`unwrap.previews`)."""
     from .previews import write_previews
-    write_previews(results, out)
+    write_previews(results, out, encoded)

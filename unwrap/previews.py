@@ -51,14 +51,16 @@ def preview_image(o: str, r) -> np.ndarray:
     import cv2
 
     u = r.result
-    coord = projector_coordinate(np.asarray(u.phase), u.frequency, r.width)
-    order = np.where(u.valid, u.order, np.nan)
-    panels = [(coord, cv2.COLORMAP_VIRIDIS, f"projector coordinate ({o}) px"),
-              (order, cv2.COLORMAP_TURBO, f"fringe order k (f = {u.frequency:g})"),
-              (r.modulation, None, "modulation B")]
+    # each panel's map made when drawn (one map-sized temporary at a time: the previews are drawn
+    # beside the unwrap.h5 write); the orders in float32 directly (exact), as colour_panel reads them
+    panels = [(lambda: projector_coordinate(np.asarray(u.phase), u.frequency, r.width), cv2.COLORMAP_VIRIDIS,
+               f"projector coordinate ({o}) px"),
+              (lambda: np.where(u.valid, np.asarray(u.order).astype(np.float32), np.float32(np.nan)),
+               cv2.COLORMAP_TURBO, f"fringe order k (f = {u.frequency:g})"),
+              (lambda: r.modulation, None, "modulation B")]
     drawn = []
     for img, cmap, title in panels:
-        bgr, lo, hi = colour_panel(img, cmap)
+        bgr, lo, hi = colour_panel(img(), cmap)
         top = np.full((_TITLE_H, bgr.shape[1], 3), 255, np.uint8)
         cv2.putText(top, f"{title} [{lo:.4g}, {hi:.4g}]", (3, 15), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1,
                     cv2.LINE_AA)
@@ -75,15 +77,22 @@ def preview_image(o: str, r) -> np.ndarray:
     return np.vstack([body, foot])
 
 
-def write_previews(results: dict, out: Path) -> list:
-    """Write ``out/{o}_unwrap.png`` for every orientation of ``results`` ({o: OrientationResult}),
-    atomically (:func:`unwrap.safe_output.write_bytes`); returns the paths."""
+def encode_previews(results: dict) -> dict:
+    """``{orientation: PNG bytes}`` of every orientation of ``results`` ({o: OrientationResult})."""
     import cv2
 
-    paths = []
+    out = {}
     for o, r in results.items():
         ok, png = cv2.imencode(".png", preview_image(o, r))
         if not ok:
             raise OSError(f"cannot encode the preview of orientation {o}")
-        paths.append(write_bytes(Path(out) / f"{o}_unwrap.png", png.tobytes()))
-    return paths
+        out[o] = png.tobytes()
+    return out
+
+
+def write_previews(results: dict, out: Path, encoded: dict | None = None) -> list:
+    """Write ``out/{o}_unwrap.png`` for every orientation of ``results`` ({o: OrientationResult}),
+    atomically (:func:`unwrap.safe_output.write_bytes`); returns the paths. ``encoded``: the
+    :func:`encode_previews` of ``results`` when already made (drawn beside the ``unwrap.h5`` write)."""
+    encoded = encode_previews(results) if encoded is None else encoded
+    return [write_bytes(Path(out) / f"{o}_unwrap.png", encoded[o]) for o in results]

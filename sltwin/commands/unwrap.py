@@ -195,7 +195,7 @@ def run_batch(args, folders, decode) -> int:
     def decode_and_write(folder):
         res = decode(folder, progress=False)
         return res, write_results(res, out / names[folder], previews=not args.no_previews,
-                                  attrs={"capture": str(folder)})
+                                  attrs={"capture": str(folder)}, previews_beside=args.model is None)
     for item in stream(folders, decode_and_write, progress=not args.quiet,
                        label="unwrap" + (" (learned)" if args.model else "")):
         items.append(item)
@@ -236,7 +236,9 @@ def run(args) -> int:
             raise CommandError(str(exc)) from None
         return run_batch(args, folders, decode)
     results = decode(one)
+    # previews drawn beside the write, except with --model: there their temporaries beside the write's
+    # raised the peak by up to ~30 MB (docs/speed.md, session 10)
     path = write_results(results, args.output, previews=not args.no_previews,
-                         attrs={"capture": str(args.capture_dir[0])})
+                         attrs={"capture": str(args.capture_dir[0])}, previews_beside=args.model is None)
     report(results, path)
     return 0

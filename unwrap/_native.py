@@ -1,0 +1,100 @@
+"""Small C kernels compiled at run time by the system C compiler, cached on disk, loaded with ctypes.
+
+A kernel here replicates a numba kernel's float64 operations in C so that a process can skip
+numba's ~1 s start-up (import, lowering registries, cached machine code) without changing a bit
+of the result. :func:`build` compiles ``source`` once per machine without fast-math and with
+``-ffp-contract=off`` (no fused multiply-adds, as numba compiles) into the cache folder
+(``$SLTWIN_CACHE_DIR/unwrap_kernels``, else ``$XDG_CACHE_HOME/sltwin/unwrap_kernels``, else
+``~/.cache/sltwin/unwrap_kernels``) under a hash of the source, the compiler (``$CC``, which may
+carry arguments: ``ccache gcc``), the flags and the machine's architecture, and loads it (~1 ms).
+A library is loaded only from a folder and file this user owns and no one else can write: it runs
+inside this process. The caller checks the loaded functions' bits against a numpy replica on a
+small input before it uses them (a compiler that defaults to fast-math, a damaged file).
+
+The same scheme as :mod:`unwrap.learned._plane_c` (the features' plane fit), shared here for the
+traditional decode's fused kernel (:mod:`unwrap._fused_c`).
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import platform
+import shlex
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+FLAGS = ("-O3", "-march=native", "-fPIC", "-shared", "-fno-math-errno", "-fno-trapping-math", "-ffp-contract=off")
+"""Compiler flags: optimised for this CPU's vector units, no fast-math, no contraction of ``a * b + c``
+into one rounding (``-fno-trapping-math`` only lets selects be computed branch-free: floating-point
+traps, not values). Where the compiler refuses ``-march=native`` it is dropped."""
+
+
+def cpu_id() -> str:
+    """This machine's CPU as far as compiled code cares (``/proc/cpuinfo``'s model and feature flags;
+    elsewhere the platform's processor string): a library built with ``-march=native`` is cached per
+    CPU, so that a home folder shared by machines of different CPUs never loads a foreign build."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            lines = [ln for ln in f.read(1 << 16).splitlines() if ln.startswith(("model name", "flags", "Features"))]
+        return "\n".join(dict.fromkeys(lines))
+    except OSError:
+        return platform.processor()
+
+
+def cache_dir() -> Path:
+    """Where compiled libraries are kept (module docstring)."""
+    if os.environ.get("SLTWIN_CACHE_DIR"):
+        return Path(os.environ["SLTWIN_CACHE_DIR"]) / "unwrap_kernels"
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "sltwin" / "unwrap_kernels"
+
+
+def trusted(path: Path) -> bool:
+    """Whether ``path`` is this user's and writable by no one else (a shared cache folder such as
+    ``$SLTWIN_CACHE_DIR=/tmp`` is not used: the caller falls back to its other engine)."""
+    st = path.stat()
+    return st.st_uid == os.getuid() and not st.st_mode & 0o022
+
+
+def build(name: str, source: str, flags=FLAGS):
+    """The ``ctypes.CDLL`` of ``source`` compiled with ``flags`` (cached as ``NAME_HASH.so``), or
+    None where there is no C compiler, the compile fails or the cache is not this user's alone."""
+    import ctypes
+
+    try:
+        cc = shlex.split(os.environ.get("CC", "")) or [shutil.which("cc") or shutil.which("gcc")]
+    except ValueError:                                  # an unbalanced quote in $CC: no compiler
+        return None
+    if cc[0] is None:
+        return None
+    key = hashlib.sha256("\0".join((source, *cc, *flags, platform.machine(), cpu_id())).encode()).hexdigest()[:16]
+    folder = cache_dir()
+    lib = folder / f"{name}_{key}.so"
+    try:
+        if not lib.is_file() and not _compile(cc, flags, source, folder, name, lib) and "-march=native" in flags:
+            return build(name, source, tuple(x for x in flags if x != "-march=native"))
+        if not lib.is_file():
+            return None
+        if not (trusted(folder) and trusted(lib)):
+            return None
+        return ctypes.CDLL(str(lib))
+    except (OSError, ValueError, subprocess.SubprocessError):
+        return None
+
+
+def _compile(cc, flags, source, folder: Path, name: str, lib: Path) -> bool:
+    """Compile ``source`` into ``lib`` (atomically: another process may build it too); False when
+    the compiler fails."""
+    folder.mkdir(mode=0o755, parents=True, exist_ok=True)      # writable by this user only
+    with tempfile.TemporaryDirectory(dir=folder) as tmp:
+        src, out = Path(tmp) / f"{name}.c", Path(tmp) / f"{name}.so"
+        src.write_text(source)
+        proc = subprocess.run([*cc, *flags, "-o", str(out), str(src)], capture_output=True, timeout=120)
+        if proc.returncode != 0:
+            return False
+        os.chmod(out, 0o755)
+        os.replace(out, lib)
+    return True
+
