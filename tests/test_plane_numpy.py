@@ -249,7 +249,10 @@ def test_c_kernel_takes_a_compiler_with_arguments_and_refuses_one_that_changes_t
                    f"exec {gcc} \"$@\"\n")
     odd.chmod(0o755)
     assert _fresh_c_kernel(monkeypatch, tmp_path / "b", str(odd)) is None
-    assert list((tmp_path / "b" / "cache" / "unwrap_kernels").glob("*.so"))     # it was built, and refused
+    built = tmp_path / "b" / "cache" / "unwrap_kernels"
+    assert not list(built.glob("*.so"))                                   # built, refused, not cached
+    (note,) = built.glob("*.refused")
+    assert "bits differ" in note.read_text()
     assert _fresh_c_kernel(monkeypatch, tmp_path / "c", f'{gcc} "-O2') is None   # unbalanced quote: numpy
     (tmp_path / "file").write_text("")
     assert _fresh_c_kernel(monkeypatch, tmp_path / "file", gcc) is None          # cache under a regular file
@@ -272,3 +275,41 @@ def test_c_kernel_is_not_loaded_from_a_folder_others_can_write(monkeypatch, tmp_
     lib.chmod(0o755)
     assert _fresh_c_kernel(monkeypatch, tmp_path, gcc) is not None
 
+
+
+def test_c_kernel_rebuilds_a_damaged_library_remembers_a_refusal_and_sweeps_killed_builds(monkeypatch, tmp_path):
+    """A cached library that no longer loads is rebuilt (not refused for good); a compiler whose build
+    the check refused is not run again by the next process (its ``.refused`` note says why); a build
+    folder a killed compile left is removed once it is old, a young one (another process's build) kept."""
+    import os
+    import shutil
+    import time
+
+    gcc = shutil.which("gcc") or pytest.skip("no gcc here")
+    folder = tmp_path / "cache" / "unwrap_kernels"
+    assert _fresh_c_kernel(monkeypatch, tmp_path, gcc) is not None
+    (lib,) = folder.glob("*.so")
+    lib.write_bytes(b"not a shared object")
+    old, young = folder / "tmpkilled", folder / "tmpbuilding"
+    old.mkdir()
+    young.mkdir()
+    os.utime(old, (time.time() - 3600, time.time() - 3600))
+    assert _fresh_c_kernel(monkeypatch, tmp_path, gcc) is not None            # rebuilt in place
+    assert lib.read_bytes()[:4] == b"\x7fELF"
+    assert not old.exists() and young.exists()
+
+    calls = tmp_path / "calls"
+    odd = tmp_path / "oddcc"
+    odd.write_text("#!/bin/sh\necho run >> " + str(calls) + "\nfor a; do last=$a; done\n"
+                   "sed -i 's|out\\[i\\] = num / det;|out[i] = num / det * 1.0000000000001;|' \"$last\"\n"
+                   f"exec {gcc} \"$@\"\n")
+    odd.chmod(0o755)
+    assert _fresh_c_kernel(monkeypatch, tmp_path / "o", str(odd)) is None
+    assert _fresh_c_kernel(monkeypatch, tmp_path / "o", str(odd)) is None
+    assert calls.read_text().count("run") == 1                                # the refusal is remembered
+    failing = tmp_path / "failcc"
+    failing.write_text("#!/bin/sh\necho 'no such header' >&2\nexit 1\n")
+    failing.chmod(0o755)
+    assert _fresh_c_kernel(monkeypatch, tmp_path / "f", str(failing)) is None
+    (note,) = (tmp_path / "f" / "cache" / "unwrap_kernels").glob("*.refused")
+    assert "exited 1" in note.read_text() and "no such header" in note.read_text()

@@ -11,7 +11,8 @@ the source, the compiler (``$CC``, which may carry arguments: ``ccache gcc``), i
 machine's architecture. Same operations in the same order: the outputs are bitwise the compiled
 kernel's (tests/test_plane_numpy.py); each process checks that on a small frame against the numpy
 replica before using the library (a compiler that defaults to fast-math, a foreign or damaged file)
-and falls back to numpy where the bits differ.
+and falls back to numpy where the bits differ; a damaged cached file is rebuilt, a refused build is
+not cached but remembered (:func:`_build`).
 
 :func:`kernel` returns ``plane_filter_c(Phi, valid, r)``, or None where there is no C compiler or
 the cache cannot be written (the caller then runs the numpy replica).
@@ -164,10 +165,46 @@ def cache_dir() -> Path:
     return Path(base) / "sltwin" / "unwrap_kernels"
 
 
-def _build():
-    """The loaded library, compiling it unless cached; None when that cannot be done."""
+_STALE_S = 600.0
+"""Age (s) after which a build folder in the cache is a killed compile's (a compile times out at 120 s)."""
+
+
+def _bind(path: Path):
+    """``plane_filter`` of the library at ``path``, typed, if it loads and gives the numpy replica's
+    bits (:func:`_same_bits`); else None."""
     import ctypes
 
+    try:
+        f = ctypes.CDLL(str(path)).plane_filter
+    except (OSError, AttributeError):
+        return None
+    ptr, lng = ctypes.c_void_p, ctypes.c_long
+    f.argtypes, f.restype = [ptr, ptr, lng, lng, lng, lng, ptr, ptr, ptr], None
+    return f if _same_bits(f) else None
+
+
+def _sweep(folder: Path) -> None:
+    """Remove build folders a killed compile left (older than :data:`_STALE_S`; a younger one may be
+    another process's build in progress)."""
+    import time
+
+    for d in folder.glob("tmp*"):
+        try:
+            if d.is_dir() and time.time() - d.stat().st_mtime > _STALE_S:
+                shutil.rmtree(d, ignore_errors=True)
+        except OSError:
+            pass
+
+
+def _build():
+    """The loaded library, compiling it unless cached; None when that cannot be done.
+
+    A cached library that does not load or gives other bits (damaged, or built by another compiler
+    under the same name) is rebuilt. A build the check refuses, or a compiler that fails, leaves a
+    ``.refused`` file beside the library's name saying why, so later processes go straight to the
+    numpy replica instead of compiling again (delete it to retry; a compile that timed out leaves
+    none). The library is loaded and checked from its build folder before it is moved into place,
+    so a refused build is never cached."""
     try:
         cc = shlex.split(os.environ.get("CC", "")) or [shutil.which("cc") or shutil.which("gcc")]
     except ValueError:                                  # an unbalanced quote in $CC: no compiler
@@ -176,27 +213,38 @@ def _build():
         return None
     key = hashlib.sha256("\0".join((_SOURCE, *cc, *_FLAGS, platform.machine())).encode()).hexdigest()[:16]
     folder = cache_dir()
-    lib = folder / f"plane_filter_{key}.so"
+    lib, refused = folder / f"plane_filter_{key}.so", folder / f"plane_filter_{key}.refused"
     try:
-        if not lib.is_file():
-            folder.mkdir(mode=0o755, parents=True, exist_ok=True)      # writable by this user only
-            with tempfile.TemporaryDirectory(dir=folder) as tmp:
-                src, out = Path(tmp) / "plane.c", Path(tmp) / "plane.so"
-                src.write_text(_SOURCE)
-                proc = subprocess.run([*cc, *_FLAGS, "-o", str(out), str(src)], capture_output=True, timeout=120)
-                if proc.returncode != 0:
-                    return None
-                os.chmod(out, 0o755)
-                os.replace(out, lib)                  # atomic: another process may build it too
-        if not (_trusted(folder) and _trusted(lib)):
+        folder.mkdir(mode=0o755, parents=True, exist_ok=True)          # writable by this user only
+        if not _trusted(folder):
             return None
-        dll = ctypes.CDLL(str(lib))
-        f = dll.plane_filter
-    except (OSError, AttributeError, ValueError, subprocess.SubprocessError):
+        if lib.is_file():
+            if not _trusted(lib):
+                return None
+            f = _bind(lib)
+            if f is not None:
+                return f
+        if refused.is_file():
+            return None
+        _sweep(folder)
+        with tempfile.TemporaryDirectory(dir=folder) as tmp:
+            src, out = Path(tmp) / "plane.c", Path(tmp) / "plane.so"
+            src.write_text(_SOURCE)
+            proc = subprocess.run([*cc, *_FLAGS, "-o", str(out), str(src)], capture_output=True, timeout=120)
+            if proc.returncode == 0:
+                os.chmod(out, 0o755)
+                f = _bind(out)           # a path this process never loaded: not the refused file's handle
+            why = (f"{' '.join(cc)} exited {proc.returncode}: {proc.stderr.decode(errors='replace')[-500:]}"
+                   if proc.returncode else "the built library's bits differ from the numpy replica's")
+            if proc.returncode or f is None:
+                note = Path(tmp) / "refused"
+                note.write_text(why + "\n")
+                os.replace(note, refused)
+                return None
+            os.replace(out, lib)                  # atomic: another process may build it too
+            return f
+    except (OSError, ValueError, subprocess.SubprocessError):
         return None
-    ptr, lng = ctypes.c_void_p, ctypes.c_long
-    f.argtypes, f.restype = [ptr, ptr, lng, lng, lng, lng, ptr, ptr, ptr], None
-    return f if _same_bits(f) else None
 
 
 def _trusted(path: Path) -> bool:
