@@ -232,24 +232,24 @@ _LIB = []
 def _load(weights):
     """``{dtype: ctypes function}`` of the checked library, or None (module docstring); ``weights``:
     :func:`unwrap.fused_mf._kernel_weights` (passed in: this module imports nothing of fused_mf)."""
-    import ctypes
-
     from ._native import build
 
-    dll = build("fused_mf", source())
-    if dll is None:
-        return None
+    return build("fused_mf", source(), lambda dll: _bind(dll, weights))
+
+
+def _bind(dll, weights):
+    """The typed ``mf_range_*`` functions of ``dll`` if they give the numpy replica's bits, else None
+    (:func:`unwrap._native.build`'s check)."""
+    import ctypes
+
     ptr, lng, dbl = ctypes.c_void_p, ctypes.c_long, ctypes.c_double
     funcs = {}
-    try:
-        for dtype, tag in ((np.dtype(np.uint8), "u8"), (np.dtype(np.uint16), "u16")):
-            f = getattr(dll, f"mf_range_{tag}")
-            f.argtypes = [ctypes.c_int, ptr, ptr, ptr, lng, ptr, ptr, ptr, ptr, ptr, ptr, dbl, dbl, dbl, dbl, dbl, dbl,
-                          dbl, dbl, dbl, lng, lng, lng, ptr, ptr, ptr, ptr, ptr, ptr, lng, ptr, ptr]
-            f.restype = ctypes.c_int
-            funcs[dtype] = f
-    except AttributeError:
-        return None
+    for dtype, tag in ((np.dtype(np.uint8), "u8"), (np.dtype(np.uint16), "u16")):
+        f = getattr(dll, f"mf_range_{tag}")            # AttributeError: not this library (build: None)
+        f.argtypes = [ctypes.c_int, ptr, ptr, ptr, lng, ptr, ptr, ptr, ptr, ptr, ptr, dbl, dbl, dbl, dbl, dbl, dbl,
+                      dbl, dbl, dbl, lng, lng, lng, ptr, ptr, ptr, ptr, ptr, ptr, lng, ptr, ptr]
+        f.restype = ctypes.c_int
+        funcs[dtype] = f
     return funcs if _same_bits(funcs, weights) else None
 
 

@@ -58,11 +58,46 @@ def trusted(path: Path) -> bool:
     return st.st_uid == os.getuid() and not st.st_mode & 0o022
 
 
-def build(name: str, source: str, flags=FLAGS):
-    """The ``ctypes.CDLL`` of ``source`` compiled with ``flags`` (cached as ``NAME_HASH.so``), or
-    None where there is no C compiler, the compile fails or the cache is not this user's alone."""
+STALE_S = 600.0
+"""Age (s) after which a build folder in the cache is a killed compile's (a compile times out at 120 s)."""
+
+
+def _sweep(folder: Path) -> None:
+    """Remove build folders a killed compile left (older than :data:`STALE_S`; a younger one may be
+    another process's build in progress)."""
+    import time
+
+    for d in folder.glob("tmp*"):
+        try:
+            if d.is_dir() and time.time() - d.stat().st_mtime > STALE_S:
+                shutil.rmtree(d, ignore_errors=True)
+        except OSError:
+            pass
+
+
+def _open(path: Path, check):
+    """``check(ctypes.CDLL(path))``, or None where the library does not load or ``check`` refuses it."""
     import ctypes
 
+    try:
+        return check(ctypes.CDLL(str(path)))
+    except (OSError, AttributeError):
+        return None
+
+
+def build(name: str, source: str, check=None, flags=FLAGS):
+    """``check(dll)`` of ``source`` compiled with ``flags`` and cached as ``NAME_HASH.so`` (``check``
+    None: the ``ctypes.CDLL`` itself), or None where there is no C compiler, the compile fails, the
+    cache is not this user's alone or ``check`` returns None (its bits are not the replica's).
+
+    A cached library that does not load or that ``check`` refuses (damaged, or built by another
+    compiler under the same name) is rebuilt. A build ``check`` refuses, or a compiler that fails,
+    leaves ``NAME_HASH.refused`` saying why, so that later processes go straight to their fallback
+    instead of compiling again (delete it to retry; a compile that timed out or a compiler that
+    cannot be run leaves none). A new build is loaded and checked in its build folder before it is
+    moved into place: a refused build is never cached. Build folders a killed compile left are swept
+    after :data:`STALE_S`."""
+    check = check or (lambda dll: dll)
     try:
         cc = shlex.split(os.environ.get("CC", "")) or [shutil.which("cc") or shutil.which("gcc")]
     except ValueError:                                  # an unbalanced quote in $CC: no compiler
@@ -71,30 +106,38 @@ def build(name: str, source: str, flags=FLAGS):
         return None
     key = hashlib.sha256("\0".join((source, *cc, *flags, platform.machine(), cpu_id())).encode()).hexdigest()[:16]
     folder = cache_dir()
-    lib = folder / f"{name}_{key}.so"
+    lib, refused = folder / f"{name}_{key}.so", folder / f"{name}_{key}.refused"
     try:
-        if not lib.is_file() and not _compile(cc, flags, source, folder, name, lib) and "-march=native" in flags:
-            return build(name, source, tuple(x for x in flags if x != "-march=native"))
-        if not lib.is_file():
+        folder.mkdir(mode=0o755, parents=True, exist_ok=True)      # writable by this user only
+        if not trusted(folder):
             return None
-        if not (trusted(folder) and trusted(lib)):
+        if lib.is_file():
+            if not trusted(lib):
+                return None
+            got = _open(lib, check)
+            if got is not None:
+                return got
+        if refused.is_file():
             return None
-        return ctypes.CDLL(str(lib))
+        _sweep(folder)
+        with tempfile.TemporaryDirectory(dir=folder) as tmp:
+            src, out = Path(tmp) / f"{name}.c", Path(tmp) / f"{name}.so"
+            src.write_text(source)
+            proc = subprocess.run([*cc, *flags, "-o", str(out), str(src)], capture_output=True, timeout=120)
+            if proc.returncode and "-march=native" in flags:       # a compiler that refuses it
+                return build(name, source, check, tuple(x for x in flags if x != "-march=native"))
+            got = None
+            if proc.returncode == 0:
+                os.chmod(out, 0o755)
+                got = _open(out, check)     # a path this process never loaded: not a refused file's handle
+            if got is None:
+                note = Path(tmp) / "refused"
+                note.write_text(f"{' '.join(cc)} exited {proc.returncode}: "
+                                f"{proc.stderr.decode(errors='replace')[-500:]}\n" if proc.returncode else
+                                "the built library failed its check (its bits differ from the replica's)\n")
+                os.replace(note, refused)
+                return None
+            os.replace(out, lib)                  # atomic: another process may build it too
+            return got
     except (OSError, ValueError, subprocess.SubprocessError):
         return None
-
-
-def _compile(cc, flags, source, folder: Path, name: str, lib: Path) -> bool:
-    """Compile ``source`` into ``lib`` (atomically: another process may build it too); False when
-    the compiler fails."""
-    folder.mkdir(mode=0o755, parents=True, exist_ok=True)      # writable by this user only
-    with tempfile.TemporaryDirectory(dir=folder) as tmp:
-        src, out = Path(tmp) / f"{name}.c", Path(tmp) / f"{name}.so"
-        src.write_text(source)
-        proc = subprocess.run([*cc, *flags, "-o", str(out), str(src)], capture_output=True, timeout=120)
-        if proc.returncode != 0:
-            return False
-        os.chmod(out, 0o755)
-        os.replace(out, lib)
-    return True
-

@@ -5,28 +5,17 @@ Why: the numpy replica (:mod:`unwrap.learned._plane_numpy`) spares a one-capture
 the same loops in C take ~10-20 ms a box and load in ~1 ms. The source below is
 ``_plane_kernel``'s functions line for line (one thread: no ``prange``), compiled once by the
 system C compiler without fast-math and with ``-ffp-contract=off`` (no fused multiply-adds, as
-numba compiles), and cached on disk (``$SLTWIN_CACHE_DIR/unwrap_kernels``, else
-``$XDG_CACHE_HOME/sltwin/unwrap_kernels``, else ``~/.cache/sltwin/unwrap_kernels``) under a hash of
-the source, the compiler (``$CC``, which may carry arguments: ``ccache gcc``), its flags and the
-machine's architecture. Same operations in the same order: the outputs are bitwise the compiled
+numba compiles), and cached on disk by :func:`unwrap._native.build` (the same cache and rules as the
+traditional decode's fused kernel, :mod:`unwrap._fused_c`). Same operations in the same order: the outputs are bitwise the compiled
 kernel's (tests/test_plane_numpy.py); each process checks that on a small frame against the numpy
 replica before using the library (a compiler that defaults to fast-math, a foreign or damaged file)
-and falls back to numpy where the bits differ; a damaged cached file is rebuilt, a refused build is
-not cached but remembered (:func:`_build`).
+and falls back to numpy where the bits differ.
 
 :func:`kernel` returns ``plane_filter_c(Phi, valid, r)``, or None where there is no C compiler or
 the cache cannot be written (the caller then runs the numpy replica).
 """
 from __future__ import annotations
 
-import hashlib
-import os
-import platform
-import shlex
-import shutil
-import subprocess
-import tempfile
-from pathlib import Path
 
 import numpy as np
 
@@ -157,102 +146,23 @@ void plane_filter(const double *Phi, const unsigned char *valid, long H, long W,
 _LIB = []
 
 
-def cache_dir() -> Path:
-    """Where the compiled library is kept (module docstring)."""
-    if os.environ.get("SLTWIN_CACHE_DIR"):
-        return Path(os.environ["SLTWIN_CACHE_DIR"]) / "unwrap_kernels"
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "sltwin" / "unwrap_kernels"
-
-
-_STALE_S = 600.0
-"""Age (s) after which a build folder in the cache is a killed compile's (a compile times out at 120 s)."""
-
-
-def _bind(path: Path):
-    """``plane_filter`` of the library at ``path``, typed, if it loads and gives the numpy replica's
-    bits (:func:`_same_bits`); else None."""
+def _bind(dll):
+    """``plane_filter`` of ``dll``, typed, if it gives the numpy replica's bits (:func:`_same_bits`);
+    else None (:func:`unwrap._native.build`'s check)."""
     import ctypes
 
-    try:
-        f = ctypes.CDLL(str(path)).plane_filter
-    except (OSError, AttributeError):
-        return None
+    f = dll.plane_filter
     ptr, lng = ctypes.c_void_p, ctypes.c_long
     f.argtypes, f.restype = [ptr, ptr, lng, lng, lng, lng, ptr, ptr, ptr], None
     return f if _same_bits(f) else None
 
 
-def _sweep(folder: Path) -> None:
-    """Remove build folders a killed compile left (older than :data:`_STALE_S`; a younger one may be
-    another process's build in progress)."""
-    import time
-
-    for d in folder.glob("tmp*"):
-        try:
-            if d.is_dir() and time.time() - d.stat().st_mtime > _STALE_S:
-                shutil.rmtree(d, ignore_errors=True)
-        except OSError:
-            pass
-
-
 def _build():
-    """The loaded library, compiling it unless cached; None when that cannot be done.
+    """The checked library's function, compiling it unless cached (:func:`unwrap._native.build`:
+    a damaged cached file rebuilt, a refused build remembered); None when that cannot be done."""
+    from .._native import build
 
-    A cached library that does not load or gives other bits (damaged, or built by another compiler
-    under the same name) is rebuilt. A build the check refuses, or a compiler that fails, leaves a
-    ``.refused`` file beside the library's name saying why, so later processes go straight to the
-    numpy replica instead of compiling again (delete it to retry; a compile that timed out leaves
-    none). The library is loaded and checked from its build folder before it is moved into place,
-    so a refused build is never cached."""
-    try:
-        cc = shlex.split(os.environ.get("CC", "")) or [shutil.which("cc") or shutil.which("gcc")]
-    except ValueError:                                  # an unbalanced quote in $CC: no compiler
-        return None
-    if cc[0] is None:
-        return None
-    key = hashlib.sha256("\0".join((_SOURCE, *cc, *_FLAGS, platform.machine())).encode()).hexdigest()[:16]
-    folder = cache_dir()
-    lib, refused = folder / f"plane_filter_{key}.so", folder / f"plane_filter_{key}.refused"
-    try:
-        folder.mkdir(mode=0o755, parents=True, exist_ok=True)          # writable by this user only
-        if not _trusted(folder):
-            return None
-        if lib.is_file():
-            if not _trusted(lib):
-                return None
-            f = _bind(lib)
-            if f is not None:
-                return f
-        if refused.is_file():
-            return None
-        _sweep(folder)
-        with tempfile.TemporaryDirectory(dir=folder) as tmp:
-            src, out = Path(tmp) / "plane.c", Path(tmp) / "plane.so"
-            src.write_text(_SOURCE)
-            proc = subprocess.run([*cc, *_FLAGS, "-o", str(out), str(src)], capture_output=True, timeout=120)
-            if proc.returncode == 0:
-                os.chmod(out, 0o755)
-                f = _bind(out)           # a path this process never loaded: not the refused file's handle
-            why = (f"{' '.join(cc)} exited {proc.returncode}: {proc.stderr.decode(errors='replace')[-500:]}"
-                   if proc.returncode else "the built library's bits differ from the numpy replica's")
-            if proc.returncode or f is None:
-                note = Path(tmp) / "refused"
-                note.write_text(why + "\n")
-                os.replace(note, refused)
-                return None
-            os.replace(out, lib)                  # atomic: another process may build it too
-            return f
-    except (OSError, ValueError, subprocess.SubprocessError):
-        return None
-
-
-def _trusted(path: Path) -> bool:
-    """Whether ``path`` is this user's and writable by no one else: a library loaded from it runs
-    inside this process, so a cache folder others can write to (``$SLTWIN_CACHE_DIR=/tmp``, a
-    shared folder) is not used (the numpy replica runs)."""
-    st = path.stat()
-    return st.st_uid == os.getuid() and not st.st_mode & 0o022
+    return build("plane_filter", _SOURCE, _bind, flags=_FLAGS)
 
 
 def _same_bits(f) -> bool:
