@@ -168,6 +168,9 @@ def test_the_shipped_gate_lies_on_the_calibration_grid_above_the_models_no_cue_f
     speaks (a refit that moves that floor must move the grid too, or the gate's "sure" set changes)."""
     from bench.spatial_unwrap import CONF_GRID, P_WRONG_GRID
 
+    for grid in (P_WRONG_GRID, CONF_GRID):
+        assert all(a < b for a, b in zip(grid, grid[1:])), grid      # a grid, each point once
+    assert 0.0 <= CONF_GRID[0] and CONF_GRID[-1] < 1.0                # probabilities of the new label
     for row, g in GATE.items():
         assert g["min_p_wrong"] in P_WRONG_GRID, row
         assert g["min_confidence"] in CONF_GRID, row

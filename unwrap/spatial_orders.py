@@ -71,9 +71,11 @@ DEFAULTS = {"smoothness": 4.0, "outlier": 0.2, "sigma_floor": 0.01, "smoothness_
 #: fitted on those and the interreflection scenes of decision_error_val.toml, on which no gate of
 #: this form meets the rule: docs/learned.md) with every scene's broken orders (right -> wrong) at
 #: most 5 % of its fixed ones (``bench.spatial_unwrap.BREAK_RATIO``). Recalibrated for the shipped
-#: width-8 network (docs/learned.md, "The never-worse gate recalibrated for the width-8 model").
+#: width-8 network on a finer confidence grid (learned: 0.85, whose worst validation scene breaks
+#: 4.8 % of its fixes against the 5 % allowed: a thin margin; docs/learned.md, "The never-worse
+#: gate recalibrated for the width-8 model").
 GATE = {"Graph cut": {"min_p_wrong": 3e-3, "min_confidence": 0.0},
-        "Learned": {"min_p_wrong": 3e-3, "min_confidence": 0.9},
+        "Learned": {"min_p_wrong": 3e-3, "min_confidence": 0.85},
         "Learned + graph cut": {"min_p_wrong": 3e-3, "min_confidence": 0.5}}
 
 
