@@ -7,7 +7,8 @@ convolution then the normalisation; channels-last runs oneDNN's convolutions on 
 blocks instead of reordering each layer's input (for this 0.1-0.5 M-parameter U-Net the reorders
 cost more than the convolutions; docs/speed.md, "The learned path on 2 CPU cores"). The logits
 move by ~1e-5, so a pixel's order can change only where two classes' logits tie within that
-(counted by ``python -m bench.learned_gpu --cpu-variants`` on the real captures).
+(counted on the real captures by ``python -m bench.learned_gpu --frames FRAMES.npz``, its
+"cpu fp32 channels-last folded" rows).
 
 Channels-last pays most when the input already lies in that layout (the conversion of an NCHW
 input costs ~10 ms at 640 x 480): :func:`unwrap.learned.fast_features.make_inputs` writes the
