@@ -45,6 +45,14 @@ MIN_PERIOD_PX = 3.0
 #: Ratio factor (relative to training) beyond which a warning / a refusal happens.
 WARN_RATIO, MAX_RATIO, MIN_RATIO = 2.5, 4.0, 1.0 / 8.0
 
+#: Frame sizes whose forward has been preceded by a heap trim in this process. Once per size: the
+#: next frame of a size reuses the freed blocks of the last one, and trimming them again would
+#: fault them back in (~10k page faults, ~40 MB, per 640 x 480 frame: more system time than the
+#: decode). ``calib unwrap --model`` at 900 x 700 peaks at the same ~500 MB with a trim per
+#: orientation, one per size, or none (docs/speed.md, "The learned path on 2 CPU cores").
+_TRIMMED: dict = {}     # (H, W) -> whether glibc released memory then
+
+
 def resolve_model(model, device="cpu"):
     """(network in eval mode, checkpoint dict) of a torch model: "learned", a ``.pt`` path or a
     (model, ck) pair (loaded once per process: :func:`unwrap.learned.runtime.load_predictor`)."""
@@ -202,7 +210,8 @@ def unwrap_learned(method: str, phase_low, phase_high, modulation_low, modulatio
     H, W = ok.shape
     if hasattr(pred, "prepare"):       # as the graph takes it (already padded: no copy)
         x = pred.prepare(x)
-    trim_heap()                        # the forward is the peak: the maps freed so far leave the heap first
+    if (H, W) not in _TRIMMED:         # the forward is the peak: the maps freed so far leave the heap
+        _TRIMMED[(H, W)] = trim_heap()  # first, once per frame size (:data:`_TRIMMED`)
     logits = pred.logits(x)[..., :H, :W]
     del x                                                            # the input (C x H x W float32) is not needed after
     order, conf = FF.decode(logits, order_trad, ok, f_hi, kind, K, wrap_orders(method, f_lo, f_hi))
