@@ -224,31 +224,7 @@ def make_inputs(kind: str, method: str, prior, phase_low, phase_high, modulation
     X = x[0, :, :H, :W]
     phi_h = ph
     if kind == "physics":
-        p = pr
-        c = at["prior"].start
-        np.subtract(p, _round_order32(p), out=X[c])
-        X[c] *= _F32(2.0)
-        trad = np.asarray(order_traditional).astype(_F32)
-        f_l, f_h = (float(f) for f in frequencies)
-        priors, usable = smoothed_priors(method, pl.astype(np.float64), ph.astype(np.float64), f_l, f_h, ok,
-                                         windows)
-        period = BW.wrap_orders(method, f_l, f_h) if usable else None
-        for i, w in enumerate(windows):
-            s, d = at["smoothed"].start + i, at["disagreement"].start + i
-            ps = (priors[int(w) | 1] if usable else p.astype(np.float64)).astype(_F32)
-            if period:              # on the traditional order's window (the beat may wrap in the image)
-                ps = BW.nearest_branch(ps, trad, period)
-            ps[bad] = zero
-            rs = _round_order32(ps)
-            np.subtract(ps, rs, out=X[s])
-            X[s] *= _F32(2.0)
-            if usable:
-                rs -= trad
-                rs /= _F32(2.0)
-                np.clip(rs, _F32(-1.0), _F32(1.0), out=X[d])
-                X[d][bad] = zero
-            else:
-                X[d] = zero
+        _prior_channels(X, at, method, pr, pl, ph, order_traditional, ok, frequencies, windows)
     else:
         c = at["phase_low"].start
         np.multiply(np.sin(pl), v, out=X[c])
@@ -268,6 +244,36 @@ def make_inputs(kind: str, method: str, prior, phase_low, phase_high, modulation
     if layout == "nhwc":
         x = to_nhwc(x)
     return x, ok
+
+
+def _prior_channels(X, at, method, p, pl, ph, order_traditional, ok, frequencies, windows) -> None:
+    """The physics-aware model's prior channels of :func:`make_inputs`, written into ``X`` (C, H, W):
+    the prior's fraction, and per window the smoothed prior's fraction and its disagreement with
+    the traditional order (``p``, ``pl``, ``ph``: the cleaned float32 prior and phases)."""
+    zero, bad = _F32(0.0), ~ok
+    c = at["prior"].start
+    np.subtract(p, _round_order32(p), out=X[c])
+    X[c] *= _F32(2.0)
+    trad = np.asarray(order_traditional).astype(_F32)
+    f_l, f_h = (float(f) for f in frequencies)
+    priors, usable = smoothed_priors(method, pl.astype(np.float64), ph.astype(np.float64), f_l, f_h, ok, windows)
+    period = BW.wrap_orders(method, f_l, f_h) if usable else None
+    for i, w in enumerate(windows):
+        s, d = at["smoothed"].start + i, at["disagreement"].start + i
+        ps = (priors[int(w) | 1] if usable else p.astype(np.float64)).astype(_F32)
+        if period:              # on the traditional order's window (the beat may wrap in the image)
+            ps = BW.nearest_branch(ps, trad, period)
+        ps[bad] = zero
+        rs = _round_order32(ps)
+        np.subtract(ps, rs, out=X[s])
+        X[s] *= _F32(2.0)
+        if usable:
+            rs -= trad
+            rs /= _F32(2.0)
+            np.clip(rs, _F32(-1.0), _F32(1.0), out=X[d])
+            X[d][bad] = zero
+        else:
+            X[d] = zero
 
 
 #: Memory layouts of :func:`make_inputs`' result (both index as (1, C, H, W)).
