@@ -75,11 +75,15 @@ from unwrap.memory import trim_heap
 from unwrap.temporal import decode_pair
 
 repeats = int(sys.argv[2])
-def best(f):
+cpu = {}
+def best(f, key=None):
     f()
-    ts = []
+    ts, cs = [], []
     for _ in range(repeats):
-        t = time.perf_counter(); f(); ts.append(time.perf_counter() - t)
+        t, c = time.perf_counter(), time.thread_time(); f()
+        ts.append(time.perf_counter() - t); cs.append(time.thread_time() - c)
+    if key:
+        cpu[key] = 1e3 * min(cs)
     return 1e3 * min(ts)
 
 stacks, phi, mods, valid = speed_scene((480, 640))
@@ -95,20 +99,23 @@ z = pred.logits(x)[..., :480, :640]
 K = int(pred.arch["max_correction"])
 out = {"layout": layout, "threads": torch.get_num_threads()}
 out["range check (fringe period)"] = best(lambda: I.check_frequency_range(pred.meta, "mf", f, phi[1], valid,
-                                                                          on_outside="ignore"))
-out["traditional decode (prior, orders)"] = best(lambda: decode_pair("mf", phi[0], phi[1], *f, width, valid))
-out["input features"] = best(feats)
+                                                                          on_outside="ignore"), "range check (fringe period)")
+out["traditional decode (prior, orders)"] = best(lambda: decode_pair("mf", phi[0], phi[1], *f, width, valid),
+                                                 "traditional decode (prior, orders)")
+out["input features"] = best(feats, "input features")
 Phi = FF.coarse_phase("mf", phi[0].astype(np.float32).astype(np.float64), phi[1], *f, width)[0]
-out["  of which the two plane fits"] = best(lambda: FF.plane_filter(Phi, ok2))
+out["  of which the two plane fits"] = best(lambda: FF.plane_filter(Phi, ok2), "  of which the two plane fits")
 out["heap trim"] = best(trim_heap)
 out["forward, torch"] = best(lambda: pred.logits(x))
-out["decode (softmax, class, orders)"] = best(lambda: FF.decode(z, trad, ok2, f[1], "physics", K, None))
+out["decode (softmax, class, orders)"] = best(lambda: FF.decode(z, trad, ok2, f[1], "physics", K, None),
+                                              "decode (softmax, class, orders)")
 whole = lambda m: (lambda: I.unwrap_learned("mf", phi[0], phi[1], mods[0], mods[1], valid, f, width=width,
                                             model=m, on_outside="ignore"))
 out["whole path, torch"] = best(whole(pred))
 xo = ort.prepare(np.ascontiguousarray(x))
 out["forward, onnxruntime"] = best(lambda: ort.logits(xo))
 out["whole path, onnxruntime"] = best(whole(ort))
+out["cpu"] = cpu
 print("STAGES " + json.dumps(out))
 '''
 
@@ -132,7 +139,10 @@ def stages_in(root: Path, onnx_path: Path, repeats: int, threads: int) -> dict:
 
 def _merge_min(acc: dict, new: dict) -> dict:
     for k, v in new.items():
-        acc[k] = min(acc[k], v) if isinstance(v, float) and k in acc else v
+        if isinstance(v, dict):
+            _merge_min(acc.setdefault(k, {}), v)
+        else:
+            acc[k] = min(acc[k], v) if isinstance(v, float) and k in acc else v
     return acc
 
 
@@ -187,11 +197,16 @@ def stage_table(args) -> None:
           f"threads; load average {load0:.1f} -> {os.getloadavg()[0]:.1f}; minimum of {args.repeats} calls x "
           f"{args.rounds} processes per checkout; input layout after: {after.get('layout')}, before: "
           f"{before.get('layout', '-')})\n")
-    print("| stage | after ms | before ms | after / before |\n|---|---:|---:|---:|")
+    print("| stage | after ms | before ms | after / before | after CPU ms | before CPU ms | CPU after / before |\n"
+          "|---|---:|---:|---:|---:|---:|---:|")
     fmt = lambda v, spec=".1f": "-" if v is None or v != v else format(v, spec)  # noqa: E731
+    ca, cb = after.get("cpu", {}), before.get("cpu", {})
     for k in STAGES:
-        a, b = after.get(k), before.get(k)
-        print(f"| {k} | {fmt(a)} | {fmt(b)} | {fmt(a / b if a and b else None, '.2f')} |")
+        a, b, c, d = after.get(k), before.get(k), ca.get(k), cb.get(k)
+        print(f"| {k} | {fmt(a)} | {fmt(b)} | {fmt(a / b if a and b else None, '.2f')} | {fmt(c)} | {fmt(d)} | "
+              f"{fmt(c / d if c and d else None, '.2f')} |")
+    print("\n(CPU: the stage's own thread time, single-threaded numpy stages only: what the load does not inflate "
+          "as much as the wall time)")
     for tag, d in (("after", after), ("before", before)):
         if d.get("forward, torch"):
             print(f"\n{tag}: whole path / forward: torch {d['whole path, torch'] / d['forward, torch']:.2f}x, "
