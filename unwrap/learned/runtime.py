@@ -6,7 +6,9 @@ to logits (1, K, H, W) and carries what the checks need: ``arch`` (kind, max_cor
 ``meta`` (the trained frequency pairs). :func:`load_predictor` caches it by path, size and
 modification time, so orientations and captures of one process share one loaded model.
 
-- torch: the network in eval mode under ``torch.inference_mode`` (no autograd), on ``device``
+- torch: the network in eval mode under ``torch.inference_mode`` (no autograd; on the CPU in
+  float32 a channels-last copy with BatchNorm folded, its input written in that layout:
+  :class:`TorchPredictor`), on ``device``
   ("cpu", "cuda", or "auto": CUDA where torch sees one), in ``precision`` "fp32" (default), or
   "fp16" / "bf16" under autocast (the convolutions in half precision, the norms and the logits in
   float32; fp16 only on CUDA). Half precision can move a pixel's order where two classes' logits
