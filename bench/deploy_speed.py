@@ -147,16 +147,20 @@ def learned_rows(onnx_path: Path, repeats: int) -> dict:
     stacks, phi, mods, valid = speed_scene((480, 640))
     torch_pred, ort_pred = load_predictor("learned"), load_predictor(onnx_path)
     prior, trad, ok = traditional("mf", phi[0], phi[1], 1.0, 48.0, 912.0, valid)
+    # each forward's input in the layout its path builds (torch on the CPU: channels-last, (H, W, C) memory)
+    lay = {"layout": getattr(torch_pred, "input_layout", "nchw"), "multiple": getattr(torch_pred, "multiple", 1)}
     x, _ = FF.make_inputs("physics", "mf", prior, phi[0], phi[1], mods[0], mods[1], trad, ok, (1, 48))
+    xt, _ = FF.make_inputs("physics", "mf", prior, phi[0], phi[1], mods[0], mods[1], trad, ok, (1, 48), **lay)
     import torch
 
-    out = {"threads_torch": torch.get_num_threads(), "providers_ort": ",".join(ort_pred.providers)}
+    out = {"threads_torch": torch.get_num_threads(), "providers_ort": ",".join(ort_pred.providers),
+           "layout_torch": lay["layout"]}
     out["traditional_from_frames_ms"] = _best(lambda: mf_unwrap_stacks(stacks, (1, 48), width=912), repeats)
     out["traditional_from_phases_ms"] = _best(lambda: mf_unwrap(phi, (1, 48), width=912, valid=valid), repeats)
     out["filtered_ms"] = _best(lambda: filtered_order("mf", phi[0], phi[1], (1, 48), valid, width=912), repeats)
     out["features_ms"] = _best(lambda: FF.make_inputs("physics", "mf", prior, phi[0], phi[1], mods[0], mods[1], trad,
-                                                      ok, (1, 48)), repeats)
-    out["forward_torch_ms"] = _best(lambda: torch_pred.logits(x), repeats)
+                                                      ok, (1, 48), **lay), repeats)
+    out["forward_torch_ms"] = _best(lambda: torch_pred.logits(xt), repeats)
     out["forward_ort_ms"] = _best(lambda: ort_pred.logits(x), repeats)
     for name, model in (("torch", torch_pred), ("ort", ort_pred)):
         out[f"whole_{name}_ms"] = _best(lambda m=model: unwrap_learned("mf", phi[0], phi[1], mods[0], mods[1], valid,
@@ -164,7 +168,7 @@ def learned_rows(onnx_path: Path, repeats: int) -> dict:
                                                                        on_outside="ignore"), repeats)
     # everything but the forward (its logits stored): what the whole path adds, without the
     # forward's own noise on a shared machine
-    stored = _StoredLogits(ort_pred, ort_pred.logits(x))
+    stored = _StoredLogits(torch_pred, torch_pred.logits(xt))     # the torch path's layouts
     out["whole_minus_forward_ms"] = _best(lambda: unwrap_learned("mf", phi[0], phi[1], mods[0], mods[1], valid, (1, 48),
                                                                  width=912, model=stored, on_outside="ignore"), repeats)
     return out
@@ -177,6 +181,7 @@ class _StoredLogits:
 
     def __init__(self, pred, logits):
         self.arch, self.meta, self._y = pred.arch, pred.meta, logits
+        self.input_layout, self.multiple = getattr(pred, "input_layout", "nchw"), getattr(pred, "multiple", 1)
 
     def logits(self, x):
         return self._y
@@ -264,8 +269,8 @@ def batch_rows(args, tmp: Path, onnx_path: Path) -> None:
 _LEARNED_ROWS = (("traditional_from_frames_ms", "traditional TPU from frames (anchor)", "traditional_from_frames_ms"),
                  ("traditional_from_phases_ms", "traditional TPU from phases", "traditional_from_phases_ms"),
                  ("filtered_ms", "filtered 15x15 baseline", "filtered_ms"),
-                 ("features_ms", "input features (both plane fits, all channels)", None),
-                 ("forward_torch_ms", "network forward, torch", "network_forward_ms"),
+                 ("features_ms", "input features (both plane fits, all channels; torch's layout)", None),
+                 ("forward_torch_ms", "network forward, torch (as the path runs it)", "network_forward_ms"),
                  ("forward_ort_ms", "network forward, onnxruntime", None),
                  ("whole_torch_ms", "whole learned path, torch", "learned_total_ms"),
                  ("whole_ort_ms", "whole learned path, onnxruntime", None),

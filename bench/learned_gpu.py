@@ -14,7 +14,9 @@ between rows of one run are what to read; the machine (CPU model, cores, GPU nam
 Rows, per model:
 
 - **forward** of one 640 x 480 frame (zeros; the network's cost does not depend on the values):
-  torch on the CPU with 2 threads (the deployment target of docs/speed.md) and with all cores,
+  torch on the CPU with 2 threads (the deployment target of docs/speed.md) and with all cores
+  (the plain network: the reference), the CPU forward the path runs (channels-last, BatchNorm
+  folded: :mod:`unwrap.learned.cpu_net`; its orders and whole path counted like the CUDA rows),
   onnxruntime on the CPU with 2 threads, torch on CUDA in fp32, fp16 and bf16 (autocast), and
   channels-last; ``batch 8``: 8 frames in one call, per frame.
 - **whole path** per frame (:func:`unwrap.learned.infer.unwrap_learned`: traditional prior on the
@@ -194,12 +196,13 @@ def forward_rows(name, path, net, ck, repeats, log, skip=()) -> tuple[dict, dict
     C, H, W = int(ck["arch"]["in_channels"]), *SIZE
     x1, x8 = np.zeros((1, C, H, W), np.float32), np.zeros((8, C, H, W), np.float32)
     fw, all_threads = {}, torch.get_num_threads()
-    cpu_pred = TorchPredictor(net, ck)
+    cpu_pred = TorchPredictor(net, ck, channels_last=False, fold_norm=False)     # the plain network: the reference
     for threads in (2, all_threads):
         torch.set_num_threads(threads)
         fw[f"torch cpu, {threads} threads"] = best_ms(lambda: cpu_pred.logits(x1), repeats)
         log(f"{name}: forward torch cpu {threads} threads {fw[f'torch cpu, {threads} threads']:.1f} ms")
     torch.set_num_threads(2)
+    onnx_pred = None
     if "onnx" not in skip:
         try:
             import tempfile
@@ -208,10 +211,17 @@ def forward_rows(name, path, net, ck, repeats, log, skip=()) -> tuple[dict, dict
             with tempfile.TemporaryDirectory() as td:
                 op = OnnxPredictor(export_onnx((net, ck), Path(td) / "m.onnx"), threads=2, device="cpu")
                 fw["onnxruntime cpu, 2 threads"] = best_ms(lambda: op.logits(x1), repeats)
+                onnx_pred = op
                 log(f"{name}: forward onnxruntime cpu 2 threads {fw['onnxruntime cpu, 2 threads']:.1f} ms")
         except Exception as exc:            # report, go on: the GPU rows matter more here
             log(f"{name}: onnxruntime row skipped ({type(exc).__name__}: {str(exc)[:200]})")
     variants = {"cpu fp32": cpu_pred}
+    if "onnx" not in skip and onnx_pred is not None:       # its orders counted beside (the session outlives its file)
+        variants["onnxruntime cpu"] = onnx_pred
+    if "cpu-variants" not in skip:      # what load_predictor runs on the CPU: channels-last, BatchNorm folded
+        variants["cpu fp32 channels-last folded"] = TorchPredictor(net, ck)
+        fw["torch cpu channels-last folded, 2 threads"] = best_ms(
+            lambda: variants["cpu fp32 channels-last folded"].logits(x1), repeats)
     if torch.cuda.is_available():
         torch.backends.cudnn.benchmark = True      # one frame size throughout: let cuDNN pick its kernels
         for prec in ("fp32", "fp16", "bf16"):
@@ -219,7 +229,7 @@ def forward_rows(name, path, net, ck, repeats, log, skip=()) -> tuple[dict, dict
         cl_net, _ = load_model(path, "cuda")
         variants["cuda fp32 channels-last"] = TorchPredictor(cl_net, ck, channels_last=True)
         variants["cuda bf16 channels-last"] = TorchPredictor(cl_net, ck, channels_last=True, precision="bf16")
-        for v, pred in list(variants.items())[1:]:
+        for v, pred in [(v, p) for v, p in variants.items() if v.startswith("cuda")]:
             fw[v] = best_ms(lambda: pred.logits(x1), repeats, "cuda")
             fw[v + ", batch 8 (per frame)"] = best_ms(lambda: pred.logits(x8), repeats, "cuda") / 8
             log(f"{name}: forward {v} {fw[v]:.2f} ms; batch 8 {fw[v + ', batch 8 (per frame)']:.2f} ms/frame")
@@ -240,13 +250,13 @@ def path_row(fr, variants, repeats) -> dict:
                                                         np.nan_to_num(fr["phase_high"]), lo, hi, float(fr["width"]),
                                                         valid), repeats)
     orders = {}
-    for v in ("cpu fp32", "cuda fp32", "cuda fp16", "cuda bf16"):
+    for v in ("cpu fp32", "cpu fp32 channels-last folded", "cuda fp32", "cuda fp16", "cuda bf16"):
         if v in variants:
             run = lambda: unwrap_learned(*args, width=float(fr["width"]), model=variants[v],  # noqa: E731
                                          on_outside="ignore")
             row[f"whole path {v} ms"] = best_ms(run, repeats, "cuda" if v.startswith("cuda") else "cpu")
             orders[v] = run().order
-    for v, o in list(orders.items())[1:]:      # CUDA, MF: features and decode on the device too
+    for v, o in list(orders.items())[1:]:      # CUDA, MF: features and decode on the device too; CPU: NHWC features
         row[f"whole path {v}: orders differing"] = int((o != orders["cpu fp32"]).sum())
     return row
 
@@ -341,7 +351,8 @@ def main(argv=None) -> int:
     p.add_argument("--model", action="append", default=[], metavar="NAME=PATH",
                    help="checkpoints to measure (default: shipped=the shipped model)")
     p.add_argument("--repeats", type=int, default=10)
-    p.add_argument("--skip", nargs="*", default=[], choices=["onnx", "train"], help="rows to leave out")
+    p.add_argument("--skip", nargs="*", default=[], choices=["onnx", "train", "cpu-variants"],
+                   help="rows to leave out (cpu-variants: the channels-last / folded CPU forward the path runs)")
     p.add_argument("--json", default=None, help="also write the results as JSON")
     p.add_argument("--quick", action="store_true", help="2 repeats, the ramp frame only")
     args = p.parse_args(argv)

@@ -202,32 +202,41 @@ def speed_table(model, *, size=(480, 640), repeats: int = 5, device: str = "cpu"
     - ``traditional_from_phases``: mf_unwrap of two wrapped phases (the prior and the rounding);
     - ``traditional_from_frames``: the fused kernel from 2 x 12 uint8 frames (wrapped phases + MF);
     - ``filtered``: the 15x15 filtered baseline from the wrapped phases;
-    - ``network_forward``: the network alone; ``learned_total``: prior + features + network + decode.
+    - ``network_forward``: the network alone as the path runs it (the predictor
+      :func:`unwrap.learned.runtime.load_predictor` makes of ``model``: for a checkpoint file on the
+      CPU channels-last with BatchNorm folded, its input in that layout; ``forward_layout`` says
+      which); ``learned_total``: prior + features + network + decode, with that predictor;
+      ``whole_over_forward``: their ratio.
     """
     from unwrap.fused_mf import mf_unwrap_stacks
     from unwrap.temporal import mf_unwrap
     from unwrap.learned.infer import unwrap_learned
+    from unwrap.learned.runtime import load_predictor
 
-    net, ck = model if isinstance(model, tuple) else load_model(model, device)
+    pred = load_predictor(model, device)
+    ck = pred.ck
     H, W = size
     stacks, phi, mods, valid = speed_scene(size)
-    x = torch.zeros(1, ck["arch"]["in_channels"], H, W, device=device)
-    out = {"size": f"{W}x{H}", "threads": torch.get_num_threads(), "device": device}
+    C, layout = int(ck["arch"]["in_channels"]), getattr(pred, "input_layout", "nchw")
+    x = torch.zeros(1, H, W, C).permute(0, 3, 1, 2) if layout == "nhwc" else torch.zeros(1, C, H, W)
+    x = x.to(device)
+    out = {"size": f"{W}x{H}", "threads": torch.get_num_threads(), "device": device, "forward_layout": layout}
     out["traditional_from_phases_ms"] = _time(lambda: mf_unwrap(phi, (1, 48), width=912, valid=valid), repeats)
     out["traditional_from_frames_ms"] = _time(lambda: mf_unwrap_stacks(stacks, (1, 48), width=912), repeats)
     out["filtered_ms"] = _time(lambda: filtered_order("mf", phi[0], phi[1], (1, 48), valid, width=912), repeats)
-    with torch.no_grad():
-        def fwd():
-            net(x)
-            if device != "cpu":
-                torch.cuda.synchronize()
-        out["network_forward_ms"] = _time(fwd, repeats)
+
+    def fwd():
+        pred.forward(x)
+        if device != "cpu":
+            torch.cuda.synchronize()
+    out["network_forward_ms"] = _time(fwd, repeats)
     out["learned_total_ms"] = _time(lambda: unwrap_learned("mf", phi[0], phi[1], mods[0], mods[1], valid, (1, 48),
-                                                           width=912, model=(net, ck), on_outside="ignore"), repeats)
+                                                           width=912, model=pred, on_outside="ignore"), repeats)
+    out["whole_over_forward"] = out["learned_total_ms"] / out["network_forward_ms"]
     # what was timed computed the same thing: the fringe orders of the paths that should agree
     ref = mf_unwrap(phi, (1, 48), width=912, valid=valid, on_unreliable="ignore")
     fused = mf_unwrap_stacks(stacks, (1, 48), width=912).result
-    learned = unwrap_learned("mf", phi[0], phi[1], mods[0], mods[1], valid, (1, 48), width=912, model=(net, ck),
+    learned = unwrap_learned("mf", phi[0], phi[1], mods[0], mods[1], valid, (1, 48), width=912, model=pred,
                              on_outside="ignore")
     both = np.asarray(ref.valid) & np.asarray(fused.valid)
     out["valid_pixels"] = int(both.sum())

@@ -17,8 +17,9 @@ The result agrees with the torch features within float rounding (sums accumulate
 order: ~1e-12 rad on the filtered phase); an order can differ only where a smoothed
 prior sits within that rounding of a rounding boundary (a float32 tie; counted by the tests).
 
-Shapes: phases / modulations (H, W); inputs (1, C, H, W) float32 C-contiguous; logits
-(1, K, H, W) any float dtype.
+Shapes: phases / modulations (H, W); inputs (1, C, H, W) float32, C-contiguous or, for a
+channels-last forward, a view of a (1, H, W, C) block (``layout="nhwc"``); logits (1, K, H, W) any
+float dtype, either memory layout.
 
 SYNOPSIS
 
@@ -131,7 +132,24 @@ def coarse_phase(method: str, phi_l: np.ndarray, phi_h: np.ndarray, f_l: float, 
     usable = is_mf or f_h - f_l <= 1.0 + 1e-9
     f_c, cut = coarse_cut(method, f_l, f_h, width)
     coarse = phi_l if is_mf else wrap(phi_h - phi_l)
-    return np.remainder(coarse - cut, 2 * math.pi) + cut, f_c, usable
+    Phi = _remainder_2pi(coarse - cut)
+    Phi += cut
+    return Phi, f_c, usable
+
+
+def _remainder_2pi(x: np.ndarray) -> np.ndarray:
+    """``np.remainder(x, 2 pi)`` of float64 ``x``, the same bits, without its slow general path
+    where every ``x`` lies in (-2 pi, 2 pi) (a wrapped phase minus the cut): there numpy's divmod
+    returns ``x`` for ``x >= 0`` and ``x + 2 pi`` (one rounding) below. Anything else (larger,
+    NaN, infinite): ``np.remainder`` itself."""
+    two_pi = 2 * math.pi
+    x = np.asarray(x, dtype=np.float64)
+    neg = x < 0
+    out = x + two_pi
+    np.copyto(out, x, where=~neg)
+    if not (np.abs(x) < two_pi).all():       # also False on NaN
+        return np.remainder(x, two_pi)
+    return out
 
 
 def coarse_cut(method: str, f_l: float, f_h: float, width=None) -> tuple[float, float]:
@@ -153,18 +171,32 @@ def smoothed_priors(method: str, phi_l, phi_h, f_l: float, f_h: float, valid, wi
         filt = plane_filter(Phi, valid, windows, fit)
     else:       # the beat may wrap inside the image (a pair declared on its common window)
         filt = BW.circular_plane_filter(Phi, valid, coarse_cut(method, f_l, f_h, width)[1], windows, plane_filter, fit)
-    return {w: (float(f_h) / f_c * Ps - phi_h) / (2 * math.pi) for w, Ps in filt.items()}, usable
+    out = {}
+    for w, Ps in filt.items():      # (f_h / f_c * Ps - phi_h) / (2 pi), in place (the fit's map is ours)
+        Ps *= float(f_h) / f_c
+        Ps -= phi_h
+        Ps /= 2 * math.pi
+        out[w] = Ps
+    return out, usable
 
 
 def make_inputs(kind: str, method: str, prior, phase_low, phase_high, modulation_low, modulation_high,
-                order_traditional, valid, frequencies, windows=SMOOTH_WINDOWS) -> tuple[np.ndarray, np.ndarray]:
-    """(x (1, C, H, W) float32, ok (H, W) bool): the network input of one frame, channels as
+                order_traditional, valid, frequencies, windows=SMOOTH_WINDOWS, *, layout: str = "nchw",
+                multiple: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """(x (1, C, H', W') float32, ok (H, W) bool): the network input of one frame, channels as
     :func:`unwrap.learned.channels.channel_slices` (``windows``: the smoothing boxes, px).
 
     ARGUMENTS as the torch batch of :func:`unwrap.learned.infer.unwrap_learned`: prior, wrapped phases
     (rad) and modulations (fraction of full scale) (H, W), NaN allowed where not valid;
     order_traditional (H, W) int; valid (H, W) bool; frequencies (low, high).
-    ``ok``: ``valid`` and every input finite."""
+    ``ok``: ``valid`` and every input finite.
+
+    ``layout``: "nchw" (x C-contiguous) or "nhwc" (x a (1, C, H', W') view of a C-contiguous
+    (1, H', W', C) block: what a channels-last forward takes without a conversion; the same
+    values). ``multiple``: H' and W' rounded up to a multiple of it, the extra rows and columns
+    zero (= invalid; the network's own padding, done here without a copy of the input)."""
+    if layout not in LAYOUTS:
+        raise ValueError(f"layout {layout!r}: expected one of {LAYOUTS}")
     valid = np.asarray(valid, dtype=bool)
     at = channel_slices(kind, windows)          # raises on an unknown kind
 
@@ -172,44 +204,27 @@ def make_inputs(kind: str, method: str, prior, phase_low, phase_high, modulation
         # the torch batch's map: NaN -> 0 and every value outside ``valid`` 0, rounded to float32
         # (+-inf stays infinite, so ``ok`` drops it, as nan_to_num's +-1.8e308 did once rounded)
         a = np.asarray(a)
-        return np.where(valid & (a == a), a, 0.0).astype(_F32)
+        out = a.astype(_F32)                   # NaN and +-inf survive the rounding, so test after it
+        np.copyto(out, zero, where=~(valid & (out == out)))
+        return out
 
+    zero = _F32(0.0)
     pr, pl, ph, ml, mh = (f32(a) for a in (prior, phase_low, phase_high, modulation_low, modulation_high))
     ok = valid & np.isfinite(pr) & np.isfinite(pl) & np.isfinite(ph) & np.isfinite(ml) & np.isfinite(mh)
-    zero = _F32(0.0)
     v = ok.astype(_F32)
+    bad = ~ok
     for a in (pr, pl, ph, ml, mh):               # clean: 0 where not ok, in place (the maps are ours)
-        a[~ok] = zero
+        np.copyto(a, zero, where=bad)
     C = max(s.stop for s in at.values())
-    x = np.empty((1, C, *ok.shape), dtype=_F32)   # channels written in place, no stacking copy
-    X = x[0]
+    H, W = ok.shape
+    m = max(int(multiple), 1)
+    Hp, Wp = H + (-H) % m, W + (-W) % m
+    # channels written in place, no stacking copy; the padding (if any) stays zero
+    x = (np.zeros if (Hp, Wp) != (H, W) else np.empty)((1, C, Hp, Wp), dtype=_F32)
+    X = x[0, :, :H, :W]
     phi_h = ph
     if kind == "physics":
-        p = pr
-        c = at["prior"].start
-        np.subtract(p, _round_order32(p), out=X[c])
-        X[c] *= _F32(2.0)
-        trad = np.asarray(order_traditional).astype(_F32)
-        f_l, f_h = (float(f) for f in frequencies)
-        priors, usable = smoothed_priors(method, pl.astype(np.float64), ph.astype(np.float64), f_l, f_h, ok,
-                                         windows)
-        period = BW.wrap_orders(method, f_l, f_h) if usable else None
-        for i, w in enumerate(windows):
-            s, d = at["smoothed"].start + i, at["disagreement"].start + i
-            ps = (priors[int(w) | 1] if usable else p.astype(np.float64)).astype(_F32)
-            if period:              # on the traditional order's window (the beat may wrap in the image)
-                ps = BW.nearest_branch(ps, trad, period)
-            ps[~ok] = zero
-            rs = _round_order32(ps)
-            np.subtract(ps, rs, out=X[s])
-            X[s] *= _F32(2.0)
-            if usable:
-                rs -= trad
-                rs /= _F32(2.0)
-                np.clip(rs, _F32(-1.0), _F32(1.0), out=X[d])
-                X[d][~ok] = zero
-            else:
-                X[d] = zero
+        _prior_channels(X, at, method, pr, pl, ph, order_traditional, ok, frequencies, windows)
     else:
         c = at["phase_low"].start
         np.multiply(np.sin(pl), v, out=X[c])
@@ -226,7 +241,79 @@ def make_inputs(kind: str, method: str, prior, phase_low, phase_high, modulation
         m *= _F32(MODULATION_GAIN)
         np.clip(m, zero, _F32(2.0), out=X[at["modulation"].start + j])
     X[at["valid"].start] = v
+    if layout == "nhwc":
+        x = to_nhwc(x)
     return x, ok
+
+
+def _prior_channels(X, at, method, p, pl, ph, order_traditional, ok, frequencies, windows) -> None:
+    """The physics-aware model's prior channels of :func:`make_inputs`, written into ``X`` (C, H, W):
+    the prior's fraction, and per window the smoothed prior's fraction and its disagreement with
+    the traditional order (``p``, ``pl``, ``ph``: the cleaned float32 prior and phases)."""
+    zero, bad = _F32(0.0), ~ok
+    c = at["prior"].start
+    np.subtract(p, _round_order32(p), out=X[c])
+    X[c] *= _F32(2.0)
+    trad = np.asarray(order_traditional).astype(_F32)
+    f_l, f_h = (float(f) for f in frequencies)
+    priors, usable = smoothed_priors(method, pl.astype(np.float64), ph.astype(np.float64), f_l, f_h, ok, windows)
+    period = BW.wrap_orders(method, f_l, f_h) if usable else None
+    for i, w in enumerate(windows):
+        s, d = at["smoothed"].start + i, at["disagreement"].start + i
+        ps = (priors[int(w) | 1] if usable else p.astype(np.float64)).astype(_F32)
+        if period:              # on the traditional order's window (the beat may wrap in the image)
+            ps = BW.nearest_branch(ps, trad, period)
+        ps[bad] = zero
+        rs = _round_order32(ps)
+        np.subtract(ps, rs, out=X[s])
+        X[s] *= _F32(2.0)
+        if usable:
+            rs -= trad
+            rs /= _F32(2.0)
+            np.clip(rs, _F32(-1.0), _F32(1.0), out=X[d])
+            X[d][bad] = zero
+        else:
+            X[d] = zero
+
+
+#: Memory layouts of :func:`make_inputs`' result (both index as (1, C, H, W)).
+LAYOUTS = ("nchw", "nhwc")
+
+
+def to_nhwc(x: np.ndarray) -> np.ndarray:
+    """``x`` (1, C, H, W) as a (1, C, H, W) view of a C-contiguous (1, H, W, C) block (the same
+    values): one interleaving pass (``cv2.merge``, ~3x the cost of writing the planes, a third of
+    torch's own conversion), or a no-op where ``x`` is already so laid out."""
+    if is_nhwc(x):
+        return x
+    C = x.shape[1]
+    if x.dtype == _F32 and C <= 512:
+        import cv2
+
+        planes = [np.ascontiguousarray(x[0, c]) for c in range(C)]
+        hwc = cv2.merge(planes) if C > 1 else planes[0][..., None]
+        return hwc.reshape(1, *hwc.shape[:2], C).transpose(0, 3, 1, 2)
+    return np.ascontiguousarray(x.transpose(0, 2, 3, 1)).transpose(0, 3, 1, 2)
+
+
+def is_nhwc(x: np.ndarray) -> bool:
+    """Whether ``x`` (1, C, H, W) is a view of a C-contiguous (1, H, W, C) block."""
+    return x.ndim == 4 and x.transpose(0, 2, 3, 1).flags.c_contiguous
+
+
+def class_planes(logits: np.ndarray) -> list:
+    """The K class planes (H, W) float32 C-contiguous of logits (1, K, H, W) in any memory layout:
+    views where each plane is already contiguous (NCHW), else one de-interleaving pass
+    (``cv2.split`` of the (H, W, K) channels-last block a channels-last forward returns)."""
+    z = np.asarray(logits)[0]
+    if z.dtype == _F32 and all(z[k].flags.c_contiguous for k in range(z.shape[0])):
+        return [z[k] for k in range(z.shape[0])]
+    hwk = z.transpose(1, 2, 0)      # rows may be strided (a crop of a padded frame): cv2 takes them
+    if z.dtype == _F32 and hwk.strides[1:] == (4 * z.shape[0], 4) and hwk.strides[0] > 0 and z.shape[0] <= 512:
+        import cv2
+
+        return list(cv2.split(hwk))
+    return [np.ascontiguousarray(z[k], dtype=_F32) for k in range(z.shape[0])]
 
 
 def decode(logits: np.ndarray, order_traditional, ok, f_high: float, kind: str, max_correction: int = 2,
@@ -236,16 +323,35 @@ def decode(logits: np.ndarray, order_traditional, ok, f_high: float, kind: str, 
     physics: the most probable correction added to the traditional order, clipped to
     [0, round(f_high)] (``wrap_orders``, the orders of one coarse period: taken modulo it first,
     :func:`unwrap.learned.beat_window.modulo_orders`); prior_free: the most probable order class.
-    Confidence: its softmax probability (float32, 0 where not ok)."""
-    z = np.asarray(logits[0], dtype=_F32)
-    e = np.exp(z - z.max(axis=0, keepdims=True))
-    p = e / e.sum(axis=0, keepdims=True)
-    cls = p.argmax(axis=0)
-    conf = np.take_along_axis(p, cls[None], axis=0)[0]
+    Confidence: its softmax probability (float32, 0 where not ok).
+
+    ``logits`` in either memory layout (NCHW or the channels-last forward's; :func:`class_planes`).
+    Class by class on (H, W) planes, the same float32 operations in the same order as a softmax
+    over the class axis then its first argmax (``max``, ``exp(z - max)``, the sum from class 0
+    up, the division): the same bits, without numpy's slow reductions along a strided axis."""
+    zs = class_planes(logits)
+    zmax = zs[0].copy()
+    for z in zs[1:]:
+        np.maximum(zmax, z, out=zmax)
+    e = [np.exp(z - zmax) for z in zs]
+    s = e[0].copy()
+    for ek in e[1:]:
+        s += ek
+    conf = e[0] / s
+    cls = np.zeros(s.shape, dtype=np.int64)
+    for k in range(1, len(e)):              # the first class of the largest probability, as argmax picks it
+        pk = np.divide(e[k], s, out=e[k])
+        better = pk > conf
+        cls[better] = k
+        np.maximum(conf, pk, out=conf)
     kmax = int(math.floor(float(f_high) + 0.5))
-    trad = np.asarray(order_traditional, dtype=np.int64)
-    order = trad + cls - max_correction if kind == "physics" else cls.astype(np.int64)
-    if wrap_orders and kind == "physics":
-        order = BW.modulo_orders(order, int(wrap_orders), kmax)
-    order = np.minimum(np.maximum(order, 0), kmax)
-    return np.where(ok, order, -1).astype(np.int64), np.where(ok, conf, _F32(0.0)).astype(_F32)
+    order = np.array(order_traditional, dtype=np.int64) if kind == "physics" else cls
+    if kind == "physics":
+        order += cls
+        order -= max_correction
+        if wrap_orders:
+            order = BW.modulo_orders(order, int(wrap_orders), kmax)
+    np.clip(order, 0, kmax, out=order)
+    order[~np.asarray(ok, dtype=bool)] = -1
+    conf[~np.asarray(ok, dtype=bool)] = _F32(0.0)
+    return order, conf

@@ -45,6 +45,14 @@ MIN_PERIOD_PX = 3.0
 #: Ratio factor (relative to training) beyond which a warning / a refusal happens.
 WARN_RATIO, MAX_RATIO, MIN_RATIO = 2.5, 4.0, 1.0 / 8.0
 
+#: Frame sizes whose forward has been preceded by a heap trim in this process. Once per size: the
+#: next frame of a size reuses the freed blocks of the last one, and trimming them again would
+#: fault them back in (~10k page faults, ~40 MB, per 640 x 480 frame: more system time than the
+#: decode). ``calib unwrap --model`` at 900 x 700 peaks at the same ~500 MB with a trim per
+#: orientation, one per size, or none (docs/speed.md, "The learned path on 2 CPU cores").
+_TRIMMED: dict = {}     # (H, W) -> whether glibc released memory then
+
+
 def resolve_model(model, device="cpu"):
     """(network in eval mode, checkpoint dict) of a torch model: "learned", a ``.pt`` path or a
     (model, ck) pair (loaded once per process: :func:`unwrap.learned.runtime.load_predictor`)."""
@@ -57,17 +65,18 @@ def resolve_model(model, device="cpu"):
 
 
 def fringe_period_px(phase_high, valid) -> float:
-    """Median fringe period on the camera (px) from wrapped-phase differences between neighbours."""
+    """Median fringe period on the camera (px) from wrapped-phase differences between neighbours:
+    ``2 pi / median |(wrap(dx), wrap(dy))|`` over the pixels valid with their right and lower
+    neighbours (the differences taken at those pixels only: a third of the full-frame passes)."""
     phi = np.asarray(phase_high, dtype=np.float64)
     v = np.asarray(valid, dtype=bool)
-    gx = _xp.wrap(np.diff(phi, axis=1))
-    gy = _xp.wrap(np.diff(phi, axis=0))
-    okx, oky = v[:, 1:] & v[:, :-1], v[1:, :] & v[:-1, :]
-    g = np.hypot(np.where(okx[:-1, :], gx[:-1, :], 0.0), np.where(oky[:, :-1], gy[:, :-1], 0.0))
-    ok = okx[:-1, :] & oky[:, :-1]
+    ok = v[:-1, :-1] & v[:-1, 1:] & v[1:, :-1]
     if not ok.any():
         return float("nan")
-    med = float(np.median(g[ok]))
+    p00 = phi[:-1, :-1][ok]
+    gx = _xp.wrap(phi[:-1, 1:][ok] - p00)
+    gy = _xp.wrap(phi[1:, :-1][ok] - p00)
+    med = float(np.median(np.hypot(gx, gy)))
     return _xp.TWO_PI / med if med > 0 else float("inf")
 
 
@@ -193,13 +202,16 @@ def unwrap_learned(method: str, phase_low, phase_high, modulation_low, modulatio
         order, conf = _orders_on_device(pred, method, prior, phi_lo, phi_hi, modulation_low, modulation_high,
                                         order_trad, valid, (f_lo, f_hi))
         return LearnedResult(order, conf, order_trad, prior, valid, check)
+    # in the layout the predictor's forward takes without a copy, padded to its size multiple
     x, ok = FF.make_inputs(kind, method, prior, phi_lo, phi_hi, modulation_low, modulation_high, order_trad, valid,
-                           (f_lo, f_hi))
+                           (f_lo, f_hi), layout=getattr(pred, "input_layout", "nchw"),
+                           multiple=getattr(pred, "multiple", 1))
     del modulation_low, modulation_high        # freed before the forward where the caller passed temporaries
-    H, W = x.shape[-2:]
-    if hasattr(pred, "prepare"):       # padded for the graph: the unpadded input is freed before the forward
+    H, W = ok.shape
+    if hasattr(pred, "prepare"):       # as the graph takes it (already padded: no copy)
         x = pred.prepare(x)
-    trim_heap()                        # the forward is the peak: the maps freed so far leave the heap first
+    if (H, W) not in _TRIMMED:         # the forward is the peak: the maps freed so far leave the heap
+        _TRIMMED[(H, W)] = trim_heap()  # first, once per frame size (:data:`_TRIMMED`)
     logits = pred.logits(x)[..., :H, :W]
     del x                                                            # the input (C x H x W float32) is not needed after
     order, conf = FF.decode(logits, order_trad, ok, f_hi, kind, K, wrap_orders(method, f_lo, f_hi))

@@ -6,7 +6,9 @@ to logits (1, K, H, W) and carries what the checks need: ``arch`` (kind, max_cor
 ``meta`` (the trained frequency pairs). :func:`load_predictor` caches it by path, size and
 modification time, so orientations and captures of one process share one loaded model.
 
-- torch: the network in eval mode under ``torch.inference_mode`` (no autograd), on ``device``
+- torch: the network in eval mode under ``torch.inference_mode`` (no autograd; on the CPU in
+  float32 a channels-last copy with BatchNorm folded, its input written in that layout:
+  :class:`TorchPredictor`), on ``device``
   ("cpu", "cuda", or "auto": CUDA where torch sees one), in ``precision`` "fp32" (default), or
   "fp16" / "bf16" under autocast (the convolutions in half precision, the norms and the logits in
   float32; fp16 only on CUDA). Half precision can move a pixel's order where two classes' logits
@@ -56,13 +58,21 @@ def is_onnx(model) -> bool:
 class TorchPredictor:
     """A torch network (eval mode) and its checkpoint dict; ``logits(x)`` under inference mode.
 
-    ``channels_last``: run the convolutions in channels-last memory format (measured by
-    bench.deploy_speed; off by default: on this CPU build it does not pay for a 0.46 M-parameter
-    U-Net whose first layers have few channels)."""
+    ``channels_last``: run the convolutions in channels-last memory format; ``fold_norm``: fold
+    each BatchNorm into the convolution before it (eval statistics). Both run on a private copy
+    of ``net`` (:func:`unwrap.learned.cpu_net.prepare_for_cpu`; ``self.net`` stays the network
+    given) and change only the float rounding (logits move by ~1e-5). None (the default): both
+    on for a float32 forward on the CPU, off elsewhere - measured for the shipped width-8 model
+    and the width-16 one (docs/speed.md, "The learned path on 2 CPU cores": channels-last with
+    its input already in that layout ~2x faster; on CUDA see bench.learned_gpu).
+    ``input_layout`` ("nchw" / "nhwc") is the memory layout the forward takes without a copy
+    (:func:`unwrap.learned.fast_features.make_inputs`' ``layout``); ``multiple``: the size
+    multiple the network pads its input to."""
 
     backend = "torch"
 
-    def __init__(self, net, ck: dict, channels_last: bool = False, precision: str = "fp32"):
+    def __init__(self, net, ck: dict, channels_last: bool | None = None, precision: str = "fp32",
+                 fold_norm: bool | None = None):
         import torch
 
         self.net, self.ck = net, ck
@@ -78,9 +88,16 @@ class TorchPredictor:
                              "bfloat16 arithmetic; use fp16 or fp32")
         self.precision = precision
         self._dtype = {"fp16": torch.float16, "bf16": torch.bfloat16}.get(precision)
-        self.channels_last = channels_last
-        if channels_last:
-            self.net = net.to(memory_format=torch.channels_last)
+        cpu32 = self.device.type == "cpu" and precision == "fp32"
+        self.channels_last = cpu32 if channels_last is None else bool(channels_last)
+        self.fold_norm = (cpu32 if fold_norm is None else bool(fold_norm)) and self.arch.get("norm") == "batch"
+        self.input_layout = "nhwc" if self.channels_last else "nchw"
+        self.multiple = 2 ** (int(self.arch.get("depth", 0)) + 1)
+        self._run = net
+        if self.channels_last or self.fold_norm:
+            from .cpu_net import prepare_for_cpu
+
+            self._run = prepare_for_cpu(net, channels_last=self.channels_last, fold=self.fold_norm)
 
     @property
     def features_on_device(self) -> bool:
@@ -94,12 +111,13 @@ class TorchPredictor:
 
         with torch.inference_mode(), torch.autocast(self.device.type, dtype=self._dtype,
                                                      enabled=self._dtype is not None):
-            if self.channels_last:
+            if self.channels_last:      # a no-op on an input already channels-last (layout "nhwc")
                 t = t.contiguous(memory_format=torch.channels_last)
-            return self.net(t).float()
+            return self._run(t).float()
 
     def logits(self, x):
-        """Logits (B, K, H, W) float32 numpy of ``x`` (B, C, H, W) float32 numpy (any B)."""
+        """Logits (B, K, H, W) float32 numpy of ``x`` (B, C, H, W) float32 numpy (any B, either memory
+        layout); channels-last logits are a (B, K, H, W) view of a (B, H, W, K) block."""
         import torch
 
         return self.forward(torch.from_numpy(x).to(self.device)).cpu().numpy()
@@ -160,6 +178,7 @@ class OnnxPredictor:
         self.providers = self.session.get_providers()
         self.input_name = self.session.get_inputs()[0].name
         self.multiple = 2 ** (int(self.arch["depth"]) + 1)
+        self.input_layout = "nchw"
 
     def prepare(self, x):
         """``x`` as the graph takes it: sizes that are multiples of 2**(depth+1), zeros padded at the
@@ -198,7 +217,8 @@ def resolve_device(device) -> str:
 
 def load_predictor(model="learned", device=None, precision: str = "fp32"):
     """A predictor for ``model``: "learned" (the shipped checkpoint), a ``.pt`` / ``.onnx`` path, a
-    ``(net, checkpoint)`` pair, or a predictor (returned as is). Files are loaded once per process
+    ``(net, checkpoint)`` pair (run as it is: no channels-last copy, no folding), or a predictor
+    (returned as is). Files are loaded once per process
     (cached by path, size, modification time, device and precision).
 
     ``device``: None (torch: the CPU; onnxruntime: CUDA where its build offers it, else the CPU),
@@ -206,8 +226,8 @@ def load_predictor(model="learned", device=None, precision: str = "fp32"):
     ONNX graph runs in float32)."""
     if hasattr(model, "logits") and hasattr(model, "arch"):
         return model
-    if isinstance(model, tuple):
-        return TorchPredictor(*model, precision=precision)
+    if isinstance(model, tuple):     # the caller's network, maybe still training: run as it is
+        return TorchPredictor(*model, precision=precision, channels_last=False, fold_norm=False)
     if device not in (None, *DEVICES) and not str(device).startswith("cuda"):
         raise ModelError(f"device {device!r}: expected one of {', '.join(DEVICES)}")
     if precision not in PRECISIONS:
