@@ -96,7 +96,7 @@ def _print_table(rows, seeds: int, wrong_real: int, n_real: int, chance: float) 
 def _evidence(real, measured, sensor, spares) -> dict:
     """The section's other numbers (module docstring), printed; ``spares``: the sensor-only twins."""
     from experiments.learned_parity import capture_noise
-    from experiments.parity_evidence import (contrast, decoded, error_places, fit_gamma, noise_match,
+    from experiments.parity_evidence import (contrast, decoded, error_places, fit_gamma, moved_orders, noise_match,
                                              reference_suspects, unit_deviation)
     from experiments.pixel_twin import measure_capture
 
@@ -112,6 +112,10 @@ def _evidence(real, measured, sensor, spares) -> dict:
           + "; sigma_I " + " ".join(f"{x:.4f}" for x in cb["sigma_I"]) + f" -> {fw}")
     ev["contrast"] = contrast(measured)
     print(f"contrast B/A of the top frequency: median {ev['contrast']['median']:.2f}, p10 {ev['contrast']['p10']:.2f}")
+    mv = moved_orders(measured, decoded(real))
+    ev["moved"] = mv
+    print(f"orders the outlier pass moves on the capture: {mv['moved']} of {mv['decoded']} decoded pixels, "
+          f"{mv['moved_labelled']} of them labelled")
     files = {"real capture": real, **{f"sensor-only twin, seed {i}": p for i, p in enumerate(spares)}}
     ev["places"], ev["suspects"] = {}, {}
     print("\n| file | wrong | components (largest px) | within 5 px of an invalid pixel (labelled there %) | "

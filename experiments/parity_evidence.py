@@ -279,3 +279,15 @@ def contrast(measured) -> dict:
     m = _interior(measured.ok)
     c = top["B"][m] / np.maximum(top["A"][m], 1e-9)
     return {"median": float(np.median(c)), "p10": float(np.quantile(c, 0.1))}
+
+
+def moved_orders(measured, decode: dict) -> dict:
+    """Pixels whose order the outlier pass of :func:`experiments.pixel_twin._absolute_top` moved (the
+    2 pi spikes the pixel twin's geometry had before commit f601c0e): ``|Phi moved - Phi| > pi``
+    with ``Phi = phase_high + 2 pi k`` (``k`` the reference order where there is one, the
+    traditional elsewhere), on the decoded (``ok``) pixels; ``decode``: :func:`decoded` of the same
+    file. RETURNED VALUE: {"decoded", "moved", "moved_labelled"}."""
+    k = np.where(decode["labelled"], decode["order_reference"], decode["order_traditional"])
+    Phi = decode["phase_high"] + TWO_PI * k
+    moved = measured.ok & (np.abs(measured.Phi - Phi) > math.pi)
+    return {"decoded": int(measured.ok.sum()), "moved": int(moved.sum()), "moved_labelled": int((moved & measured.lab).sum())}

@@ -113,3 +113,22 @@ def test_skull_pixel_twin_read_once_is_the_same_file_and_matches_its_sensor(tmp_
     assert len(r["true"]) == 10 and r["true_worst"] < 0.15     # the renderer's noise is its sensor's
     assert r["worst"] < 0.25                                   # and the capture's, per decile of A
     assert abs(r["pixel_sd"]["twin"] / r["pixel_sd"]["capture"] - 1) < 0.25
+
+
+def test_moved_orders_counts_the_pixels_the_outlier_pass_moved():
+    from experiments.parity_evidence import moved_orders
+    from experiments.pixel_twin import CaptureMeasure
+
+    shape = (8, 9)
+    ph = np.full(shape, 1.0)
+    kt, kr = np.full(shape, 3), np.full(shape, 3)
+    kr[0, :] = -1                                 # unlabelled row: the traditional order counts
+    lab = kr >= 0
+    Phi = ph + TWO_PI * 3
+    Phi[2, 2] -= TWO_PI                           # moved, labelled
+    Phi[0, 4] += TWO_PI                           # moved, unlabelled
+    Phi[5, 5] += 0.5                              # noise, not an order
+    ok = np.ones(shape, bool)
+    m = CaptureMeasure("x.h5", None, "v", None, Phi, np.zeros(shape), ok, lab, kr[None], [1.0, 16.0])
+    d = {"phase_high": ph, "order_traditional": kt, "order_reference": kr, "labelled": lab}
+    assert moved_orders(m, d) == {"decoded": 72, "moved": 2, "moved_labelled": 1}
