@@ -21,9 +21,10 @@ the range), real / twin, and the share of the twin's wrong pixels within 5 px of
 (:mod:`experiments.parity_evidence`, definitions there): the sensor against A and against B, the
 contrast, where the real and the sensor-only twins' errors lie, which real errors look like the
 reference's own, the response gamma that best explains the unit phase's deviation, and the pixel
-twin's noise against the capture's and against its own sensor. Renders and twins are cached in ``--work`` (~1 min per interreflection
-render at half resolution, ``--scale 2 --stride 2``, the default; ~2-4 min at full, ``--scale 1``;
-~15 s per twin; 2 shared cores). Needs ``../shared/data``.
+twin's noise against the capture's and against its own sensor. Renders and twins are cached in
+``--work`` (per interreflection render 23-36 s at half resolution, ``--scale 2 --stride 2``, the
+default, 52-60 s at full, ``--scale 1``; ~10-25 s per twin; 2 shared cores at load 6-8; the capture
+is read once, :func:`experiments.pixel_twin.measure_capture`). Needs ``../shared/data``.
 """
 from __future__ import annotations
 
