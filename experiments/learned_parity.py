@@ -248,10 +248,12 @@ def slstudio_parity(shared_data, out_dir, model="learned", *, samples: int = 2, 
         export_capture(skull, real, reference_cloud=cloud, reference_system=system)
     twin = render_matched_twin(real, system, out, mesh_dir=Path(shared_data) / "meshes", samples=samples,
                                progress=progress)
-    from .pixel_twin import capture_sensor, pixel_twin
+    from .pixel_twin import capture_sensor, measure_capture, pixel_twin
 
-    sensor = capture_sensor(real, skull)
+    measured = measure_capture(real, skull)       # the frames and the top phase read once for both
+    sensor = capture_sensor(real, skull, measured=measured)
     pix = [] if sensor["full_well_e"] is None else [pixel_twin(
-        real, skull, out / "pixel_twin.h5", full_well_e=sensor["full_well_e"], read_noise_e=sensor["read_noise_e"])]
+        real, skull, out / "pixel_twin.h5", full_well_e=sensor["full_well_e"], read_noise_e=sensor["read_noise_e"],
+        measured=measured)]
     twin["pixel_twin"] = {**(pix[0] if pix else {}), "sensor": sensor}
     return {"parity": parity([real], [twin["file"]], model, pixel_twin_files=[p["file"] for p in pix]), "twin": twin}

@@ -241,7 +241,8 @@ def test_skull_parity_bench_refuses_a_capture_without_a_sensor_fit(tmp_path, mon
 
     (tmp_path / "data" / "skull_2x3").mkdir(parents=True)
     monkeypatch.setattr(cap, "export_capture", lambda folder, out, **kw: Path(out).write_bytes(b""))
-    monkeypatch.setattr(pt, "capture_sensor", lambda real, folder: {"full_well_e": None, "read_noise_e": None,
-                                                                    "sigma_I": [0.004, 0.003], "A": [0.1, 0.2]})
+    monkeypatch.setattr(pt, "measure_capture", lambda real, folder: None)
+    monkeypatch.setattr(pt, "capture_sensor", lambda real, folder, **kw: {"full_well_e": None, "read_noise_e": None,
+                                                                          "sigma_I": [0.004, 0.003], "A": [0.1, 0.2]})
     assert sp.main(["--data", str(tmp_path / "data"), "--work", str(tmp_path / "work")]) == 2
     assert "no sensor to fit" in capsys.readouterr().err
