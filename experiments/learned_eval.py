@@ -165,7 +165,8 @@ def evaluate_models(source: TestSource, *, physics, prior_free=None, mse_only=No
                 r["example"] = s.checks["example"]
         res["real"] = rows
     if speed:
-        res["speed"] = {**speed_table(models[ROW_PA]), "shared": shared_machine}
+        # the model as deployed (a checkpoint file: the CPU fast path; a (net, ck) pair runs plain)
+        res["speed"] = {**speed_table(physics), "shared": shared_machine}
     if training_runs:
         res["training"] = {}
         for name, run in training_runs.items():
