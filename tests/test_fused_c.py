@@ -87,19 +87,37 @@ def test_out_arrays_are_reused_by_the_c_kernel():
     _assert_bitwise(again, fresh)
 
 
-@pytest.mark.parametrize("seed, dtype, steps, levels, sat, lo, hi", [
+@pytest.mark.parametrize("case", [
     (0, np.uint8, (12, 12, 12), True, 255.0, -np.inf, np.inf),
     (1, np.uint16, (4, 7, 5), True, np.inf, 30.0, 60000.0),
     (2, np.uint8, (3, 9, 12), False, np.inf, -np.inf, np.inf),
-    (3, np.uint8, (6, 6, 6), True, 250.0, 2.0, np.inf)])
-def test_numpy_replica_is_numbas_bit_for_bit(seed, dtype, steps, levels, sat, lo, hi):
+    (3, np.uint8, (6, 6, 6), True, 250.0, 2.0, np.inf),
+    (2, np.uint8, (3, 9, 12), False, np.inf, -np.inf, np.inf, _fused_c.K.BLOCK + 300, 12.0),
+    (4, np.uint16, (5, 5, 5), True, 65535.0, -np.inf, np.inf, 2 * _fused_c.K.BLOCK + 7, 12.0)])
+def test_numpy_replica_is_numbas_bit_for_bit(case):
     K = _numba()
-    stacks, args, a = _fused_c._check_case(fused_mf._kernel_weights, seed, dtype, steps, levels, sat, lo, hi)
-    _, _, b = _fused_c._check_case(fused_mf._kernel_weights, seed, dtype, steps, levels, sat, lo, hi)
+    stacks, args, a = _fused_c._check_case(fused_mf._kernel_weights, *case)
+    _, _, b = _fused_c._check_case(fused_mf._kernel_weights, *case)
     _fused_numpy.mf_kernel(stacks, *args, *a)
     K.mf_kernel(tuple(stacks), np.empty(0, np.int32), *args, *b)
     assert all(x.tobytes() == y.tobytes() for x, y in zip(a, b, strict=True))
     assert a[2].any() and not a[2].all()
+
+
+def test_per_process_check_covers_blocks_and_the_wrap():
+    """The library's per-process check runs a frame of more than one block and moves results both ways
+    by the pattern's wrap (a miscompiled block loop or wrap select would otherwise pass it)."""
+    sizes, moved = [], set()
+    for case in _fused_c.CHECK_CASES:
+        stacks, args, out = _fused_c._check_case(fused_mf._kernel_weights, *case)
+        _fused_numpy.mf_kernel(stacks, *args, *out)
+        sizes.append(stacks[0].shape[1])
+        if len(case) > 8 and case[8] > 0:           # the same input without the wrap: the orders it moved
+            _, args0, out0 = _fused_c._check_case(fused_mf._kernel_weights, *case[:8], 0.0)
+            _fused_numpy.mf_kernel(stacks, *args0, *out0)
+            both = out[2] & out0[2]
+            moved |= set(np.unique(out[1][both] - out0[1][both]).tolist())
+    assert max(sizes) > _fused_c.K.BLOCK and moved == {-12, 0, 12}
 
 
 def test_numpy_arctangent_is_the_kernels():
