@@ -161,6 +161,34 @@ def test_no_compiler_or_a_shared_cache_falls_back(tmp_path, monkeypatch):
     assert _native.build("t", "int f(void) { return 1; }").f() == 1
 
 
+def _fake_cc(tmp_path, body: str, name: str) -> str:
+    cc = tmp_path / name
+    cc.write_text(f"#!/bin/sh\necho run >> {tmp_path / 'calls'}\n{body}\n")
+    cc.chmod(0o755)
+    return str(cc)
+
+
+def test_a_failing_compiler_is_run_once_and_a_killed_compile_not_remembered(tmp_path, monkeypatch):
+    """A compiler that fails with and without -march=native is remembered for both (later processes
+    run no compile); a compile killed by a signal leaves no refusal (the next process compiles)."""
+    from unwrap import _native
+
+    calls = tmp_path / "calls"
+    monkeypatch.setenv("SLTWIN_CACHE_DIR", str(tmp_path / "c"))
+    monkeypatch.setenv("CC", _fake_cc(tmp_path, "echo 'no math.h' >&2; exit 1", "failing-cc"))
+    assert _native.build("t", "int f(void) { return 1; }") is None
+    assert calls.read_text().count("run") == 2                  # with -march=native, then without
+    assert _native.build("t", "int f(void) { return 1; }") is None
+    assert calls.read_text().count("run") == 2                  # remembered: no compile at all
+    assert len(list((tmp_path / "c" / "unwrap_kernels").glob("t_*.refused"))) == 2
+    calls.unlink()
+    monkeypatch.setenv("CC", _fake_cc(tmp_path, "kill -9 $$", "killed-cc"))
+    assert _native.build("t", "int f(void) { return 1; }") is None
+    assert _native.build("t", "int f(void) { return 1; }") is None
+    assert calls.read_text().count("run") == 2                  # once per call, no retry, nothing remembered
+    assert len(list((tmp_path / "c" / "unwrap_kernels").glob("t_*.refused"))) == 2
+
+
 def test_the_library_is_cached_per_cpu(monkeypatch, tmp_path):
     from unwrap import _native
 
