@@ -65,6 +65,16 @@ def test_predictor_defaults_on_the_cpu_and_plain_for_a_callers_network():
     assert load_predictor("learned", precision="bf16").input_layout == "nchw"
 
 
+def test_a_network_in_train_mode_is_run_as_it_is():
+    """No private folded copy of a network still being trained: its later weights are the ones run."""
+    net, ck = load_model(shipped_model_path(), "cpu")
+    net = _bn_net().train()
+    p = TorchPredictor(net, dict(ck, arch=dict(ck["arch"], norm="batch", depth=2)))
+    assert not p.fold_norm and not p.channels_last and p.input_layout == "nchw" and p._run is net
+    assert net.training and any(isinstance(m, nn.BatchNorm2d) for m in net.modules())
+    assert TorchPredictor(net.eval(), dict(ck, arch=dict(ck["arch"], norm="batch", depth=2))).fold_norm
+
+
 @pytest.mark.parametrize("size", [(96, 128), (90, 118)])
 def test_channels_last_folded_path_gives_the_plain_orders_up_to_ties(size):
     phi, mods, valid, _ = _frame(*size)
