@@ -308,7 +308,8 @@ def _check_case(weights, seed: int, dtype, steps, levels: bool, sat: float, lo: 
 #: :func:`_check_case`'s arguments of the per-process check (:func:`_same_bits`)
 CHECK_CASES = ((0, np.uint8, (12, 12, 12), True, 255.0, -np.inf, np.inf),
                (1, np.uint16, (4, 7, 5), False, np.inf, 30.0, 60000.0),
-               (2, np.uint8, (3, 9, 12), False, np.inf, -np.inf, np.inf, K.BLOCK + 300, 12.0))
+               (2, np.uint8, (3, 9, 12), False, np.inf, -np.inf, np.inf, 300, 12.0),
+               (3, np.uint16, (3, 3, 3), True, 65535.0, -np.inf, np.inf, K.BLOCK + 100))
 
 
 def _same_bits(funcs, weights) -> bool:
@@ -320,7 +321,7 @@ def _same_bits(funcs, weights) -> bool:
 
     for case in CHECK_CASES:
         stacks, args, a = _check_case(weights, *case)
-        _, _, b = _check_case(weights, *case)
+        b = tuple(np.empty_like(x) for x in a)
         _call(funcs[stacks[0].dtype], stacks, *args, *a, 0, a[0].size)
         reference(stacks, *args, *b)
         if any(x.tobytes() != y.tobytes() for x, y in zip(a, b)):
