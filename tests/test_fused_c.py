@@ -189,6 +189,17 @@ def test_a_failing_compiler_is_run_once_and_a_killed_compile_not_remembered(tmp_
     assert len(list((tmp_path / "c" / "unwrap_kernels").glob("t_*.refused"))) == 2
 
 
+def test_no_home_folder_means_no_cache_in_the_working_folder(monkeypatch, tmp_path):
+    from unwrap import _native
+
+    monkeypatch.delenv("SLTWIN_CACHE_DIR", raising=False)
+    monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
+    monkeypatch.setattr(_native.os.path, "expanduser", lambda p: p)      # "~" left as it is (no home)
+    monkeypatch.chdir(tmp_path)
+    assert _native.build("t", "int f(void) { return 3; }") is None
+    assert not any(tmp_path.iterdir())
+
+
 def test_the_library_is_cached_per_cpu(monkeypatch, tmp_path):
     from unwrap import _native
 

@@ -113,6 +113,8 @@ def build(name: str, source: str, check=None, flags=FLAGS):
     if cc[0] is None:
         return None
     folder = cache_dir()
+    if folder.parts[0].startswith("~"):     # no home folder to expand "~" to: no cache (not a "~" folder here)
+        return None
     refused = _refused_path(name, source, cc, flags)
     lib = refused.with_suffix(".so")
     try:
