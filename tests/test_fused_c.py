@@ -87,19 +87,37 @@ def test_out_arrays_are_reused_by_the_c_kernel():
     _assert_bitwise(again, fresh)
 
 
-@pytest.mark.parametrize("seed, dtype, steps, levels, sat, lo, hi", [
+@pytest.mark.parametrize("case", [
     (0, np.uint8, (12, 12, 12), True, 255.0, -np.inf, np.inf),
     (1, np.uint16, (4, 7, 5), True, np.inf, 30.0, 60000.0),
     (2, np.uint8, (3, 9, 12), False, np.inf, -np.inf, np.inf),
-    (3, np.uint8, (6, 6, 6), True, 250.0, 2.0, np.inf)])
-def test_numpy_replica_is_numbas_bit_for_bit(seed, dtype, steps, levels, sat, lo, hi):
+    (3, np.uint8, (6, 6, 6), True, 250.0, 2.0, np.inf),
+    (2, np.uint8, (3, 9, 12), False, np.inf, -np.inf, np.inf, _fused_c.K.BLOCK + 300, 12.0),
+    (4, np.uint16, (5, 5, 5), True, 65535.0, -np.inf, np.inf, 2 * _fused_c.K.BLOCK + 7, 12.0)])
+def test_numpy_replica_is_numbas_bit_for_bit(case):
     K = _numba()
-    stacks, args, a = _fused_c._check_case(fused_mf._kernel_weights, seed, dtype, steps, levels, sat, lo, hi)
-    _, _, b = _fused_c._check_case(fused_mf._kernel_weights, seed, dtype, steps, levels, sat, lo, hi)
+    stacks, args, a = _fused_c._check_case(fused_mf._kernel_weights, *case)
+    _, _, b = _fused_c._check_case(fused_mf._kernel_weights, *case)
     _fused_numpy.mf_kernel(stacks, *args, *a)
     K.mf_kernel(tuple(stacks), np.empty(0, np.int32), *args, *b)
     assert all(x.tobytes() == y.tobytes() for x, y in zip(a, b, strict=True))
     assert a[2].any() and not a[2].all()
+
+
+def test_per_process_check_covers_blocks_and_the_wrap():
+    """The library's per-process check runs a frame of more than one block and moves results both ways
+    by the pattern's wrap (a miscompiled block loop or wrap select would otherwise pass it)."""
+    sizes, moved = [], set()
+    for case in _fused_c.CHECK_CASES:
+        stacks, args, out = _fused_c._check_case(fused_mf._kernel_weights, *case)
+        _fused_numpy.mf_kernel(stacks, *args, *out)
+        sizes.append(stacks[0].shape[1])
+        if len(case) > 8 and case[8] > 0:           # the same input without the wrap: the orders it moved
+            _, args0, out0 = _fused_c._check_case(fused_mf._kernel_weights, *case[:8], 0.0)
+            _fused_numpy.mf_kernel(stacks, *args0, *out0)
+            both = out[2] & out0[2]
+            moved |= set(np.unique(out[1][both] - out0[1][both]).tolist())
+    assert max(sizes) > _fused_c.K.BLOCK and moved == {-12, 0, 12}
 
 
 def test_numpy_arctangent_is_the_kernels():
@@ -141,6 +159,45 @@ def test_no_compiler_or_a_shared_cache_falls_back(tmp_path, monkeypatch):
     assert _native.build("t", "int f(void) { return 1; }") is None
     os.chmod(lib.parent, 0o755)
     assert _native.build("t", "int f(void) { return 1; }").f() == 1
+
+
+def _fake_cc(tmp_path, body: str, name: str) -> str:
+    cc = tmp_path / name
+    cc.write_text(f"#!/bin/sh\necho run >> {tmp_path / 'calls'}\n{body}\n")
+    cc.chmod(0o755)
+    return str(cc)
+
+
+def test_a_failing_compiler_is_run_once_and_a_killed_compile_not_remembered(tmp_path, monkeypatch):
+    """A compiler that fails with and without -march=native is remembered for both (later processes
+    run no compile); a compile killed by a signal leaves no refusal (the next process compiles)."""
+    from unwrap import _native
+
+    calls = tmp_path / "calls"
+    monkeypatch.setenv("SLTWIN_CACHE_DIR", str(tmp_path / "c"))
+    monkeypatch.setenv("CC", _fake_cc(tmp_path, "echo 'no math.h' >&2; exit 1", "failing-cc"))
+    assert _native.build("t", "int f(void) { return 1; }") is None
+    assert calls.read_text().count("run") == 2                  # with -march=native, then without
+    assert _native.build("t", "int f(void) { return 1; }") is None
+    assert calls.read_text().count("run") == 2                  # remembered: no compile at all
+    assert len(list((tmp_path / "c" / "unwrap_kernels").glob("t_*.refused"))) == 2
+    calls.unlink()
+    monkeypatch.setenv("CC", _fake_cc(tmp_path, "kill -9 $$", "killed-cc"))
+    assert _native.build("t", "int f(void) { return 1; }") is None
+    assert _native.build("t", "int f(void) { return 1; }") is None
+    assert calls.read_text().count("run") == 2                  # once per call, no retry, nothing remembered
+    assert len(list((tmp_path / "c" / "unwrap_kernels").glob("t_*.refused"))) == 2
+
+
+def test_no_home_folder_means_no_cache_in_the_working_folder(monkeypatch, tmp_path):
+    from unwrap import _native
+
+    monkeypatch.delenv("SLTWIN_CACHE_DIR", raising=False)
+    monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
+    monkeypatch.setattr(_native.os.path, "expanduser", lambda p: p)      # "~" left as it is (no home)
+    monkeypatch.chdir(tmp_path)
+    assert _native.build("t", "int f(void) { return 3; }") is None
+    assert not any(tmp_path.iterdir())
 
 
 def test_the_library_is_cached_per_cpu(monkeypatch, tmp_path):

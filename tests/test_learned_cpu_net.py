@@ -65,6 +65,16 @@ def test_predictor_defaults_on_the_cpu_and_plain_for_a_callers_network():
     assert load_predictor("learned", precision="bf16").input_layout == "nchw"
 
 
+def test_a_network_in_train_mode_is_run_as_it_is():
+    """No private folded copy of a network still being trained: its later weights are the ones run."""
+    net, ck = load_model(shipped_model_path(), "cpu")
+    net = _bn_net().train()
+    p = TorchPredictor(net, dict(ck, arch=dict(ck["arch"], norm="batch", depth=2)))
+    assert not p.fold_norm and not p.channels_last and p.input_layout == "nchw" and p._run is net
+    assert net.training and any(isinstance(m, nn.BatchNorm2d) for m in net.modules())
+    assert TorchPredictor(net.eval(), dict(ck, arch=dict(ck["arch"], norm="batch", depth=2))).fold_norm
+
+
 @pytest.mark.parametrize("size", [(96, 128), (90, 118)])
 def test_channels_last_folded_path_gives_the_plain_orders_up_to_ties(size):
     phi, mods, valid, _ = _frame(*size)
@@ -139,7 +149,7 @@ def test_coarse_remainder_and_range_check_keep_their_bits():
     rng = np.random.default_rng(2)
     x = np.concatenate([rng.uniform(-2 * np.pi, 2 * np.pi, 5000),
                         [0.0, -0.0, 1e-300, -1e-300, np.nextafter(2 * np.pi, 0), -np.nextafter(2 * np.pi, 0)]])
-    assert np.array_equal(FF._remainder_2pi(x), np.remainder(x, 2 * np.pi))
+    assert FF._remainder_2pi(x).tobytes() == np.remainder(x, 2 * np.pi).tobytes()      # -0.0 included
     y = np.concatenate([x, [7.0, -20.0, np.inf, np.nan]])      # outside the fast range: numpy's own
     with np.errstate(invalid="ignore"):
         assert np.array_equal(FF._remainder_2pi(y), np.remainder(y, 2 * np.pi), equal_nan=True)

@@ -124,6 +124,20 @@ def test_the_next_orientations_frames_decoded_ahead_give_the_same_maps(capture):
             assert a.tobytes() == b.tobytes()
 
 
+def test_frames_decoded_ahead_are_taken_not_decoded_again(capture, monkeypatch):
+    """The prefetch is used (each frame decoded once), not silently missed (a frame decoded twice)."""
+    from collections import Counter
+
+    from unwrap import capture as capture_mod
+    from unwrap.pipeline import unwrap_capture
+
+    calls, real = Counter(), capture_mod.read_image
+    monkeypatch.setattr(capture_mod, "read_image", lambda f: (calls.update([str(f)]), real(f))[1])
+    res = unwrap_capture(capture)
+    assert len(res) == 2 and calls and max(calls.values()) == 1
+    assert len(calls) == len(list((capture / "pose_00").glob("*.png")))
+
+
 def test_a_bad_frame_decoded_ahead_is_reported_in_its_turn(capture, tmp_path):
     import shutil
 

@@ -273,14 +273,17 @@ def _call(f, stacks, W, goff, grp_start, ent_n, ent_s, sum_all, ratios, cut, sat
         raise MemoryError("the fused MF kernel could not allocate its block buffers")
 
 
-def _check_case(weights, seed: int, dtype, steps, levels: bool, sat: float, lo: float, hi: float):
+def _check_case(weights, seed: int, dtype, steps, levels: bool, sat: float, lo: float, hi: float,
+                n_pix: int = 300, wrap: float = 0.0):
     """A small noisy MF input with dark, flat, saturated and out-of-range pixels, in the kernel's
     flat layout: (stacks, the scalar and weight arguments, fresh outputs); ``weights``:
-    :func:`unwrap.fused_mf._kernel_weights`."""
+    :func:`unwrap.fused_mf._kernel_weights`. ``n_pix`` above :data:`K.BLOCK <unwrap._fused_consts.BLOCK>`
+    covers a full block and the next; ``wrap`` > 0 narrows the pattern's range to orders
+    ``wrap / 2 .. 36 - wrap / 2`` so that results move up and down by ``wrap`` orders."""
     from .phase_shift import equal_shifts
 
     rng = np.random.default_rng(seed)
-    n_pix, top = 300, np.iinfo(dtype).max
+    top = np.iinfo(dtype).max
     x = np.linspace(0.0, 1.0, n_pix)
     stacks = []
     for f, N in zip((1.0, 6.0, 36.0), steps):
@@ -296,24 +299,30 @@ def _check_case(weights, seed: int, dtype, steps, levels: bool, sat: float, lo: 
     n_lev = 2 if levels else 0
     outs = (np.empty(n_pix), np.empty(n_pix, np.int32), np.empty(n_pix, bool), np.empty(n_pix), np.empty(n_pix),
             np.empty(n_pix), np.empty((n_lev, n_pix if levels else 0)), np.empty((n_lev, n_pix if levels else 0)))
-    args = (W, goff, grp_start, ent_n, ent_s, sum_all, ratios, 0.4, sat, lo, hi, 0.02 * top, 36.0, 0.0,
-            2 * np.pi * 36.0, 0.0)
+    p_lo, p_hi = 2 * np.pi * (wrap / 2), 2 * np.pi * (36.0 - wrap / 2)
+    args = (W, goff, grp_start, ent_n, ent_s, sum_all, ratios, 0.4, sat, lo, hi, 0.02 * top, 36.0, p_lo, p_hi,
+            float(wrap))
     return stacks, args, outs
+
+
+#: :func:`_check_case`'s arguments of the per-process check (:func:`_same_bits`)
+CHECK_CASES = ((0, np.uint8, (12, 12, 12), True, 255.0, -np.inf, np.inf),
+               (1, np.uint16, (4, 7, 5), False, np.inf, 30.0, 60000.0),
+               (2, np.uint8, (3, 9, 12), False, np.inf, -np.inf, np.inf, 300, 12.0),
+               (3, np.uint16, (3, 3, 3), True, 65535.0, -np.inf, np.inf, K.BLOCK + 100))
 
 
 def _same_bits(funcs, weights) -> bool:
     """Whether the library gives the numpy replica's bits (:mod:`unwrap._fused_numpy`) on small inputs
     of both pixel types: equal and unequal step counts, with and without levels, saturation and a
-    valid range (a few ms once per process)."""
+    valid range, a frame of more than one block, the pattern's wrap both ways (a few ms once per
+    process)."""
     from ._fused_numpy import mf_kernel as reference
 
-    cases = ((0, np.uint8, (12, 12, 12), True, 255.0, -np.inf, np.inf),
-             (1, np.uint16, (4, 7, 5), False, np.inf, 30.0, 60000.0),
-             (2, np.uint8, (3, 9, 12), False, np.inf, -np.inf, np.inf))
-    for seed, dtype, steps, levels, sat, lo, hi in cases:
-        stacks, args, a = _check_case(weights, seed, dtype, steps, levels, sat, lo, hi)
-        _, _, b = _check_case(weights, seed, dtype, steps, levels, sat, lo, hi)
-        _call(funcs[np.dtype(dtype)], stacks, *args, *a, 0, a[0].size)
+    for case in CHECK_CASES:
+        stacks, args, a = _check_case(weights, *case)
+        b = tuple(np.empty_like(x) for x in a)
+        _call(funcs[stacks[0].dtype], stacks, *args, *a, 0, a[0].size)
         reference(stacks, *args, *b)
         if any(x.tobytes() != y.tobytes() for x, y in zip(a, b)):
             return False

@@ -85,6 +85,13 @@ def _open(path: Path, check):
         return None
 
 
+def _refused_path(name: str, source: str, cc, flags) -> Path:
+    """``NAME_HASH.refused`` in the cache (the library beside it: ``NAME_HASH.so``), HASH of the source,
+    the compiler, the flags and the machine (module docstring)."""
+    key = hashlib.sha256("\0".join((source, *cc, *flags, platform.machine(), cpu_id())).encode()).hexdigest()[:16]
+    return cache_dir() / f"{name}_{key}.refused"
+
+
 def build(name: str, source: str, check=None, flags=FLAGS):
     """``check(dll)`` of ``source`` compiled with ``flags`` and cached as ``NAME_HASH.so`` (``check``
     None: the ``ctypes.CDLL`` itself), or None where there is no C compiler, the compile fails, the
@@ -94,7 +101,8 @@ def build(name: str, source: str, check=None, flags=FLAGS):
     compiler under the same name) is rebuilt. A build ``check`` refuses, or a compiler that fails,
     leaves ``NAME_HASH.refused`` saying why, so that later processes go straight to their fallback
     instead of compiling again (delete it to retry; a compile that timed out or a compiler that
-    cannot be run leaves none). A new build is loaded and checked in its build folder before it is
+    cannot be run, or a compile killed by a signal, leaves none; a compiler that fails with and without
+    ``-march=native`` leaves one for both). A new build is loaded and checked in its build folder before it is
     moved into place: a refused build is never cached. Build folders a killed compile left are swept
     after :data:`STALE_S`."""
     check = check or (lambda dll: dll)
@@ -104,9 +112,11 @@ def build(name: str, source: str, check=None, flags=FLAGS):
         return None
     if cc[0] is None:
         return None
-    key = hashlib.sha256("\0".join((source, *cc, *flags, platform.machine(), cpu_id())).encode()).hexdigest()[:16]
     folder = cache_dir()
-    lib, refused = folder / f"{name}_{key}.so", folder / f"{name}_{key}.refused"
+    if folder.parts[0].startswith("~"):     # no home folder to expand "~" to: no cache (not a "~" folder here)
+        return None
+    refused = _refused_path(name, source, cc, flags)
+    lib = refused.with_suffix(".so")
     try:
         folder.mkdir(mode=0o755, parents=True, exist_ok=True)      # writable by this user only
         if not trusted(folder):
@@ -124,8 +134,19 @@ def build(name: str, source: str, check=None, flags=FLAGS):
             src, out = Path(tmp) / f"{name}.c", Path(tmp) / f"{name}.so"
             src.write_text(source)
             proc = subprocess.run([*cc, *flags, "-o", str(out), str(src)], capture_output=True, timeout=120)
+            if proc.returncode < 0:       # killed by a signal (out of memory, interrupted): not a refusal
+                return None
             if proc.returncode and "-march=native" in flags:       # a compiler that refuses it
-                return build(name, source, check, tuple(x for x in flags if x != "-march=native"))
+                plain = tuple(x for x in flags if x != "-march=native")
+                got = build(name, source, check, plain)
+                if got is None and _refused_path(name, source, cc, plain).is_file():
+                    # refused without it too: remembered under this key as well, so that later
+                    # processes do not run the failing -march=native compile again
+                    note = Path(tmp) / "refused"
+                    note.write_text(f"{' '.join(cc)} exited {proc.returncode} with -march=native, and without it: "
+                                    f"see {_refused_path(name, source, cc, plain).name}\n")
+                    os.replace(note, refused)
+                return got
             got = None
             if proc.returncode == 0:
                 os.chmod(out, 0o755)

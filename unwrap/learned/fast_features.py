@@ -146,7 +146,7 @@ def _remainder_2pi(x: np.ndarray) -> np.ndarray:
     x = np.asarray(x, dtype=np.float64)
     neg = x < 0
     out = x + two_pi
-    np.copyto(out, x, where=~neg)
+    np.add(x, 0.0, out=out, where=~neg)      # x itself, but -0.0 -> +0.0 as numpy's remainder gives
     if not (np.abs(x) < two_pi).all():       # also False on NaN
         return np.remainder(x, two_pi)
     return out

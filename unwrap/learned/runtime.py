@@ -62,7 +62,7 @@ class TorchPredictor:
     each BatchNorm into the convolution before it (eval statistics). Both run on a private copy
     of ``net`` (:func:`unwrap.learned.cpu_net.prepare_for_cpu`; ``self.net`` stays the network
     given) and change only the float rounding (logits move by ~1e-5). None (the default): both
-    on for a float32 forward on the CPU, off elsewhere - measured for the shipped width-8 model
+    on for a float32 forward on the CPU of a network in eval mode, off elsewhere - measured for the shipped width-8 model
     and the width-16 one (docs/speed.md, "The learned path on 2 CPU cores": channels-last with
     its input already in that layout ~2x faster; on CUDA see bench.learned_gpu).
     ``input_layout`` ("nchw" / "nhwc") is the memory layout the forward takes without a copy
@@ -88,7 +88,9 @@ class TorchPredictor:
                              "bfloat16 arithmetic; use fp16 or fp32")
         self.precision = precision
         self._dtype = {"fp16": torch.float16, "bf16": torch.bfloat16}.get(precision)
-        cpu32 = self.device.type == "cpu" and precision == "fp32"
+        # a network still in train mode (being trained or fine-tuned) runs as it is by default: a private
+        # folded copy would keep its weights of now, and folding uses the running statistics
+        cpu32 = self.device.type == "cpu" and precision == "fp32" and not net.training
         self.channels_last = cpu32 if channels_last is None else bool(channels_last)
         self.fold_norm = (cpu32 if fold_norm is None else bool(fold_norm)) and self.arch.get("norm") == "batch"
         self.input_layout = "nhwc" if self.channels_last else "nchw"
