@@ -11,8 +11,8 @@ of the pixels costs about half the arithmetic of a full-resolution one of the sa
 field - what makes an hour of training on 2 CPU cores useful. GroupNorm instead of BatchNorm: the result of a sample does not
 depend on the other samples of its batch, so one step of 2 processes x batch b equals one step
 of 1 process x batch 2b (the distributed-training test), and training and inference behave the
-same. Inputs of any size: they are padded (zeros = invalid) to a multiple of ``2**depth`` and the
-output cropped back.
+same. Inputs of any size: they are padded (zeros = invalid) at the bottom and right to a multiple
+of ``2**(depth + 1)`` (the stem's stride-2 step and ``depth`` poolings) and the output cropped back.
 
 Options for a network that must run fast on a CPU (docs/speed.md, "A lighter network"):
 ``norm = "batch"`` (BatchNorm, folded into the convolutions at export: no frame-wide statistics,
