@@ -12,7 +12,7 @@ field - what makes an hour of training on 2 CPU cores useful. GroupNorm instead 
 depend on the other samples of its batch, so one step of 2 processes x batch b equals one step
 of 1 process x batch 2b (the distributed-training test), and training and inference behave the
 same. Inputs of any size: they are padded (zeros = invalid) at the bottom and right to a multiple
-of ``2**(depth + 1)`` (the stem's stride-2 step and ``depth`` poolings) and the output cropped back.
+of ``2**(depth + 1)`` and the output cropped back.
 
 Options for a network that must run fast on a CPU (docs/speed.md, "A lighter network"):
 ``norm = "batch"`` (BatchNorm, folded into the convolutions at export: no frame-wide statistics,
