@@ -319,7 +319,9 @@ def test_c_kernel_rebuilds_a_damaged_library_remembers_a_refusal_and_sweeps_kill
     folder = tmp_path / "cache" / "unwrap_kernels"
     assert _fresh_c_kernel(monkeypatch, tmp_path, gcc) is not None
     (lib,) = folder.glob("*.so")
-    lib.write_bytes(b"not a shared object")
+    damaged = folder / "damaged"
+    damaged.write_bytes(b"not a shared object")
+    os.replace(damaged, lib)        # a new file: truncating the loaded one in place would SIGBUS this process
     old, young = folder / "tmpkilled", folder / "tmpbuilding"
     old.mkdir()
     young.mkdir()
