@@ -222,9 +222,9 @@ def test_an_onnxruntime_forward_is_preceded_by_a_trim_every_frame(monkeypatch):
 
     calls, torch_pred = [], load_predictor(_model())
 
-    class OnnxLike:        # the policy follows the backend's name; the forward is the torch one's
-        backend, arch, meta, input_layout, multiple = (OnnxPredictor.backend, torch_pred.arch, torch_pred.meta, "nchw",
-                                                       torch_pred.multiple)
+    class OnnxLike:        # the policy is the onnxruntime predictor's; the forward is the torch one's
+        trim_every_frame, arch, meta, input_layout, multiple = (OnnxPredictor.trim_every_frame, torch_pred.arch,
+                                                                torch_pred.meta, "nchw", torch_pred.multiple)
 
         def logits(self, x):
             calls.append("forward")

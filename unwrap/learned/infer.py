@@ -50,13 +50,11 @@ WARN_RATIO, MAX_RATIO, MIN_RATIO = 2.5, 4.0, 1.0 / 8.0
 #: fault them back in (~10k page faults, ~40 MB, per 640 x 480 frame: more system time than the
 #: decode). ``calib unwrap --model`` at 900 x 700 peaks at the same ~500 MB with a trim per
 #: orientation, one per size, or none (docs/speed.md, "The learned path on 2 CPU cores").
-#: Not for onnxruntime (:data:`TRIM_EVERY_FRAME`): its arena, kept from the first frame, does not
-#: reuse the heap's freed blocks, so a second frame without a trim holds both (``calib unwrap
-#: --model model.onnx`` at 900 x 700: ~355 MB against ~320 MB with a trim per orientation).
+#: A predictor whose ``trim_every_frame`` is true (onnxruntime's: its arena, kept from the first
+#: frame, does not reuse the heap's freed blocks, so a second frame without a trim holds both;
+#: ``calib unwrap --model model.onnx`` at 900 x 700: ~355 MB against ~320 MB with a trim per
+#: orientation) is trimmed before every forward.
 _TRIMMED: dict = {}     # (H, W) -> whether glibc released memory then
-
-#: Predictor backends whose every forward is preceded by a heap trim (see :data:`_TRIMMED`).
-TRIM_EVERY_FRAME = ("onnxruntime",)
 
 
 def resolve_model(model, device="cpu"):
@@ -216,7 +214,7 @@ def unwrap_learned(method: str, phase_low, phase_high, modulation_low, modulatio
     H, W = ok.shape
     if hasattr(pred, "prepare"):       # as the graph takes it (already padded: no copy)
         x = pred.prepare(x)
-    if (H, W) not in _TRIMMED or getattr(pred, "backend", None) in TRIM_EVERY_FRAME:
+    if (H, W) not in _TRIMMED or getattr(pred, "trim_every_frame", False):
         # the forward is the peak: the maps freed so far leave the heap first, once per frame size
         # (:data:`_TRIMMED`), or every frame for onnxruntime
         _TRIMMED[(H, W)] = trim_heap()

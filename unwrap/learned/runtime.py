@@ -70,6 +70,8 @@ class TorchPredictor:
     multiple the network pads its input to."""
 
     backend = "torch"
+    #: a heap trim before the first forward of each frame size only (unwrap.learned.infer._TRIMMED)
+    trim_every_frame = False
 
     def __init__(self, net, ck: dict, channels_last: bool | None = None, precision: str = "fp32",
                  fold_norm: bool | None = None):
@@ -136,6 +138,9 @@ class OnnxPredictor:
     1-minute load average, taken when the session is made, is below the number of cores."""
 
     backend = "onnxruntime"
+    #: a heap trim before every forward: the arena does not reuse the heap's freed blocks
+    #: (unwrap.learned.infer._TRIMMED)
+    trim_every_frame = True
 
     def __init__(self, path, providers=None, threads=None, spin=None, device=None):
         import os
