@@ -99,9 +99,9 @@ class TorchPredictor:
         self.multiple = 2 ** (int(self.arch.get("depth", 0)) + 1)
         self._run = net
         if self.channels_last or self.fold_norm:
-            from .cpu_net import prepare_for_cpu
+            from .cpu_net import CpuCopy         # made again where net is changed in place (fine-tuned)
 
-            self._run = prepare_for_cpu(net, channels_last=self.channels_last, fold=self.fold_norm)
+            self._run = CpuCopy(net, channels_last=self.channels_last, fold=self.fold_norm)
 
     @property
     def features_on_device(self) -> bool:
