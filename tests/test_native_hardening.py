@@ -131,3 +131,19 @@ def test_a_read_only_cache_folder_falls_back_without_raising(tmp_path, monkeypat
     monkeypatch.setattr(_native.tempfile, "TemporaryDirectory", read_only)
     assert _native.build("t", SRC) is None
     assert _calls(tmp_path) == 0 and not any(_kernels(tmp_path).iterdir())
+
+
+def test_a_compiler_that_refuses_march_native_is_not_asked_again(tmp_path, monkeypatch):
+    """A compiler that fails with -march=native and builds without it: later processes load the
+    build without it and run no compile (before, each ran the failing -march=native compile again)."""
+    real = shutil.which("cc") or shutil.which("gcc")
+    if real is None:
+        pytest.skip("no C compiler")
+    monkeypatch.setenv("SLTWIN_CACHE_DIR", str(tmp_path / "c"))
+    monkeypatch.setenv("CC", _fake_cc(tmp_path, 'case "$*" in *-march=native*) echo "unknown -march" >&2; exit 1;; '
+                                                f'esac\nexec {real} "$@"'))
+    assert _native.build("t", SRC).f() == 7 and _calls(tmp_path) == 2
+    assert _native.build("t", SRC).f() == 7 and _calls(tmp_path) == 2
+    notes = list(_kernels(tmp_path).glob("t_*.refused"))
+    assert len(notes) == 1 and notes[0].read_text().startswith(_native.NO_NATIVE)
+    assert "unknown -march" in notes[0].read_text()

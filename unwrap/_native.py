@@ -102,17 +102,34 @@ def _refused_path(name: str, source: str, cc, flags) -> Path:
     return cache_dir() / f"{name}_{key}.refused"
 
 
-def _still_refused(note: Path) -> bool:
-    """Whether the refusal ``note`` holds: every note but a timed-out compile's older than
-    :data:`RETRY_TIMED_OUT_S`."""
+NO_NATIVE = "-march=native refused"
+"""How the note of a compiler that fails with ``-march=native`` begins: the build goes on without it,
+under its own key, library and note."""
+
+
+def _still_refused(note: Path) -> str | None:
+    """The first line of the refusal ``note`` where it holds, else None: every note holds but a
+    timed-out compile's older than :data:`RETRY_TIMED_OUT_S`."""
     import time
 
     try:
         with open(note, "rb") as f:
-            timed_out = f.read(9) == b"timed out"
-        return not timed_out or time.time() - note.stat().st_mtime <= RETRY_TIMED_OUT_S
+            first = f.readline().decode(errors="replace")
+        timed_out = first.startswith("timed out")
+        return first if not timed_out or time.time() - note.stat().st_mtime <= RETRY_TIMED_OUT_S else None
     except OSError:           # removed meanwhile (another process retried it): not refused
-        return False
+        return None
+
+
+def _without_native(flags) -> tuple:
+    return tuple(x for x in flags if x != "-march=native")
+
+
+def _leave_note(tmp: Path, refused: Path, text: str) -> None:
+    """Write ``text`` as the refusal note ``refused`` (atomically, through the build folder ``tmp``)."""
+    note = Path(tmp) / "refused"
+    note.write_text(text)
+    os.replace(note, refused)
 
 
 def _run_compiler(cmd, tmp: Path):
@@ -152,12 +169,14 @@ def build(name: str, source: str, check=None, flags=FLAGS):
     A cached library that does not load or that ``check`` refuses (damaged, or built by another
     compiler under the same name) is rebuilt. A build ``check`` refuses, or a compiler that fails,
     leaves ``NAME_HASH.refused`` saying why, so that later processes go straight to their fallback
-    instead of compiling again (delete it to retry; a compiler that cannot be run, a compile killed by
-    a signal or interrupted, or one that failed for want of disk space, leaves none; a compiler that fails with and without ``-march=native``
-    leaves one for both). A compile that runs over :data:`TIMEOUT_S` is killed with its children and
-    leaves one too, retried once it is :data:`RETRY_TIMED_OUT_S` old. A new build is loaded and checked in its build folder before it is
-    moved into place: a refused build is never cached. Build folders a killed compile left are swept
-    after :data:`STALE_S`."""
+    instead of compiling again (delete it to retry). A compiler that fails with ``-march=native``
+    leaves one saying so, and the build goes on without the flag under its own key: later processes
+    load that library, or read its note, without compiling. A compile that runs over
+    :data:`TIMEOUT_S` is killed with its children and leaves one too, retried once it is
+    :data:`RETRY_TIMED_OUT_S` old. A compiler that cannot be run, a compile killed by a signal or
+    interrupted, or one that failed for want of disk space, leaves none. A new build is loaded and
+    checked in its build folder before it is moved into place: a refused build is never cached.
+    Build folders a killed compile left are swept after :data:`STALE_S`."""
     check = check or (lambda dll: dll)
     try:
         cc = shlex.split(os.environ.get("CC", "")) or [shutil.which("cc") or shutil.which("gcc")]
@@ -180,8 +199,10 @@ def build(name: str, source: str, check=None, flags=FLAGS):
             got = _open(lib, check)
             if got is not None:
                 return got
-        if refused.is_file() and _still_refused(refused):
-            return None
+        why = _still_refused(refused) if refused.is_file() else None
+        if why is not None:
+            # a compiler that refuses -march=native: straight to the build without it
+            return build(name, source, check, _without_native(flags)) if why.startswith(NO_NATIVE) else None
         _sweep(folder)
         with tempfile.TemporaryDirectory(dir=folder) as tmp:
             src, out = Path(tmp) / f"{name}.c", Path(tmp) / f"{name}.so"
@@ -189,36 +210,30 @@ def build(name: str, source: str, check=None, flags=FLAGS):
             try:
                 returncode, output = _run_compiler([*cc, *flags, "-o", str(out), str(src)], Path(tmp))
             except subprocess.TimeoutExpired:         # remembered: later processes fall back at once
-                note = Path(tmp) / "refused"
-                note.write_text(f"timed out: {' '.join(cc)} ran over {TIMEOUT_S:g} s and was killed (tried again "
-                                f"when this note is {RETRY_TIMED_OUT_S / 3600:g} h old, or delete it)\n")
-                os.replace(note, refused)
+                _leave_note(tmp, refused, f"timed out: {' '.join(cc)} ran over {TIMEOUT_S:g} s and was killed "
+                                          f"(tried again when this note is {RETRY_TIMED_OUT_S / 3600:g} h old, or "
+                                          "delete it)\n")
                 return None
             if returncode < 0:       # killed by a signal (out of memory, interrupted): not a refusal
                 return None
             if returncode and b"No space left on device" in output:     # a full disk passes: not a refusal
                 return None
             if returncode and "-march=native" in flags:       # a compiler that refuses it
-                plain = tuple(x for x in flags if x != "-march=native")
-                got = build(name, source, check, plain)
-                if got is None and _refused_path(name, source, cc, plain).is_file():
-                    # refused without it too: remembered under this key as well, so that later
-                    # processes do not run the failing -march=native compile again
-                    note = Path(tmp) / "refused"
-                    note.write_text(f"{' '.join(cc)} exited {returncode} with -march=native, and without it: "
-                                    f"see {_refused_path(name, source, cc, plain).name}\n")
-                    os.replace(note, refused)
-                return got
+                # remembered: later processes go straight to the build without it (its own library
+                # and note), not through this failing compile again
+                plain = _without_native(flags)
+                _leave_note(tmp, refused, f"{NO_NATIVE}: {' '.join(cc)} exited {returncode} with it; built without "
+                                          f"it: {_refused_path(name, source, cc, plain).stem}\n"
+                                          f"{output.decode(errors='replace')[-500:]}\n")
+                return build(name, source, check, plain)
             got = None
             if returncode == 0:
                 os.chmod(out, 0o755)
                 got = _open(out, check)     # a path this process never loaded: not a refused file's handle
             if got is None:
-                note = Path(tmp) / "refused"
-                note.write_text(f"{' '.join(cc)} exited {returncode}: "
-                                f"{output.decode(errors='replace')[-500:]}\n" if returncode else
-                                "the built library failed its check (its bits differ from the replica's)\n")
-                os.replace(note, refused)
+                _leave_note(tmp, refused, f"{' '.join(cc)} exited {returncode}: "
+                                          f"{output.decode(errors='replace')[-500:]}\n" if returncode else
+                                          "the built library failed its check (its bits differ from the replica's)\n")
                 return None
             os.replace(out, lib)                  # atomic: another process may build it too
             refused.unlink(missing_ok=True)       # a timed-out compile's note, retried
