@@ -147,3 +147,12 @@ def test_a_compiler_that_refuses_march_native_is_not_asked_again(tmp_path, monke
     notes = list(_kernels(tmp_path).glob("t_*.refused"))
     assert len(notes) == 1 and notes[0].read_text().startswith(_native.NO_NATIVE)
     assert "unknown -march" in notes[0].read_text()
+
+
+def test_the_compiler_speaks_c_locale(tmp_path, monkeypatch):
+    """The compiler runs under LC_ALL=C, so that its "No space left on device" is the one build looks for."""
+    monkeypatch.setenv("SLTWIN_CACHE_DIR", str(tmp_path / "c"))
+    monkeypatch.setenv("LC_ALL", "de_DE.UTF-8")
+    monkeypatch.setenv("CC", _fake_cc(tmp_path, f'echo "$LC_ALL" > {tmp_path / "locale"}; exit 1'))
+    assert _native.build("t", SRC) is None
+    assert (tmp_path / "locale").read_text().strip() == "C"

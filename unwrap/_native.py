@@ -144,6 +144,7 @@ def _run_compiler(cmd, tmp: Path):
     try:
         with open(log, "wb") as f:
             proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=f, stderr=subprocess.STDOUT,
+                                    env={**os.environ, "LC_ALL": "C"},    # untranslated messages (build reads them)
                                     start_new_session=hasattr(os, "killpg"))
         rc = proc.wait(timeout=TIMEOUT_S)
     except BaseException:
