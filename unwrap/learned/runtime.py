@@ -61,7 +61,8 @@ class TorchPredictor:
     ``channels_last``: run the convolutions in channels-last memory format; ``fold_norm``: fold
     each BatchNorm into the convolution before it (eval statistics). Both run on a private copy
     of ``net`` (:func:`unwrap.learned.cpu_net.prepare_for_cpu`; ``self.net`` stays the network
-    given) and change only the float rounding (logits move by ~1e-5). None (the default): both
+    given; the copy is made again where ``net`` is changed in place: :class:`~unwrap.learned.cpu_net.CpuCopy`)
+    and change only the float rounding (logits move by ~1e-5). None (the default): both
     on for a float32 forward on the CPU of a network in eval mode, off elsewhere - measured for the shipped width-8 model
     and the width-16 one (docs/speed.md, "The learned path on 2 CPU cores": channels-last with
     its input already in that layout ~2x faster; on CUDA see bench.learned_gpu).
