@@ -11,8 +11,8 @@ import time
 
 from . import (ba_scale, beat_wrap, calib_accuracy, calib_captures, calib_speed, cycles_testset, decision_error_fit,
                defocus_bias, deploy_speed, detect_accuracy, export_speed, finetune_real, gi_bias, global_bias,
-               learned_deploy, learned_gpu, learned_speed, outlier_rule, retrain_compare, skull_parity,
-               spatial_unwrap, synth_speed, unwrap_speed)
+               learned_deploy, learned_gpu, learned_speed, outlier_rule, prefetch_gray, retrain_compare,
+               skull_parity, spatial_unwrap, synth_speed, unwrap_speed)
 
 #: (name, main(argv) of the benchmark, arguments of its quick mode)
 BENCHMARKS = [
@@ -39,6 +39,7 @@ BENCHMARKS = [
     ("beat_wrap", beat_wrap.main, ["--quick", "-q"]),
     ("learned_gpu", learned_gpu.main, ["--quick", "--skip", "onnx"]),
     ("skull_parity", skull_parity.main, ["--quick"]),
+    ("prefetch_gray", prefetch_gray.main, ["--quick"]),
 ]
 
 

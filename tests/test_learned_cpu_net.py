@@ -75,6 +75,44 @@ def test_a_network_in_train_mode_is_run_as_it_is():
     assert TorchPredictor(net.eval(), dict(ck, arch=dict(ck["arch"], norm="batch", depth=2))).fold_norm
 
 
+def test_a_network_changed_after_the_predictor_was_made_is_the_one_run():
+    """The predictor's private folded copy follows its network: fine-tuned in place (an optimiser
+    step), given another state (load_state_dict), a tensor replaced, or put back in train mode."""
+    _, ck = load_model(shipped_model_path(), "cpu")
+    ck = dict(ck, arch=dict(ck["arch"], norm="batch", depth=2))
+    net = _bn_net()
+    p = TorchPredictor(net, ck)
+    assert p.fold_norm and p.channels_last
+    x = np.random.default_rng(3).standard_normal((1, 7, 40, 56)).astype(np.float32)
+
+    def plain():
+        with torch.inference_mode():
+            return net(torch.from_numpy(x)).numpy()
+
+    def same(a, b):
+        return np.allclose(a, b, atol=1e-4, rtol=1e-4)
+
+    before = p.logits(x)
+    assert same(before, plain()) and p._run.copies == 1
+    assert same(p.logits(x), before) and p._run.copies == 1           # nothing changed: no new copy
+    opt = torch.optim.SGD(net.parameters(), lr=0.5)                   # one fine-tuning step, in place
+    with torch.enable_grad(), torch.inference_mode(False):
+        net(torch.from_numpy(x)).square().mean().backward()
+    opt.step()
+    assert not same(plain(), before)
+    assert same(p.logits(x), plain()) and p._run.copies == 2
+    net.load_state_dict(_bn_net(seed=1).state_dict())                  # BatchNorm statistics too
+    assert same(p.logits(x), plain()) and p._run.copies == 3
+    with torch.no_grad():
+        net.enc[0][0].weight.data = net.enc[0][0].weight.data * 1.5      # a tensor replaced
+    assert same(p.logits(x), plain()) and p._run.copies == 4
+    net.train()                                                        # batch statistics: the network itself
+    with torch.inference_mode():
+        ref = net(torch.from_numpy(x)).numpy()
+    assert same(p.logits(x), ref) and not same(ref, before)
+    assert not any(isinstance(m, nn.BatchNorm2d) for m in p._run.copy.modules())
+
+
 @pytest.mark.parametrize("size", [(96, 128), (90, 118)])
 def test_channels_last_folded_path_gives_the_plain_orders_up_to_ties(size):
     phi, mods, valid, _ = _frame(*size)

@@ -58,8 +58,18 @@ def trusted(path: Path) -> bool:
     return st.st_uid == os.getuid() and not st.st_mode & 0o022
 
 
+TIMEOUT_S = 30.0
+"""Wall-clock limit (s) of one compile. The largest kernel here compiles in ~1.5 s on an idle core
+(``unwrap/_fused_c.py``; the plane kernel in ~0.25 s): 30 s leaves a margin of ~20x for a loaded
+machine or a cold disk, where a compiler that hangs cost 120 s before."""
+
+RETRY_TIMED_OUT_S = 86400.0
+"""Age (s) after which a compile that timed out is tried again (its ``.refused`` note is a day old): a
+timeout may have been a passing load rather than a compiler that hangs."""
+
 STALE_S = 600.0
-"""Age (s) after which a build folder in the cache is a killed compile's (a compile times out at 120 s)."""
+"""Age (s) after which a build folder in the cache is a killed compile's (a compile times out at
+:data:`TIMEOUT_S`)."""
 
 
 def _sweep(folder: Path) -> None:
@@ -92,6 +102,66 @@ def _refused_path(name: str, source: str, cc, flags) -> Path:
     return cache_dir() / f"{name}_{key}.refused"
 
 
+NO_NATIVE = "-march=native refused"
+"""How the note of a compiler that fails with ``-march=native`` begins: the build goes on without it,
+under its own key, library and note."""
+
+
+def _still_refused(note: Path) -> str | None:
+    """The first line of the refusal ``note`` where it holds, else None: every note holds but a
+    timed-out compile's older than :data:`RETRY_TIMED_OUT_S`."""
+    import time
+
+    try:
+        with open(note, "rb") as f:
+            first = f.readline().decode(errors="replace")
+        timed_out = first.startswith("timed out")
+        return first if not timed_out or time.time() - note.stat().st_mtime <= RETRY_TIMED_OUT_S else None
+    except OSError:           # removed meanwhile (another process retried it): not refused
+        return None
+
+
+def _without_native(flags) -> tuple:
+    return tuple(x for x in flags if x != "-march=native")
+
+
+def _leave_note(tmp: Path, refused: Path, text: str) -> None:
+    """Write ``text`` as the refusal note ``refused`` (atomically, through the build folder ``tmp``)."""
+    note = Path(tmp) / "refused"
+    note.write_text(text)
+    os.replace(note, refused)
+
+
+def _run_compiler(cmd, tmp: Path):
+    """``(exit status, output bytes)`` of ``cmd``, run in its own process group with its output in a
+    file of ``tmp``. After :data:`TIMEOUT_S` (``subprocess.TimeoutExpired``), or when this process is
+    interrupted (KeyboardInterrupt, re-raised), the whole group is killed: a compiler driver's
+    children (``cc1``, ``as``, ``ld``) too, which would otherwise run on, and no pipe is left for
+    this process to wait on until they end."""
+    import signal
+
+    log, proc = tmp / "compiler-output", None
+    try:
+        with open(log, "wb") as f:
+            proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=f, stderr=subprocess.STDOUT,
+                                    env={**os.environ, "LC_ALL": "C"},    # untranslated messages (build reads them)
+                                    start_new_session=hasattr(os, "killpg"))
+        rc = proc.wait(timeout=TIMEOUT_S)
+    except BaseException:
+        if proc is None:
+            raise
+        try:
+            if hasattr(os, "killpg"):
+                os.killpg(proc.pid, signal.SIGKILL)
+            else:                                           # no process groups (not POSIX)
+                proc.kill()
+        except OSError:
+            pass
+        proc.wait()
+        raise
+    return rc, log.read_bytes()
+
+
 def build(name: str, source: str, check=None, flags=FLAGS):
     """``check(dll)`` of ``source`` compiled with ``flags`` and cached as ``NAME_HASH.so`` (``check``
     None: the ``ctypes.CDLL`` itself), or None where there is no C compiler, the compile fails, the
@@ -100,11 +170,14 @@ def build(name: str, source: str, check=None, flags=FLAGS):
     A cached library that does not load or that ``check`` refuses (damaged, or built by another
     compiler under the same name) is rebuilt. A build ``check`` refuses, or a compiler that fails,
     leaves ``NAME_HASH.refused`` saying why, so that later processes go straight to their fallback
-    instead of compiling again (delete it to retry; a compile that timed out or a compiler that
-    cannot be run, or a compile killed by a signal, leaves none; a compiler that fails with and without
-    ``-march=native`` leaves one for both). A new build is loaded and checked in its build folder before it is
-    moved into place: a refused build is never cached. Build folders a killed compile left are swept
-    after :data:`STALE_S`."""
+    instead of compiling again (delete it to retry). A compiler that fails with ``-march=native``
+    leaves one saying so, and the build goes on without the flag under its own key: later processes
+    load that library, or read its note, without compiling. A compile that runs over
+    :data:`TIMEOUT_S` is killed with its children and leaves one too, retried once it is
+    :data:`RETRY_TIMED_OUT_S` old. A compiler that cannot be run, a compile killed by a signal or
+    interrupted, or one that failed for want of disk space, leaves none. A new build is loaded and
+    checked in its build folder before it is moved into place: a refused build is never cached.
+    Build folders a killed compile left are swept after :data:`STALE_S`."""
     check = check or (lambda dll: dll)
     try:
         cc = shlex.split(os.environ.get("CC", "")) or [shutil.which("cc") or shutil.which("gcc")]
@@ -127,38 +200,44 @@ def build(name: str, source: str, check=None, flags=FLAGS):
             got = _open(lib, check)
             if got is not None:
                 return got
-        if refused.is_file():
-            return None
+        why = _still_refused(refused) if refused.is_file() else None
+        if why is not None:
+            # a compiler that refuses -march=native: straight to the build without it
+            return build(name, source, check, _without_native(flags)) if why.startswith(NO_NATIVE) else None
         _sweep(folder)
         with tempfile.TemporaryDirectory(dir=folder) as tmp:
             src, out = Path(tmp) / f"{name}.c", Path(tmp) / f"{name}.so"
             src.write_text(source)
-            proc = subprocess.run([*cc, *flags, "-o", str(out), str(src)], capture_output=True, timeout=120)
-            if proc.returncode < 0:       # killed by a signal (out of memory, interrupted): not a refusal
+            try:
+                returncode, output = _run_compiler([*cc, *flags, "-o", str(out), str(src)], Path(tmp))
+            except subprocess.TimeoutExpired:         # remembered: later processes fall back at once
+                _leave_note(tmp, refused, f"timed out: {' '.join(cc)} ran over {TIMEOUT_S:g} s and was killed "
+                                          f"(tried again when this note is {RETRY_TIMED_OUT_S / 3600:g} h old, or "
+                                          "delete it)\n")
                 return None
-            if proc.returncode and "-march=native" in flags:       # a compiler that refuses it
-                plain = tuple(x for x in flags if x != "-march=native")
-                got = build(name, source, check, plain)
-                if got is None and _refused_path(name, source, cc, plain).is_file():
-                    # refused without it too: remembered under this key as well, so that later
-                    # processes do not run the failing -march=native compile again
-                    note = Path(tmp) / "refused"
-                    note.write_text(f"{' '.join(cc)} exited {proc.returncode} with -march=native, and without it: "
-                                    f"see {_refused_path(name, source, cc, plain).name}\n")
-                    os.replace(note, refused)
-                return got
+            if returncode < 0:       # killed by a signal (out of memory, interrupted): not a refusal
+                return None
+            if returncode and b"No space left on device" in output:     # a full disk passes: not a refusal
+                return None
+            if returncode and "-march=native" in flags:       # a compiler that refuses it
+                # remembered: later processes go straight to the build without it (its own library
+                # and note), not through this failing compile again
+                plain = _without_native(flags)
+                _leave_note(tmp, refused, f"{NO_NATIVE}: {' '.join(cc)} exited {returncode} with it; built without "
+                                          f"it: {_refused_path(name, source, cc, plain).stem}\n"
+                                          f"{output.decode(errors='replace')[-500:]}\n")
+                return build(name, source, check, plain)
             got = None
-            if proc.returncode == 0:
+            if returncode == 0:
                 os.chmod(out, 0o755)
                 got = _open(out, check)     # a path this process never loaded: not a refused file's handle
             if got is None:
-                note = Path(tmp) / "refused"
-                note.write_text(f"{' '.join(cc)} exited {proc.returncode}: "
-                                f"{proc.stderr.decode(errors='replace')[-500:]}\n" if proc.returncode else
-                                "the built library failed its check (its bits differ from the replica's)\n")
-                os.replace(note, refused)
+                _leave_note(tmp, refused, f"{' '.join(cc)} exited {returncode}: "
+                                          f"{output.decode(errors='replace')[-500:]}\n" if returncode else
+                                          "the built library failed its check (its bits differ from the replica's)\n")
                 return None
             os.replace(out, lib)                  # atomic: another process may build it too
+            refused.unlink(missing_ok=True)       # a timed-out compile's note, retried
             return got
     except (OSError, ValueError, subprocess.SubprocessError):
         return None

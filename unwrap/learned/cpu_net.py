@@ -61,3 +61,61 @@ def prepare_for_cpu(net: nn.Module, *, channels_last: bool, fold: bool) -> nn.Mo
     if channels_last:
         fast = fast.to(memory_format=torch.channels_last)
     return fast
+
+
+class CpuCopy:
+    """``prepare_for_cpu(net, ...)`` kept in step with ``net``: called like a module, it runs the
+    private copy, made again first where ``net``'s parameters or buffers changed since it was made
+    (fine-tuned in place by an optimiser, ``load_state_dict``, a tensor replaced), and runs ``net``
+    itself while ``net`` is in train mode (folding takes the running statistics of now).
+
+    A change is seen through each parameter's and buffer's identity, storage address and version
+    counter (torch bumps it on every in-place operation): ~0.05 ms a call for the shipped model's
+    132 tensors, against a forward of ~40 ms. Not seen: writes that bypass the counter (in place
+    through ``tensor.data`` or a numpy view of a tensor) and submodules replaced by new ones; call
+    :meth:`refresh` after those.
+
+    >>> from unwrap.learned.network import FringeUNet
+    >>> net = FringeUNet(7, 5, width=8, depth=2, norm="batch", stem="strided").eval()
+    >>> fast = CpuCopy(net, channels_last=False, fold=True)
+    >>> x = torch.randn(1, 7, 32, 48)
+    >>> with torch.no_grad():
+    ...     _ = net.enc[0][0].weight.mul_(2.0)           # fine-tuned in place
+    >>> with torch.inference_mode():
+    ...     bool(torch.allclose(fast(x), net(x), atol=1e-4)), fast.copies
+    (True, 2)
+    """
+
+    def __init__(self, net: nn.Module, *, channels_last: bool, fold: bool):
+        self.net, self.channels_last, self.fold = net, channels_last, fold
+        self.copies = 0          # copies made (1 + the refreshes a change caused)
+        self.refresh()
+
+    def _state(self) -> list:
+        """(identity, storage address, version) of every parameter and buffer of the modules ``net`` had."""
+        out = []
+        for d, name in self._slots:
+            t = d.get(name)
+            if t is None:
+                out.append(None)
+                continue
+            try:
+                version = t._version
+            except RuntimeError:          # an inference tensor: no version counter, no in-place change outside it
+                version = -1
+            out.append((id(t), t.data_ptr(), version))
+        return out
+
+    def refresh(self) -> None:
+        """Make the private copy again from ``net`` as it is now."""
+        self._slots = [(d, name) for m in self.net.modules() for d in (m._parameters, m._buffers) for name in d]
+        self._seen = self._state()
+        self.copy = prepare_for_cpu(self.net, channels_last=self.channels_last, fold=self.fold)
+        self.copies += 1
+
+    def __call__(self, x):
+        if self.net.training:
+            return self.net(x)
+        if self._state() != self._seen:
+            self.refresh()
+        return self.copy(x)

@@ -61,7 +61,8 @@ class TorchPredictor:
     ``channels_last``: run the convolutions in channels-last memory format; ``fold_norm``: fold
     each BatchNorm into the convolution before it (eval statistics). Both run on a private copy
     of ``net`` (:func:`unwrap.learned.cpu_net.prepare_for_cpu`; ``self.net`` stays the network
-    given) and change only the float rounding (logits move by ~1e-5). None (the default): both
+    given; the copy is made again where ``net`` is changed in place: :class:`~unwrap.learned.cpu_net.CpuCopy`)
+    and change only the float rounding (logits move by ~1e-5). None (the default): both
     on for a float32 forward on the CPU of a network in eval mode, off elsewhere - measured for the shipped width-8 model
     and the width-16 one (docs/speed.md, "The learned path on 2 CPU cores": channels-last with
     its input already in that layout ~2x faster; on CUDA see bench.learned_gpu).
@@ -99,9 +100,9 @@ class TorchPredictor:
         self.multiple = 2 ** (int(self.arch.get("depth", 0)) + 1)
         self._run = net
         if self.channels_last or self.fold_norm:
-            from .cpu_net import prepare_for_cpu
+            from .cpu_net import CpuCopy         # made again where net is changed in place (fine-tuned)
 
-            self._run = prepare_for_cpu(net, channels_last=self.channels_last, fold=self.fold_norm)
+            self._run = CpuCopy(net, channels_last=self.channels_last, fold=self.fold_norm)
 
     @property
     def features_on_device(self) -> bool:
