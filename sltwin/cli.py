@@ -177,6 +177,12 @@ def main(argv=None) -> int:
             message += f" (while writing {' '.join(map(str, output)) if isinstance(output, list) else output})"
         print(f"calib {args.command}: error: {prefix}{message}", file=sys.stderr)
         return code
+    except MemoryError:                     # a resource, not a bug: say so and what to try
+        if args.debug:
+            traceback.print_exc()
+        hint = " (try --low-memory)" if hasattr(args, "low_memory") else ""
+        print(f"calib {args.command}: error: out of memory{hint}", file=sys.stderr)
+        return 2
     except Exception as exc:                # a bug: one line, the traceback with --debug
         if args.debug:
             raise

@@ -55,6 +55,21 @@ def test_a_bug_is_one_line_asking_for_debug_not_a_traceback(monkeypatch, capsys)
         main(["--debug", "plan-fringes"])
 
 
+def test_running_out_of_memory_is_an_error_with_a_hint_not_a_bug(monkeypatch, capsys):
+    from sltwin.commands import plan_fringes, unwrap as unwrap_command
+
+    def exhausted(args):
+        raise MemoryError()
+
+    monkeypatch.setattr(plan_fringes, "run", exhausted)
+    assert main(["plan-fringes"]) == 2
+    err = capsys.readouterr().err
+    assert "error: out of memory" in err and "bug" not in err and "--low-memory" not in err
+    monkeypatch.setattr(unwrap_command, "run", exhausted)
+    assert main(["unwrap", "somewhere", "-o", "elsewhere"]) == 2
+    assert "out of memory (try --low-memory)" in capsys.readouterr().err
+
+
 def test_commands_that_render_nothing_do_not_import_torch(tmp_path):
     code = ("import sys; from sltwin.cli import main; "
             f"main(['twin', '-o', {str(tmp_path / 't.json')!r}]); main(['plan-fringes', '--steps', '12']); "
