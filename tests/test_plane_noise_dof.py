@@ -54,3 +54,19 @@ def test_the_default_is_the_five_by_five_centre_factor():
     B = np.full(r.shape, 0.3)
     assert plane_residual_noise(r, B, 4)["sigma_phase_rad"] == pytest.approx(
         plane_residual_noise(r, B, 4, dof=math.sqrt(25.0 / 24.0))["sigma_phase_rad"], rel=1e-12)
+
+
+def test_noise_from_phase_of_a_three_step_capture_reads_the_known_noise():
+    """unwrap.spatial_capture.noise_from_phase (the 3-step path of `calib unwrap --spatial`) goes
+    through the same estimator: intensity noise sigma_phase * B * sqrt(N / 2) back within 1.5 %,
+    with an invalid border (only interior pixels count)."""
+    from unwrap.spatial_capture import noise_from_phase
+
+    rng = np.random.default_rng(2)
+    shape, sigma, B, N = (400, 400), 0.03, 0.25, 3
+    y, x = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64)
+    phase = 0.2 * x - 0.05 * y + rng.normal(0.0, sigma, shape)
+    valid = np.zeros(shape, bool)
+    valid[10:-10, 10:-10] = True
+    got = noise_from_phase(np.where(valid, phase, np.nan), valid, np.full(shape, B), N)
+    assert got == pytest.approx(sigma * B * math.sqrt(N / 2.0), rel=0.015)
