@@ -24,7 +24,8 @@ reference's own, the response gamma that best explains the unit phase's deviatio
 twin's noise against the capture's and against its own sensor. Renders and twins are cached in
 ``--work`` (per interreflection render 23-36 s at half resolution, ``--scale 2 --stride 2``, the
 default, 52-60 s at full, ``--scale 1``; ~10-25 s per twin; 2 shared cores at load 6-8; the capture
-is read once, :func:`experiments.pixel_twin.measure_capture`). Needs ``../shared/data``.
+is read once, :func:`experiments.pixel_twin.measure_capture`); a twin's file name carries the sensor
+fitted on the capture, so a changed noise estimate renders the twins afresh. Needs ``../shared/data``.
 """
 from __future__ import annotations
 
@@ -41,6 +42,13 @@ ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "slstudi
 #: in the names of the cached renders and twins: bumped when what experiments.pixel_twin / capture_gi
 #: write changes (p2: the plane without the 2 pi spikes of moved orders), so that an old --work is not reused
 CACHE = "p2"
+
+
+def _twin_file(work: Path, name: str, seed: int, sensor: dict, tag: str = "") -> Path:
+    """The cached pixel twin of row ``name``: its name carries :data:`CACHE` and the sensor it was
+    rendered with (full well, read noise), so that a changed noise estimate renders it afresh."""
+    return work / (f"twin_{CACHE}_fw{sensor['full_well_e']:.0f}_rn{sensor['read_noise_e']:.2f}_{_slug(name)}{tag}"
+                   f"_seed{seed}.h5")
 
 
 def _errors(path) -> tuple[int, int, np.ndarray]:
@@ -199,7 +207,7 @@ def main(argv=None) -> int:
     from experiments.parity_evidence import decoded
 
     labelled = decoded(real)["labelled"]
-    spare = work / f"twin_{CACHE}_{_slug('sensor only')}_seed{seeds}.h5"
+    spare = _twin_file(work, "sensor only", seeds, sensor)
     if not spare.exists():
         pixel_twin(real, folder, spare, full_well_e=sensor["full_well_e"], read_noise_e=sensor["read_noise_e"], seed=seeds,
                    measured=measured)
@@ -210,7 +218,7 @@ def main(argv=None) -> int:
         counts = []
         for seed in range(seeds):
             tag = f"_x{scale}_s{stride}" if "interreflection" in name and (scale, stride) != (2, 2) else ""
-            out = work / f"twin_{CACHE}_{_slug(name)}{tag}_seed{seed}.h5"
+            out = _twin_file(work, name, seed, sensor, tag)
             if not out.exists():
                 pixel_twin(real, folder, out, full_well_e=sensor["full_well_e"], read_noise_e=sensor["read_noise_e"],
                            seed=seed, unit_bias=bias, measured=measured)
@@ -224,7 +232,7 @@ def main(argv=None) -> int:
         print(f"{name:48s} {rate:.3f} % ({min(w)}-{max(w)})  real/twin {rows[-1]['real_over_twin']:.2f}  {note}",
               flush=True)
     _print_table(rows, seeds, wrong_real, n_real, rows[0]["chance"])
-    spares = [work / f"twin_{CACHE}_{_slug('sensor only')}_seed{seed}.h5" for seed in range(seeds)]
+    spares = [_twin_file(work, "sensor only", seed, sensor) for seed in range(seeds)]
     evidence = _evidence(real, measured, sensor, spares)
     if args.json:
         write_text(args.json, json.dumps({"real": {"wrong": wrong_real, "labelled": n_real}, "sensor": sensor,

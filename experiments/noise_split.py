@@ -36,6 +36,7 @@ def phase_error_split(path, pair=(1.0, 16.0), orientation: str = "v", bins: int 
 
     from unwrap.dataset import FringeOrderDataset
     from unwrap.learned.smoothing import smooth_phase
+    from unwrap.reliability import plane_centre_dof
 
     from .plane_residual import order_outlier_residual
 
@@ -45,7 +46,7 @@ def phase_error_split(path, pair=(1.0, 16.0), orientation: str = "v", bins: int 
         width = float(json.loads(h5.attrs["widths"])[orientation])
         coords = h5[f"{orientation}/coordinate"][()]
     ds = FringeOrderDataset(path, method="mf", frequencies=tuple(pair), orientation=orientation, crop=None, seed=0)
-    dof = math.sqrt(25.0 / 22.0)
+    dof = plane_centre_dof(5)
     cols = {k: [] for k in ("B", "plane", "plane_raw", "true", "geometry", "wrong")}
     for i in range(len(ds)):
         it = ds[i]

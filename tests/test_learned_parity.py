@@ -142,7 +142,7 @@ def test_noise_curve_recovers_the_sensor_of_synthetic_residuals():
     q2 = 1.0 / (12.0 * 255.0 ** 2)
     B = rng.uniform(0.03, 0.3, 400_000)
     sigma_I = np.sqrt((read / fw) ** 2 + q2 + B / fw)
-    sigma_phase = sigma_I / (B * math.sqrt(N / 2.0)) / math.sqrt(25.0 / 22.0)   # undo the fit's dof factor
+    sigma_phase = sigma_I / (B * math.sqrt(N / 2.0)) / math.sqrt(25.0 / 24.0)   # the centre residual's dof factor
     c = noise_curve(rng.normal(0.0, sigma_phase), B, N)
     assert len(c["modulation"]) == 10 and np.all(np.diff(c["sigma_I"]) > 0)
     assert c["full_well_e"] == pytest.approx(fw, rel=0.1)

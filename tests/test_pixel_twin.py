@@ -27,7 +27,7 @@ def test_order_outlier_residual_measures_the_noise_not_the_neighbours_order_erro
     sigma = 0.1
     Phi, ok = _plane_phase_with_order_errors(0.06, sigma)
     inner = (slice(2, -2), slice(2, -2))
-    dof = math.sqrt(25.0 / 22.0)
+    dof = math.sqrt(25.0 / 24.0)                   # the centre pixel's leverage 1/25 (plane_centre_dof)
     spread = lambda r: 1.4826 * float(np.median(np.abs(r[inner].numpy()))) * dof  # noqa: E731
     raw = spread(order_outlier_residual(Phi, ok, passes=0))
     fixed = spread(order_outlier_residual(Phi, ok))
@@ -46,7 +46,7 @@ def test_sensor_fit_recovers_full_well_and_read_noise_against_the_background():
     A = rng.uniform(0.04, 0.3, 400_000)
     B = 0.89 * A                                    # the skull's contrast: noise follows A, not B
     sigma_I = np.sqrt(A / fw + (read / fw) ** 2 + q2)
-    res = rng.normal(0.0, math.sqrt(2.0 / N) * sigma_I / B) / math.sqrt(25.0 / 22.0)
+    res = rng.normal(0.0, math.sqrt(2.0 / N) * sigma_I / B) / math.sqrt(25.0 / 24.0)
     f = sensor_fit(res, A, B, N)
     assert abs(f["full_well_e"] / fw - 1) < 0.05
     assert abs(f["read_noise_e"] / read - 1) < 0.25

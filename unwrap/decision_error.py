@@ -74,25 +74,27 @@ MIN_MODULATION = 1e-4
 
 #: Fitted coefficients (``python -m bench.decision_error_fit``; validation scenes only, see the
 #: module docstring). version: bumped whenever the features change.
-MODEL = {"version": 1, "intercept": -4.377438,
-         "coef": {"log_mod_low": 0.0, "log_mod_high": -0.347656, "log_edge_distance": -0.585935,
-                  "local_bias": 6.122033, "local_bias_wide": 6.341902},
+MODEL = {"version": 1, "intercept": -4.410076,
+         "coef": {"log_mod_low": 0.0, "log_mod_high": -0.361502, "log_edge_distance": -0.580831,
+                  "local_bias": 6.112529, "local_bias_wide": 6.331591},
          "fitted_on": "bench.decision_error_fit (refitted by bench.spatial_unwrap --calibrate-gate with the "
                       "width-8 gate): 12 validation scenes (6 of spatial_val.toml, 6 of decision_error_val.toml with "
-                      "interreflection), 3373676 pixels, 76769 traditional errors; log loss 0.0664 per pixel "
-                      "(ridge-penalised objective 0.0671); the twin scenes' noise from capture_noise after 441dd4d"}
+                      "interreflection), 3373676 pixels, 76769 traditional errors; log loss 0.0661 per pixel "
+                      "(ridge-penalised objective 0.0668); the twin scenes' noise from capture_noise with the "
+                      "centre pixel's plane dof sqrt(25/24) (before: sqrt(25/22), intercept -4.377)"}
 
 
 #: The model with the global / direct ratio as a sixth feature (``python -m bench.decision_error_fit
 #: --global``; the same 12 validation scenes, whose offsets were re-rendered): used by
 #: :func:`error_probability` when ``global_ratio`` is given. Not yet behind any gate threshold.
-MODEL_GLOBAL = {"version": 1, "intercept": -5.306231,
-                "coef": {"log_mod_low": 0.0, "log_mod_high": 0.0, "log_edge_distance": -0.321812,
-                         "local_bias": 5.183575, "local_bias_wide": 6.281793, "log_global_ratio": 3.691667},
+MODEL_GLOBAL = {"version": 1, "intercept": -5.298233,
+                "coef": {"log_mod_low": 0.0, "log_mod_high": 0.0, "log_edge_distance": -0.320344,
+                         "local_bias": 5.18841, "local_bias_wide": 6.27402, "log_global_ratio": 3.684625},
                 "fitted_on": "bench.decision_error_fit --global (refitted with the twin scenes' noise from "
-                             "capture_noise after 441dd4d, as MODEL): 12 validation scenes (6 of spatial_val.toml, "
-                             "6 of decision_error_val.toml with interreflection), 3373676 pixels; log loss 0.0622 "
-                             "per pixel, ridge-penalised objective 0.0630 (MODEL on the same pixels: 0.0664)"}
+                             "capture_noise with the centre pixel's plane dof sqrt(25/24), as MODEL; before: "
+                             "intercept -5.306): 12 validation scenes (6 of spatial_val.toml, "
+                             "6 of decision_error_val.toml with interreflection), 3373676 pixels; log loss 0.0620 "
+                             "per pixel, ridge-penalised objective 0.0627 (MODEL on the same pixels: 0.0661)"}
 
 
 def _names(model: dict) -> tuple:

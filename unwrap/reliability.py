@@ -350,18 +350,39 @@ def phase_noise_rad(phase, reference=None, erode: int = 3) -> float:
     return s
 
 
-def plane_residual_noise(residuals, modulation, steps: int, dof: float = math.sqrt(25.0 / 22.0)) -> dict:
+def plane_centre_dof(window: int = 5) -> float:
+    """The factor that undoes a least-squares plane's degrees of freedom in the residual of the
+    centre pixel of a full ``window`` x ``window`` box (odd, >= 3; the plane ``a + b x + c y`` in
+    pixel offsets from the centre, every pixel of the box used).
+
+    The residual ``r = (I - H) e`` of white noise of variance ``s^2`` has variance ``s^2 (1 - h)``
+    at a pixel of leverage ``h``; at the centre of a symmetric box (x = y = 0) the columns x and y
+    are orthogonal to the constant, so ``h = 1 / n`` with ``n = window^2``, and the factor is
+    ``sqrt(n / (n - 1))`` (5 x 5: ``sqrt(25 / 24)``). Not ``sqrt(n / (n - 3))``: that undoes the
+    fit in the mean square of all ``n`` residuals of the box, whose corner pixels have a larger
+    leverage than the centre. Near an invalid pixel the box is not full and the leverage grows.
+    """
+    w = int(window)
+    if w < 3 or w % 2 == 0:
+        raise UnwrapError(f"window {window!r}: the plane's box must be odd and at least 3 pixels")
+    n = w * w
+    return math.sqrt(n / (n - 1.0))
+
+
+def plane_residual_noise(residuals, modulation, steps: int, dof: float | None = None, *, window: int = 5) -> dict:
     """Phase and intensity noise from residuals of an absolute phase from a local plane fit.
 
-    ``residuals`` (rad) of each pixel from the plane through its neighbours (a 5 x 5 window with
-    the pixel among them by default: ``dof = sqrt(25 / 22)`` undoes the fit's own degrees of
-    freedom); the robust sigma is 1.4826 x the median absolute residual (rare 2 pi order errors are
-    outliers it ignores). With the N-step noise gain (:func:`phase_sigma` inverted) each pixel's
-    intensity noise is ``sigma_phase * B * sqrt(N / 2)`` (full-scale units, ``modulation`` B),
-    summarised by its median.
+    ``residuals`` (rad) of each pixel from the plane through its ``window`` x ``window`` neighbours,
+    the pixel among them and all of them valid (interior pixels); ``dof`` undoes the fit's own
+    degrees of freedom, by default :func:`plane_centre_dof` of ``window`` (5 x 5: ``sqrt(25 / 24)``,
+    the centre pixel's leverage 1/25). The robust sigma is 1.4826 x the median absolute residual
+    (rare 2 pi order errors are outliers it ignores). With the N-step noise gain
+    (:func:`phase_sigma` inverted) each pixel's intensity noise is ``sigma_phase * B * sqrt(N / 2)``
+    (full-scale units, ``modulation`` B), summarised by its median.
 
     RETURNED VALUE: {"sigma_phase_rad", "sigma_I", "modulation" (median B), "pixels"}.
     """
+    dof = plane_centre_dof(window) if dof is None else float(dof)
     e = np.abs(np.asarray(residuals, dtype=np.float64).reshape(-1))
     B = np.asarray(modulation, dtype=np.float64).reshape(-1)
     sigma_phase = 1.4826 * np.median(e) * dof

@@ -29,7 +29,7 @@ from .common_window import pair_wrap_orders
 from .consistency import check_priors, prior_check
 from .errors import UnwrapError
 from .phase_shift import wrapped_phase
-from .reliability import fit_noise_sigma
+from .reliability import fit_noise_sigma, plane_residual_noise
 from .pipeline import OrientationResult, check_min_modulation
 from .decision_error import error_probability
 from .spatial_orders import DEFAULTS, GATE, MAX_CORRECTION, gate, graphcut_orders, phase_noise
@@ -64,9 +64,8 @@ def noise_from_phase(phase_abs, valid, modulation, steps: int) -> float:
     interior = ok & (torch.nn.functional.avg_pool2d(okt.double(), 5, 1, 2)[0, 0].numpy() > 0.999)
     if interior.sum() < 100:
         raise UnwrapError("too few interior valid pixels to estimate the noise from the phase; give noise_sigma")
-    dof = math.sqrt(25.0 / 22.0)
-    return float(np.median(1.4826 * np.abs(e[interior]) * dof * np.asarray(modulation)[interior])
-                 * math.sqrt(steps / 2.0))
+    # the centre pixel's residual, its plane's degrees of freedom undone (unwrap.reliability)
+    return plane_residual_noise(e[interior], np.asarray(modulation)[interior], steps)["sigma_I"]
 
 
 def _noise_sigma(noise_sigma, method, stack_hi, shifts_hi, phi_lo, phi_hi, pair, width, valid, B_hi):
