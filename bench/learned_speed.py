@@ -100,8 +100,11 @@ K = int(pred.arch["max_correction"])
 out = {"layout": layout, "threads": torch.get_num_threads()}
 out["range check (fringe period)"] = best(lambda: I.check_frequency_range(pred.meta, "mf", f, phi[1], valid,
                                                                           on_outside="ignore"), "range check (fringe period)")
-out["traditional decode (prior, orders)"] = best(lambda: decode_pair("mf", phi[0], phi[1], *f, width, valid),
-                                                 "traditional decode (prior, orders)")
+if hasattr(I, "_decode_pair"):     # the path's own (the C replica for MF where built)
+    trad_decode = lambda: I._decode_pair("mf", phi[0], phi[1], *f, width, valid)
+else:
+    trad_decode = lambda: decode_pair("mf", np.nan_to_num(phi[0]), np.nan_to_num(phi[1]), *f, width, valid)
+out["traditional decode (prior, orders)"] = best(trad_decode, "traditional decode (prior, orders)")
 out["input features"] = best(feats, "input features")
 Phi = FF.coarse_phase("mf", phi[0].astype(np.float32).astype(np.float64), phi[1], *f, width)[0]
 out["  of which the two plane fits"] = best(lambda: FF.plane_filter(Phi, ok2), "  of which the two plane fits")
