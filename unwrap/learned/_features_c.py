@@ -31,6 +31,7 @@ import math
 import numpy as np
 
 _SOURCE = r"""
+#include <float.h>
 #include <math.h>
 #include <stdint.h>
 
@@ -71,32 +72,61 @@ void mf_prior(const double *plo, const double *phi, const unsigned char *valid, 
     }
 }
 
+#define CH 512
+
 /* make_inputs' first pass: the cleaned float32 maps, ok, the coarse phase (float64) and the channels
    that need neither the plane fits nor the sines: prior fraction, phase / pi, modulations, valid.
-   X: channel c of pixel (y, x) at X[c * cs + (y * Wp + x) * ps] */
+   X: channel c of pixel (y, x) at X[c * cs + (y * Wp + x) * ps]. In chunks of CH pixels of a row, one
+   quantity at a time, so that the loops over pixels vectorise. */
 void features1(const double *pr, const double *pl, const double *ph, const double *ml, const double *mh,
                const unsigned char *valid, i64 W, i64 y0, i64 y1, i64 Wp, i64 cs, i64 ps, float *X,
                i64 c_prior, i64 c_phase, i64 c_mod, i64 c_valid, float half, float pi32, float gain,
                double cut, double two_pi, float *ph32, unsigned char *ok, double *Phi) {
+    float a[CH], b[CH], c[CH], d[CH], e[CH], v[CH];
+    unsigned char slow[CH];
     for (i64 y = y0; y < y1; y++) {
-        for (i64 x = 0; x < W; x++) {
-            i64 i = y * W + x;
-            float a = (float)pr[i], b = (float)pl[i], c = (float)ph[i], d = (float)ml[i], e = (float)mh[i];
-            /* as the torch batch: NaN -> 0; an infinity (also a float64 beyond float32's range) drops the pixel */
-            a = a != a ? 0.0f : a; b = b != b ? 0.0f : b; c = c != c ? 0.0f : c; d = d != d ? 0.0f : d;
-            e = e != e ? 0.0f : e;
-            int g = valid[i] && !isinf(a) && !isinf(b) && !isinf(c) && !isinf(d) && !isinf(e);
-            if (!g) { a = 0.0f; b = 0.0f; c = 0.0f; d = 0.0f; e = 0.0f; }
-            float *xo = X + (y * Wp + x) * ps;
-            float fa = a - ceilf(a - half);
-            xo[c_prior * cs] = fa * 2.0f;
-            xo[(c_phase + 2) * cs] = c / pi32;
-            xo[c_mod * cs] = np_clip(d * gain, 0.0f, 2.0f);
-            xo[(c_mod + 1) * cs] = np_clip(e * gain, 0.0f, 2.0f);
-            xo[c_valid * cs] = g ? 1.0f : 0.0f;
-            ph32[i] = c;
-            ok[i] = (unsigned char)g;
-            Phi[i] = np_mod((double)b - cut, two_pi) + cut;
+        for (i64 x0 = 0; x0 < W; x0 += CH) {
+            i64 n = W - x0 < CH ? W - x0 : CH, i = y * W + x0;
+            for (i64 j = 0; j < n; j++) {
+                /* as the torch batch: NaN -> 0; an infinity (also a float64 beyond float32's range) drops the pixel */
+                float fa = (float)pr[i + j], fb = (float)pl[i + j], fc = (float)ph[i + j];
+                float fd = (float)ml[i + j], fe = (float)mh[i + j];
+                fa = fa != fa ? 0.0f : fa; fb = fb != fb ? 0.0f : fb; fc = fc != fc ? 0.0f : fc;
+                fd = fd != fd ? 0.0f : fd; fe = fe != fe ? 0.0f : fe;
+                int g = (valid[i + j] != 0) & (fabsf(fa) <= FLT_MAX) & (fabsf(fb) <= FLT_MAX) & (fabsf(fc) <= FLT_MAX)
+                        & (fabsf(fd) <= FLT_MAX) & (fabsf(fe) <= FLT_MAX);
+                a[j] = g ? fa : 0.0f; b[j] = g ? fb : 0.0f; c[j] = g ? fc : 0.0f;
+                d[j] = g ? fd : 0.0f; e[j] = g ? fe : 0.0f; v[j] = g ? 1.0f : 0.0f;
+            }
+            for (i64 j = 0; j < n; j++) { ph32[i + j] = c[j]; ok[i + j] = (unsigned char)(v[j] != 0.0f); }
+            int any_slow = 0;
+            for (i64 j = 0; j < n; j++) {            /* np_mod's fast path; the rest below */
+                double t = (double)b[j] - cut;
+                int fast = fabs(t) < two_pi;
+                double r = t < 0.0 ? t + two_pi : t + 0.0;
+                Phi[i + j] = r + cut;
+                slow[j] = (unsigned char)!fast;
+                any_slow |= !fast;
+            }
+            if (any_slow)
+                for (i64 j = 0; j < n; j++)
+                    if (slow[j]) Phi[i + j] = np_mod((double)b[j] - cut, two_pi) + cut;
+            for (i64 j = 0; j < n; j++) {
+                float fr = a[j] - ceilf(a[j] - half);
+                a[j] = fr * 2.0f;
+                c[j] = c[j] / pi32;
+                d[j] = np_clip(d[j] * gain, 0.0f, 2.0f);
+                e[j] = np_clip(e[j] * gain, 0.0f, 2.0f);
+            }
+            float *xo = X + (y * Wp + x0) * ps;
+            for (i64 j = 0; j < n; j++) {
+                float *xj = xo + j * ps;
+                xj[c_prior * cs] = a[j];
+                xj[(c_phase + 2) * cs] = c[j];
+                xj[c_mod * cs] = d[j];
+                xj[(c_mod + 1) * cs] = e[j];
+                xj[c_valid * cs] = v[j];
+            }
         }
     }
 }
@@ -106,69 +136,101 @@ void features1(const double *pr, const double *pl, const double *ph, const doubl
 void features2(const double *const *P, i64 nw, const float *ph32, const float *sn, const float *cn,
                const i64 *trad, const unsigned char *ok, i64 W, i64 y0, i64 y1, i64 Wp, i64 cs, i64 ps,
                float *X, i64 c_smooth, i64 c_dis, i64 c_phase, double scale, double two_pi, float half) {
+    float fr[8][CH], dis[8][CH], v[CH];
     for (i64 y = y0; y < y1; y++) {
-        for (i64 x = 0; x < W; x++) {
-            i64 i = y * W + x;
-            int g = ok[i];
-            float v = g ? 1.0f : 0.0f;
-            double phd = (double)ph32[i];
-            float tr = (float)trad[i];
-            float *xo = X + (y * Wp + x) * ps;
+        for (i64 x0 = 0; x0 < W; x0 += CH) {
+            i64 n = W - x0 < CH ? W - x0 : CH, i = y * W + x0;
+            for (i64 j = 0; j < n; j++) v[j] = ok[i + j] ? 1.0f : 0.0f;
             for (i64 w = 0; w < nw; w++) {
-                double p = P[w][i] * scale;
-                p = p - phd;
-                p = p / two_pi;
-                float q = g ? (float)p : 0.0f;
-                float rs = ceilf(q - half);
-                float fr = q - rs;
-                xo[(c_smooth + w) * cs] = fr * 2.0f;
-                float dd = rs - tr;
-                dd = dd / 2.0f;
-                dd = np_clip(dd, -1.0f, 1.0f);
-                xo[(c_dis + w) * cs] = g ? dd : 0.0f;
+                const double *Pw = P[w] + i;
+                for (i64 j = 0; j < n; j++) {
+                    double p = Pw[j] * scale;
+                    p = p - (double)ph32[i + j];
+                    p = p / two_pi;
+                    int g = ok[i + j] != 0;
+                    float q = g ? (float)p : 0.0f;
+                    float rs = ceilf(q - half);
+                    float f = q - rs;
+                    fr[w][j] = f * 2.0f;
+                    float dd = rs - (float)trad[i + j];
+                    dd = dd / 2.0f;
+                    dd = np_clip(dd, -1.0f, 1.0f);
+                    dis[w][j] = g ? dd : 0.0f;
+                }
             }
-            xo[c_phase * cs] = sn[i] * v;
-            xo[(c_phase + 1) * cs] = cn[i] * v;
+            float *xo = X + (y * Wp + x0) * ps;
+            for (i64 j = 0; j < n; j++) {
+                float *xj = xo + j * ps;
+                for (i64 w = 0; w < nw; w++) {
+                    xj[(c_smooth + w) * cs] = fr[w][j];
+                    xj[(c_dis + w) * cs] = dis[w][j];
+                }
+                xj[c_phase * cs] = sn[i + j] * v[j];
+                xj[(c_phase + 1) * cs] = cn[i + j] * v[j];
+            }
         }
     }
 }
 
-/* decode, first pass: D[k] = z_k - max_k z_k (planar K x H x W) from logits Z (element strides) */
+/* decode, first pass: D[k] = z_k - max_k z_k (planar K x H x W) from logits Z (element strides); in
+   chunks of CH columns, class by class, so that the loops over pixels vectorise */
 void decode1(const float *Z, i64 K, i64 sk, i64 sy, i64 sx, i64 W, i64 y0, i64 y1, i64 HW, float *D) {
+    float m[CH];
     for (i64 y = y0; y < y1; y++) {
-        for (i64 x = 0; x < W; x++) {
-            const float *z = Z + y * sy + x * sx;
-            float m = z[0];
-            for (i64 k = 1; k < K; k++) m = np_max(m, z[k * sk]);
-            i64 i = y * W + x;
-            for (i64 k = 0; k < K; k++) D[k * HW + i] = z[k * sk] - m;
+        for (i64 x0 = 0; x0 < W; x0 += CH) {
+            i64 n = W - x0 < CH ? W - x0 : CH;
+            const float *z = Z + y * sy + x0 * sx;
+            for (i64 j = 0; j < n; j++) m[j] = z[j * sx];
+            for (i64 k = 1; k < K; k++) {
+                const float *zk = z + k * sk;
+                for (i64 j = 0; j < n; j++) m[j] = np_max(m[j], zk[j * sx]);
+            }
+            for (i64 k = 0; k < K; k++) {
+                const float *zk = z + k * sk;
+                float *d = D + k * HW + y * W + x0;
+                for (i64 j = 0; j < n; j++) d[j] = zk[j * sx] - m[j];
+            }
         }
     }
 }
 
-/* decode, second pass: the softmax probability of the first most probable class, the order */
+/* decode, second pass: the softmax probability of the first most probable class, the order (chunks of
+   CH pixels, class by class, as the numpy code runs over whole planes) */
 void decode2(const float *E, i64 K, i64 HW, i64 i0, i64 i1, const i64 *trad, const unsigned char *ok, i64 physics,
              i64 shift, i64 kmax, i64 *order, float *conf) {
-    for (i64 i = i0; i < i1; i++) {
-        float s = E[i];
-        for (i64 k = 1; k < K; k++) s = s + E[k * HW + i];
-        float c = E[i] / s;
-        i64 cls = 0;
+    float s[CH], c[CH];
+    i64 cls[CH];
+    for (i64 a = i0; a < i1; a += CH) {
+        i64 n = i1 - a < CH ? i1 - a : CH;
+        const float *e0 = E + a;
+        for (i64 j = 0; j < n; j++) s[j] = e0[j];
         for (i64 k = 1; k < K; k++) {
-            float pk = E[k * HW + i] / s;
-            if (pk > c) cls = k;
-            c = np_max(c, pk);
+            const float *ek = E + k * HW + a;
+            for (i64 j = 0; j < n; j++) s[j] = s[j] + ek[j];
         }
-        i64 o = physics ? trad[i] + cls - shift : cls;
-        o = o > 0 ? o : 0;
-        o = o < kmax ? o : kmax;
-        order[i] = ok[i] ? o : -1;
-        conf[i] = ok[i] ? c : 0.0f;
+        for (i64 j = 0; j < n; j++) { c[j] = e0[j] / s[j]; cls[j] = 0; }
+        for (i64 k = 1; k < K; k++) {
+            const float *ek = E + k * HW + a;
+            for (i64 j = 0; j < n; j++) {
+                float pk = ek[j] / s[j];
+                cls[j] = pk > c[j] ? k : cls[j];
+                c[j] = np_max(c[j], pk);
+            }
+        }
+        for (i64 j = 0; j < n; j++) {
+            i64 o = physics ? trad[a + j] + cls[j] - shift : cls[j];
+            o = o > 0 ? o : 0;
+            o = o < kmax ? o : kmax;
+            order[a + j] = ok[a + j] ? o : -1;
+            conf[a + j] = ok[a + j] ? c[j] : 0.0f;
+        }
     }
 }
 """
 
 _LIB: list = []
+#: most smoothing windows the C code takes (``features2``'s row buffers)
+MAX_WINDOWS = 8
 #: rows below which a stage runs as one call (threads cost more than they save)
 SPLIT_MIN_PIX = 1 << 15
 

@@ -216,7 +216,7 @@ def make_inputs(kind: str, method: str, prior, phase_low, phase_high, modulation
         raise ValueError(f"layout {layout!r}: expected one of {LAYOUTS}")
     valid = np.asarray(valid, dtype=bool)
     at = channel_slices(kind, windows)          # raises on an unknown kind
-    if native and kind == "physics" and method == "mf":
+    if native and kind == "physics" and method == "mf" and len(windows) <= 8:
         from . import _features_c as FC
 
         maps = (prior, phase_low, phase_high, modulation_low, modulation_high)
