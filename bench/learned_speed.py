@@ -80,8 +80,8 @@ def best(f, key=None):
     f()
     ts, cs = [], []
     for _ in range(repeats):
-        t, c = time.perf_counter(), time.thread_time(); f()
-        ts.append(time.perf_counter() - t); cs.append(time.thread_time() - c)
+        t, c = time.perf_counter(), time.process_time(); f()
+        ts.append(time.perf_counter() - t); cs.append(time.process_time() - c)
     if key:
         cpu[key] = 1e3 * min(cs)
     return 1e3 * min(ts)
@@ -208,8 +208,8 @@ def stage_table(args) -> None:
         a, b, c, d = after.get(k), before.get(k), ca.get(k), cb.get(k)
         print(f"| {k} | {fmt(a)} | {fmt(b)} | {fmt(a / b if a and b else None, '.2f')} | {fmt(c)} | {fmt(d)} | "
               f"{fmt(c / d if c and d else None, '.2f')} |")
-    print("\n(CPU: the stage's own thread time, single-threaded numpy stages only: what the load does not inflate "
-          "as much as the wall time)")
+    print("\n(CPU: the process's CPU time during the stage, all its threads (the C stages run on two), for the "
+          "stages without torch: what the load does not inflate as much as the wall time)")
     for tag, d in (("after", after), ("before", before)):
         if d.get("forward, torch"):
             print(f"\n{tag}: whole path / forward: torch {d['whole path, torch'] / d['forward, torch']:.2f}x, "
