@@ -15,7 +15,7 @@ from unwrap.learned import fast_features as FF
 from unwrap.learned import infer as I
 from unwrap.temporal import decode_pair
 
-needs_c = pytest.mark.skipif(FC.lib() is None, reason="no C compiler: the numpy code runs (tested elsewhere)")
+needs_c = pytest.mark.skipif(FF.native_features() is None, reason="no C compiler: the numpy code runs (tested elsewhere)")
 
 
 def _frame(H, W, seed=0):
@@ -40,12 +40,12 @@ assert SIZES[0][0] * SIZES[0][1] < FC.SPLIT_MIN_PIX <= SIZES[1][0] * SIZES[1][1]
 def test_mf_pair_decode_is_decode_pairs(size):
     plo, phi, _, _, v = _frame(*size)
     want = decode_pair("mf", np.nan_to_num(plo), np.nan_to_num(phi), 1.0, 48.0, 912.0, v)
-    got = FC.mf_prior(plo, phi, v, 1.0, 48.0, 912.0)
+    got = FC.mf_prior(plo, phi, v, 1.0, 48.0, 912.0, FF.native_features())
     for a, b in zip(want, got):
         assert a.dtype == b.dtype and a.tobytes() == b.tobytes()
     assert I._decode_pair("mf", plo, phi, 1.0, 48.0, 912.0, v)[0].tobytes() == want[0].tobytes()
     with pytest.raises(ValueError):                 # mf_unwrap's own checks still run
-        FC.mf_prior(plo, phi, v, 2.0, 48.0, 912.0)
+        FC.mf_prior(plo, phi, v, 2.0, 48.0, 912.0, FF.native_features())
 
 
 @needs_c
@@ -75,7 +75,7 @@ def test_features_outside_the_c_code_run_numpy(monkeypatch):
     with np.errstate(over="ignore", invalid="ignore"):
         FF.make_inputs("physics", "mf", prior, plo, phi, mi, mh, trad, ok, (1.0, 48.0))
         FF.make_inputs("physics", "mw", prior, plo, phi, ml, mh, trad, ok, (47.0, 48.0))
-        monkeypatch.setattr(FC, "lib", lambda: None)
+        monkeypatch.setattr(FF, "native_features", lambda: None)
         FF.make_inputs("physics", "mf", prior, plo, phi, ml, mh, trad, ok, (1.0, 48.0))
     assert not called
     assert not FC.covered(mi) and FC.covered(ml, mh)
@@ -190,13 +190,13 @@ def test_whole_path_is_the_numpy_paths(monkeypatch):
 
 def test_a_library_with_other_bits_is_not_used(monkeypatch):
     """The per-process check refuses a library whose decoding differs by one bit."""
-    if FC.lib() is None:
+    if FF.native_features() is None:
         pytest.skip("no C compiler")
-    funcs = dict(FC.lib())
+    funcs = dict(FF.native_features())
     real = funcs["decode2"]
 
     def off_by_one(D, K, HW, i0, i1, trad, ok, phys, shift, kmax, order, conf):
         real(D, K, HW, i0, i1, trad, ok, phys, shift, kmax + 1, order, conf)
     funcs["decode2"] = off_by_one
-    assert not FC._same_bits(funcs)
-    assert FC._same_bits(dict(FC.lib()))
+    assert not FC._same_bits(funcs, FF)
+    assert FC._same_bits(dict(FF.native_features()), FF)

@@ -235,7 +235,7 @@ MAX_WINDOWS = 8
 SPLIT_MIN_PIX = 1 << 15
 
 
-def _bind(dll):
+def _bind(dll, reference):
     """The typed functions of ``dll`` if they give the numpy code's bits (:func:`_same_bits`), else None."""
     import ctypes
 
@@ -250,15 +250,17 @@ def _bind(dll):
         fn = getattr(dll, name)         # AttributeError: not this library (build: None)
         fn.argtypes, fn.restype = args, None
         funcs[name] = fn
-    return funcs if _same_bits(funcs) else None
+    return funcs if _same_bits(funcs, reference) else None
 
 
-def lib():
-    """The checked library's functions (module docstring), or None."""
+def lib(reference):
+    """The checked library's functions (module docstring), or None. ``reference``: the module whose
+    numpy code the library replicates, :mod:`unwrap.learned.fast_features` (passed in, so that
+    this module imports nothing of it: :func:`unwrap.learned.fast_features.native_features`)."""
     if not _LIB:
         from .._native import build
 
-        got = build("learned_features", _SOURCE, _bind)
+        got = build("learned_features", _SOURCE, lambda dll: _bind(dll, reference))
         _LIB.append(got)
     return _LIB[0]
 
@@ -288,15 +290,15 @@ def covered(*arrays) -> bool:
     return all(np.asarray(a).dtype.kind == "f" and np.asarray(a).dtype.itemsize <= 8 for a in arrays)
 
 
-def mf_prior(phi_lo, phi_hi, valid, f_lo: float, f_hi: float, width, F=None):
+def mf_prior(phi_lo, phi_hi, valid, f_lo: float, f_hi: float, width, F):
     """:func:`unwrap.temporal.decode_pair` ``("mf", nan_to_num(phi_lo), nan_to_num(phi_hi), ...)``:
     (prior float64 (H, W) 0 where invalid, order int64 -1 invalid, valid bool), the same bits.
     ``valid`` must already exclude non-finite phases (as :func:`unwrap.learned.infer.unwrap_learned`'s
-    does): the values of invalid pixels are not read. ``F``: the functions (default :func:`lib`'s)."""
+    does): the values of invalid pixels are not read. ``F``: :func:`lib`'s functions."""
     from .._xp import TIE_BAND, TWO_PI
     from ..temporal import base_cut, check_mf_ladder
 
-    fn = (F or lib())["mf_prior"]
+    fn = F["mf_prior"]
     f = check_mf_ladder((f_lo, f_hi))                  # raises as mf_unwrap would
     cut = base_cut(float(f[0]), width)
     plo, phi = _f64(phi_lo), _f64(phi_hi)
@@ -319,16 +321,14 @@ def _strides(x: np.ndarray) -> tuple[int, int]:
 
 
 def make_inputs(prior, phase_low, phase_high, modulation_low, modulation_high, order_traditional, valid,
-                frequencies, windows, *, layout: str, multiple: int, plane_filters, F=None):
+                frequencies, windows, *, layout: str, multiple: int, plane_filters, coarse, F):
     """:func:`unwrap.learned.fast_features.make_inputs` of a physics-aware model on an MF pair
     (arguments as there; ``plane_filters(Phi, ok, windows)``: the plane fits,
-    :func:`unwrap.learned.fast_features.plane_filter`): (x (1, C, H', W') float32, ok (H, W) bool),
-    the same bits. Float inputs only (:func:`covered`)."""
+    :func:`unwrap.learned.fast_features.plane_filter`; ``coarse``: (coarse frequency, cut) of the MF
+    pair, :func:`unwrap.learned.fast_features.coarse_cut`): (x (1, C, H', W') float32, ok (H, W)
+    bool), the same bits. Float inputs only (:func:`covered`)."""
     from .._xp import TIE_BAND, TWO_PI
     from .channels import MODULATION_GAIN, channel_slices
-    from .fast_features import coarse_cut
-
-    F = F or lib()
     at = channel_slices("physics", windows)
     C = max(s.stop for s in at.values())
     pr, pl, ph, ml, mh = (_f64(a) for a in (prior, phase_low, phase_high, modulation_low, modulation_high))
@@ -345,7 +345,7 @@ def make_inputs(prior, phase_low, phase_high, modulation_low, modulation_high, o
     cs, ps = _strides(x)
     half = np.float32(0.5 + TIE_BAND)
     f_l, f_h = (float(f) for f in frequencies)
-    f_c, cut = coarse_cut("mf", f_l, f_h)
+    f_c, cut = (float(c) for c in coarse)
     ph32, ok, Phi = np.empty((H, W), np.float32), np.empty((H, W), bool), np.empty((H, W))
     xp = x.ctypes.data
     F1 = F["features1"]
@@ -368,10 +368,9 @@ def make_inputs(prior, phase_low, phase_high, modulation_low, modulation_high, o
     return x, ok
 
 
-def decode(logits, order_traditional, ok, f_high: float, kind: str, max_correction: int, F=None):
+def decode(logits, order_traditional, ok, f_high: float, kind: str, max_correction: int, F):
     """:func:`unwrap.learned.fast_features.decode` without ``wrap_orders`` of float32 logits (1, K, H, W)
     in any memory layout: (order int64 (H, W), confidence float32 (H, W)), the same bits."""
-    F = F or lib()
     z = np.asarray(logits)[0]
     K, H, W = z.shape
     sk, sy, sx = (s // 4 for s in z.strides)
@@ -404,17 +403,16 @@ def _check_frame(seed: int, H: int = 21, W: int = 19):
     return plo, phi, ml, mh, valid
 
 
-def _same_bits(F) -> bool:
+def _same_bits(F, FF) -> bool:
     """Whether the library gives the numpy code's bits (module docstring): the pair's decode, the
     features in both layouts with and without padding, the decoding of both model kinds in both
     layouts (~10 ms once per process; tests/test_learned_whole_path.py covers more)."""
     with np.errstate(over="ignore", invalid="ignore"):       # the frame's float64 beyond float32's range
-        return _same_bits_on_frames(F)
+        return _same_bits_on_frames(F, FF)
 
 
-def _same_bits_on_frames(F) -> bool:
+def _same_bits_on_frames(F, FF) -> bool:
     from ..temporal import decode_pair
-    from . import fast_features as FF
 
     for seed in (0,):
         plo, phi, ml, mh, valid = _check_frame(seed)
@@ -430,7 +428,8 @@ def _same_bits_on_frames(F) -> bool:
             a = FF.make_inputs("physics", "mf", prior, plo, phi, ml, mh, trad, ok, (1.0, 16.0), layout=layout,
                                multiple=mult, native=False)
             b = make_inputs(prior, plo, phi, ml, mh, trad, ok, (1.0, 16.0), FF.SMOOTH_WINDOWS, layout=layout,
-                            multiple=mult, plane_filters=FF.plane_filter, F=F)
+                            multiple=mult, plane_filters=FF.plane_filter,
+                            coarse=FF.coarse_cut("mf", 1.0, 16.0), F=F)
             if a[1].tobytes() != b[1].tobytes() or a[0].shape != b[0].shape or not np.array_equal(
                     a[0].view(np.uint32), b[0].view(np.uint32)):
                 return False

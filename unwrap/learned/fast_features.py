@@ -98,6 +98,17 @@ def plane_filter(Phi: np.ndarray, valid: np.ndarray, windows=SMOOTH_WINDOWS, fit
 THREAD_MIN_PIX = 1 << 15
 
 
+def native_features():
+    """The C replica of this module's MF features and decoding and of the pair's decode
+    (:mod:`unwrap.learned._features_c`): its functions, built once per machine and checked against
+    this module's numpy code once per process; None where there is no C compiler or the bits differ."""
+    import sys
+
+    from . import _features_c as FC
+
+    return FC.lib(sys.modules[__name__])
+
+
 def native_plane_filter() -> bool:
     """True when the plane fits run compiled without numba here (the C replica built or cached):
     then even a batch of captures has no use for numba's ~1 s start-up (a box takes ~17 ms in C,
@@ -221,9 +232,10 @@ def make_inputs(kind: str, method: str, prior, phase_low, phase_high, modulation
 
         maps = (prior, phase_low, phase_high, modulation_low, modulation_high)
         if FC.covered(*maps) and valid.shape == np.shape(phase_high) and np.ndim(phase_high) == 2 \
-                and all(np.shape(a) == valid.shape for a in (*maps, order_traditional)) and FC.lib() is not None:
+                and all(np.shape(a) == valid.shape for a in (*maps, order_traditional)) and native_features():
             return FC.make_inputs(*maps, order_traditional, valid, frequencies, windows, layout=layout,
-                                  multiple=multiple, plane_filters=plane_filter)
+                                  multiple=multiple, plane_filters=plane_filter,
+                                  coarse=coarse_cut("mf", *map(float, frequencies)), F=native_features())
 
     def f32(a):
         # the torch batch's map: NaN -> 0 and every value outside ``valid`` 0, rounded to float32
@@ -359,8 +371,8 @@ def decode(logits: np.ndarray, order_traditional, ok, f_high: float, kind: str, 
     if native and not wrap_orders and np.asarray(logits).dtype == _F32 and np.ndim(logits) == 4:
         from . import _features_c as FC
 
-        if FC.lib() is not None:
-            return FC.decode(logits, order_traditional, ok, f_high, kind, max_correction)
+        if native_features():
+            return FC.decode(logits, order_traditional, ok, f_high, kind, max_correction, native_features())
     zs = class_planes(logits)
     zmax = zs[0].copy()
     for z in zs[1:]:

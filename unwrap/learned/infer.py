@@ -209,11 +209,10 @@ def _decode_pair(method, phi_lo, phi_hi, f_lo, f_hi, width, valid):
     """:func:`unwrap.temporal.decode_pair` of the NaN-cleaned phases (``valid`` excludes the pixels
     that are not finite): for MF its C replica where built and checked (:mod:`._features_c`, the
     same bits, ~5x faster, no cleaned copies), else numpy."""
-    if method == "mf" and phi_hi.ndim == 2:
+    if method == "mf" and phi_hi.ndim == 2 and FF.native_features():
         from . import _features_c as FC
 
-        if FC.lib() is not None:
-            return FC.mf_prior(phi_lo, phi_hi, valid, f_lo, f_hi, width)
+        return FC.mf_prior(phi_lo, phi_hi, valid, f_lo, f_hi, width, FF.native_features())
     return decode_pair(method, np.nan_to_num(phi_lo), np.nan_to_num(phi_hi), f_lo, f_hi, width, valid)
 
 
