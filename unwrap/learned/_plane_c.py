@@ -30,7 +30,7 @@ _SOURCE = r"""
 
 typedef int64_t i64;    /* every integer argument: 64 bits on every platform (ctypes.c_int64) */
 
-static void row_block(const double *Phi, const unsigned char *valid, i64 W, i64 r, i64 y, i64 x0,
+static void row_block(const double *Phi, const unsigned char *valid, i64 W, i64 r, i64 y, i64 hy, i64 x0,
                       i64 x1, double *h, size_t HW) {
     double a0 = 0.0, a1 = 0.0, a2 = 0.0, a3 = 0.0, a4 = 0.0;
     const double *P = Phi + (size_t)y * W;
@@ -49,7 +49,7 @@ static void row_block(const double *Phi, const unsigned char *valid, i64 W, i64 
     }
     i64 x = x0;
     for (;;) {
-        size_t i = (size_t)y * W + x;
+        size_t i = (size_t)hy * W + x;
         h[i] = a0; h[HW + i] = a1; h[2 * HW + i] = a2; h[3 * HW + i] = a3; h[4 * HW + i] = a4;
         x += 1;
         if (x >= x1) break;
@@ -114,11 +114,11 @@ static void add_row(double *S, const double *h, i64 W, size_t HW, i64 yy, double
 }
 
 static void col_block(const double *Phi, const unsigned char *valid, i64 H, i64 W, i64 r, i64 y0, i64 y1,
-                      const double *h, double *out, double *S) {
-    size_t HW = (size_t)H * W;
+                      const double *h, size_t HW, i64 off, double *out, double *S) {
+    /* h: the pass-1 rows from row off on (plane stride HW) */
     for (i64 k = 0; k < 9 * W; k++) S[k] = 0.0;
     i64 lo = y0 - r > 0 ? y0 - r : 0, hi = y0 + r < H - 1 ? y0 + r : H - 1;
-    for (i64 yy = lo; yy <= hi; yy++) add_row(S, h, W, HW, yy, (double)(yy - y0), 1.0);
+    for (i64 yy = lo; yy <= hi; yy++) add_row(S, h, W, HW, yy - off, (double)(yy - y0), 1.0);
     i64 y = y0;
     for (;;) {
         solve(Phi, valid, W, y, S, out);
@@ -130,19 +130,25 @@ static void col_block(const double *Phi, const unsigned char *valid, i64 H, i64 
             S[5 * W + x] = S[5 * W + x] - S[W + x];
             S[8 * W + x] = S[8 * W + x] - S[6 * W + x];
         }
-        if (y - r - 1 >= 0) add_row(S, h, W, HW, y - r - 1, (double)(-r - 1), -1.0);
-        if (y + r < H) add_row(S, h, W, HW, y + r, (double)r, 1.0);
+        if (y - r - 1 >= 0) add_row(S, h, W, HW, y - r - 1 - off, (double)(-r - 1), -1.0);
+        if (y + r < H) add_row(S, h, W, HW, y + r - off, (double)r, 1.0);
     }
 }
 
-void plane_filter(const double *Phi, const unsigned char *valid, i64 H, i64 W, i64 r, i64 block,
-                  double *h, double *S, double *out) {
-    size_t HW = (size_t)H * W;
-    for (i64 y = 0; y < H; y++)
-        for (i64 x0 = 0; x0 < W; x0 += block)
-            row_block(Phi, valid, W, r, y, x0, x0 + block < W ? x0 + block : W, h, HW);
-    for (i64 y0 = 0; y0 < H; y0 += block)
-        col_block(Phi, valid, H, W, r, y0, y0 + block < H ? y0 + block : H, h, out, S);
+/* Row blocks b0 .. b1 - 1 (of ``block`` rows): each block's pass-1 rows (its own and r above and below,
+   computed again for each block that needs them: the same values) into hb, 5 planes of (block + 2 r)
+   rows, then pass 2: the buffer stays in cache, and blocks are independent (threads). */
+void plane_filter(const double *Phi, const unsigned char *valid, i64 H, i64 W, i64 r, i64 block, i64 b0, i64 b1,
+                  double *hb, double *S, double *out) {
+    size_t HB = (size_t)(block + 2 * r) * W;
+    for (i64 b = b0; b < b1; b++) {
+        i64 y0 = b * block, y1 = y0 + block < H ? y0 + block : H;
+        i64 lo = y0 - r > 0 ? y0 - r : 0, hi = y1 - 1 + r < H - 1 ? y1 - 1 + r : H - 1;
+        for (i64 y = lo; y <= hi; y++)
+            for (i64 x0 = 0; x0 < W; x0 += block)
+                row_block(Phi, valid, W, r, y, y - lo, x0, x0 + block < W ? x0 + block : W, hb, HB);
+        col_block(Phi, valid, H, W, r, y0, y1, hb, HB, lo, out, S);
+    }
 }
 """
 
@@ -156,7 +162,7 @@ def _bind(dll):
 
     f = dll.plane_filter
     ptr, lng = ctypes.c_void_p, ctypes.c_int64      # int64_t on the C side (not long: 32 bits on Windows)
-    f.argtypes, f.restype = [ptr, ptr, lng, lng, lng, lng, ptr, ptr, ptr], None
+    f.argtypes, f.restype = [ptr, ptr, lng, lng, lng, lng, lng, lng, ptr, ptr, ptr], None
     return f if _same_bits(f) else None
 
 
@@ -176,8 +182,8 @@ def _same_bits(f) -> bool:
     rng = np.random.default_rng(7)
     Phi, valid = rng.normal(0.0, 3.0, (13, 11)), rng.random((13, 11)) > 0.2
     for r in (3, 7):
-        h, S, out = np.empty((5, 13, 11)), np.empty((9, 11)), np.empty_like(Phi)       # held while f runs
-        f(Phi.ctypes.data, valid.ctypes.data, 13, 11, r, 8, h.ctypes.data, S.ctypes.data, out.ctypes.data)
+        h, S, out = np.empty((5, 8 + 2 * r, 11)), np.empty((9, 11)), np.empty_like(Phi)       # held while f runs
+        f(Phi.ctypes.data, valid.ctypes.data, 13, 11, r, 8, 0, 2, h.ctypes.data, S.ctypes.data, out.ctypes.data)
         if out.tobytes() != plane_filter_numpy(Phi, valid, r, block=8).tobytes():
             return False
     return True
@@ -195,8 +201,9 @@ def kernel():
         Phi = np.ascontiguousarray(Phi, dtype=np.float64)
         valid = np.ascontiguousarray(valid, dtype=bool)
         H, W = Phi.shape
-        h, S, out = np.empty((5, H, W)), np.empty((9, W)), np.empty((H, W))
-        f(Phi.ctypes.data, valid.ctypes.data, H, W, int(r), int(block), h.ctypes.data, S.ctypes.data,
+        r, block = int(r), int(block)
+        h, S, out = np.empty((5, block + 2 * r, W)), np.empty((9, W)), np.empty((H, W))
+        f(Phi.ctypes.data, valid.ctypes.data, H, W, r, block, 0, -(-H // block), h.ctypes.data, S.ctypes.data,
           out.ctypes.data)
         return out
     plane_filter_c.one_thread = True        # a caller may run several on threads (fast_features.plane_filter)
