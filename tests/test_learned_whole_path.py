@@ -66,7 +66,8 @@ def test_features_are_the_numpy_features(size, layout, multiple):
 
 
 def test_features_outside_the_c_code_run_numpy(monkeypatch):
-    """Integer maps (a cast through float64 may round otherwise), MW and no library: the numpy code."""
+    """Integer maps (a cast through float64 may round otherwise), float orders, MW and no library: the
+    numpy code."""
     plo, phi, ml, mh, v = _frame(21, 19, seed=2)
     prior, trad, ok = decode_pair("mf", np.nan_to_num(plo), np.nan_to_num(phi), 1.0, 48.0, 912.0, v)
     called = []
@@ -75,10 +76,12 @@ def test_features_outside_the_c_code_run_numpy(monkeypatch):
     with np.errstate(over="ignore", invalid="ignore"):
         FF.make_inputs("physics", "mf", prior, plo, phi, mi, mh, trad, ok, (1.0, 48.0))
         FF.make_inputs("physics", "mw", prior, plo, phi, ml, mh, trad, ok, (47.0, 48.0))
+        FF.make_inputs("physics", "mf", prior, plo, phi, ml, mh, trad + 0.25, ok, (1.0, 48.0))
         monkeypatch.setattr(FF, "native_features", lambda: None)
         FF.make_inputs("physics", "mf", prior, plo, phi, ml, mh, trad, ok, (1.0, 48.0))
     assert not called
     assert not FC.covered(mi) and FC.covered(ml, mh)
+    assert FC.integral(trad) and FC.integral(trad.astype(np.uint16)) and not FC.integral(trad + 0.25)
 
 
 @needs_c

@@ -290,6 +290,13 @@ def covered(*arrays) -> bool:
     return all(np.asarray(a).dtype.kind == "f" and np.asarray(a).dtype.itemsize <= 8 for a in arrays)
 
 
+def integral(order) -> bool:
+    """Whether ``order`` (the traditional orders) holds integers that int64 holds exactly (what the
+    library reads them as; float orders keep the numpy code, which rounds them to float32 directly)."""
+    d = np.asarray(order).dtype
+    return d.kind == "i" or (d.kind == "u" and d.itemsize < 8)
+
+
 def mf_prior(phi_lo, phi_hi, valid, f_lo: float, f_hi: float, width, F):
     """:func:`unwrap.temporal.decode_pair` ``("mf", nan_to_num(phi_lo), nan_to_num(phi_hi), ...)``:
     (prior float64 (H, W) 0 where invalid, order int64 -1 invalid, valid bool), the same bits.

@@ -231,7 +231,7 @@ def make_inputs(kind: str, method: str, prior, phase_low, phase_high, modulation
         from . import _features_c as FC
 
         maps = (prior, phase_low, phase_high, modulation_low, modulation_high)
-        if FC.covered(*maps) and valid.shape == np.shape(phase_high) and np.ndim(phase_high) == 2 \
+        if FC.covered(*maps) and FC.integral(order_traditional) and np.ndim(phase_high) == 2 \
                 and all(np.shape(a) == valid.shape for a in (*maps, order_traditional)) and native_features():
             return FC.make_inputs(*maps, order_traditional, valid, frequencies, windows, layout=layout,
                                   multiple=multiple, plane_filters=plane_filter,
