@@ -21,7 +21,8 @@ only through two quantities, and both are checked before it runs:
   (table S5's unseen f = 96 is 2x), 2.5-4x runs with a :class:`FrequencyRangeWarning`, more than 4x
   (or less than 1/8) is refused: the prior's noise alone then decides most pixels.
 - the fringe period on the camera, measured from the high wrapped phase (median over valid
-  pixels of ``2 pi / |grad phi|``): below :data:`MIN_PERIOD_PX` pixels the phase is aliased and
+  pixels of ``2 pi / |grad phi|``, on every 4th row unless that lands near the threshold:
+  :func:`measured_period_px`): below :data:`MIN_PERIOD_PX` pixels the phase is aliased and
   no order can be trusted, so it is refused.
 """
 from __future__ import annotations
