@@ -80,8 +80,8 @@ def best(f, key=None):
     f()
     ts, cs = [], []
     for _ in range(repeats):
-        t, c = time.perf_counter(), time.thread_time(); f()
-        ts.append(time.perf_counter() - t); cs.append(time.thread_time() - c)
+        t, c = time.perf_counter(), time.process_time(); f()
+        ts.append(time.perf_counter() - t); cs.append(time.process_time() - c)
     if key:
         cpu[key] = 1e3 * min(cs)
     return 1e3 * min(ts)
@@ -100,8 +100,11 @@ K = int(pred.arch["max_correction"])
 out = {"layout": layout, "threads": torch.get_num_threads()}
 out["range check (fringe period)"] = best(lambda: I.check_frequency_range(pred.meta, "mf", f, phi[1], valid,
                                                                           on_outside="ignore"), "range check (fringe period)")
-out["traditional decode (prior, orders)"] = best(lambda: decode_pair("mf", phi[0], phi[1], *f, width, valid),
-                                                 "traditional decode (prior, orders)")
+if hasattr(I, "_decode_pair"):     # the path's own (the C replica for MF where built)
+    trad_decode = lambda: I._decode_pair("mf", phi[0], phi[1], *f, width, valid)
+else:
+    trad_decode = lambda: decode_pair("mf", np.nan_to_num(phi[0]), np.nan_to_num(phi[1]), *f, width, valid)
+out["traditional decode (prior, orders)"] = best(trad_decode, "traditional decode (prior, orders)")
 out["input features"] = best(feats, "input features")
 Phi = FF.coarse_phase("mf", phi[0].astype(np.float32).astype(np.float64), phi[1], *f, width)[0]
 out["  of which the two plane fits"] = best(lambda: FF.plane_filter(Phi, ok2), "  of which the two plane fits")
@@ -205,8 +208,8 @@ def stage_table(args) -> None:
         a, b, c, d = after.get(k), before.get(k), ca.get(k), cb.get(k)
         print(f"| {k} | {fmt(a)} | {fmt(b)} | {fmt(a / b if a and b else None, '.2f')} | {fmt(c)} | {fmt(d)} | "
               f"{fmt(c / d if c and d else None, '.2f')} |")
-    print("\n(CPU: the stage's own thread time, single-threaded numpy stages only: what the load does not inflate "
-          "as much as the wall time)")
+    print("\n(CPU: the process's CPU time during the stage, all its threads (the C stages run on two), for the "
+          "stages without torch: what the load does not inflate as much as the wall time)")
     for tag, d in (("after", after), ("before", before)):
         if d.get("forward, torch"):
             print(f"\n{tag}: whole path / forward: torch {d['whole path, torch'] / d['forward, torch']:.2f}x, "

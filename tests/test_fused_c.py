@@ -246,3 +246,23 @@ def test_frames_without_pixels(monkeypatch):
     c, n = _both(monkeypatch, stacks, (1, 8, 48), width=W_P, levels=True)
     assert c.result.phase.shape == (0, 5)
     _assert_bitwise(c, n)
+
+
+@needs_c
+def test_an_allocation_failure_in_the_kernel_is_a_toolkit_error(monkeypatch, tmp_path, capsys):
+    """The C kernel's block buffers not allocated (the process out of memory): an UnwrapError naming
+    it, which ``calib unwrap`` reports with exit 2 (before: a MemoryError, exit 1 "internal error")."""
+    from bench.deploy_speed import write_capture
+    from sltwin.cli import main
+    from unwrap.errors import UnwrapError
+
+    funcs = _fused_c.kernel(fused_mf._kernel_weights)
+    assert funcs is not None
+    monkeypatch.setattr(_fused_c, "_LIB", [{dtype: (lambda *args: -1) for dtype in funcs}])
+    stacks = _stacks((1, 8, 48), (4, 4, 4), seed=11)
+    with pytest.raises(UnwrapError, match="out of memory"):
+        mf_unwrap_stacks(stacks, (1, 8, 48), width=W_P)
+    cap = write_capture(tmp_path / "cap", (64, 48), seed=4)
+    assert main(["unwrap", str(cap), "-o", str(tmp_path / "out"), "--no-previews", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "out of memory" in err and "internal error" not in err

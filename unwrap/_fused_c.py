@@ -22,55 +22,55 @@ import numpy as np
 from . import _fused_consts as K
 
 _TEMPLATE = r"""
-static void extremes_T(const T *const *rows, long N, long m, T *imax, T *imin, int want_min) {
-    for (long j = 0; j < m; j++) imax[j] = rows[0][j];
-    for (long n = 1; n < N; n++) {
+static void extremes_T(const T *const *rows, i64 N, i64 m, T *imax, T *imin, int want_min) {
+    for (i64 j = 0; j < m; j++) imax[j] = rows[0][j];
+    for (i64 n = 1; n < N; n++) {
         const T *r = rows[n];
-        for (long j = 0; j < m; j++) imax[j] = r[j] > imax[j] ? r[j] : imax[j];
+        for (i64 j = 0; j < m; j++) imax[j] = r[j] > imax[j] ? r[j] : imax[j];
     }
     if (!want_min) return;
-    for (long j = 0; j < m; j++) imin[j] = rows[0][j];
-    for (long n = 1; n < N; n++) {
+    for (i64 j = 0; j < m; j++) imin[j] = rows[0][j];
+    for (i64 n = 1; n < N; n++) {
         const T *r = rows[n];
-        for (long j = 0; j < m; j++) imin[j] = r[j] < imin[j] ? r[j] : imin[j];
+        for (i64 j = 0; j < m; j++) imin[j] = r[j] < imin[j] ? r[j] : imin[j];
     }
 }
 
-static void group_sum_T(const T *const *rows, const long *ent_n, const int *ent_s, long e, long e_end, long m,
+static void group_sum_T(const T *const *rows, const i64 *ent_n, const int *ent_s, i64 e, i64 e_end, i64 m,
                         int *restrict yg) {
-    for (long j = 0; j < m; j++) yg[j] = 0;
+    for (i64 j = 0; j < m; j++) yg[j] = 0;
     for (; e + 4 <= e_end; e += 4) {              /* four frames a pass: yg loaded and stored once */
         const T *restrict r0 = rows[ent_n[e]], *restrict r1 = rows[ent_n[e + 1]];
         const T *restrict r2 = rows[ent_n[e + 2]], *restrict r3 = rows[ent_n[e + 3]];
         int q0 = ent_s[e], q1 = ent_s[e + 1], q2 = ent_s[e + 2], q3 = ent_s[e + 3];
-        for (long j = 0; j < m; j++)
+        for (i64 j = 0; j < m; j++)
             yg[j] += q0 * (int)r0[j] + q1 * (int)r1[j] + q2 * (int)r2[j] + q3 * (int)r3[j];
     }
     for (; e < e_end; e++) {
         const T *restrict r = rows[ent_n[e]];
         int q = ent_s[e];
-        for (long j = 0; j < m; j++) yg[j] += q * (int)r[j];
+        for (i64 j = 0; j < m; j++) yg[j] += q * (int)r[j];
     }
 }
 
-static void sum_and_max_T(const T *const *rows, long N, long m, int *yg, T *imax) {
-    for (long j = 0; j < m; j++) yg[j] = rows[0][j];
-    for (long j = 0; j < m; j++) imax[j] = rows[0][j];
-    for (long n = 1; n < N; n++) {
+static void sum_and_max_T(const T *const *rows, i64 N, i64 m, int *yg, T *imax) {
+    for (i64 j = 0; j < m; j++) yg[j] = rows[0][j];
+    for (i64 j = 0; j < m; j++) imax[j] = rows[0][j];
+    for (i64 n = 1; n < N; n++) {
         const T *r = rows[n];
-        for (long j = 0; j < m; j++) yg[j] += (int)r[j];
-        for (long j = 0; j < m; j++) imax[j] = r[j] > imax[j] ? r[j] : imax[j];
+        for (i64 j = 0; j < m; j++) yg[j] += (int)r[j];
+        for (i64 j = 0; j < m; j++) imax[j] = r[j] > imax[j] ? r[j] : imax[j];
     }
 }
 
-int mf_range_T(int F, const void *const *stacks, const long *nframes, const double *W, long Gt,
-               const long *goff, const long *grp_start, const long *ent_n, const int *ent_s,
-                      const long *sum_all, const double *ratios, double cut, double sat, double lo, double hi,
-                      double min_mod, double kmax, double p_lo, double p_hi, double wrap, long n_pix, long p0,
-                      long p1, double *phase, int *order, unsigned char *valid, double *prior, double *A_out,
-                      double *B_out, long n_lev, double *lev_prior, double *lev_k) {
+int mf_range_T(int F, const void *const *stacks, const i64 *nframes, const double *W, i64 Gt,
+               const i64 *goff, const i64 *grp_start, const i64 *ent_n, const int *ent_s,
+                      const i64 *sum_all, const double *ratios, double cut, double sat, double lo, double hi,
+                      double min_mod, double kmax, double p_lo, double p_hi, double wrap, i64 n_pix, i64 p0,
+                      i64 p1, double *phase, int *order, unsigned char *valid, double *prior, double *A_out,
+                      double *B_out, i64 n_lev, double *lev_prior, double *lev_k) {
     int check_range = lo > -INFINITY || hi < INFINITY, check_sat = sat < INFINITY;
-    long g_max = 0, n_max = 0;
+    i64 g_max = 0, n_max = 0;
     for (int f = 0; f < F; f++) {
         if (goff[f + 1] - goff[f] > g_max) g_max = goff[f + 1] - goff[f];
         if (nframes[f] > n_max) n_max = nframes[f];
@@ -82,19 +82,19 @@ int mf_range_T(int F, const void *const *stacks, const long *nframes, const doub
     const T **rows = malloc(sizeof(T *) * (n_max > 0 ? n_max : 1));
     if (!acc || !y || !ext || !ok || !rows) { free(acc); free(y); free(ext); free(ok); free(rows); return -1; }
     double *a0 = acc, *c0 = acc + BLOCK, *s0v = acc + 2 * BLOCK, *bmod = acc + 3 * BLOCK, *phis = acc + 4 * BLOCK;
-    double *Phi_s = phis + (long)F * BLOCK, *pr_s = Phi_s + BLOCK, *k_s = pr_s + BLOCK;
+    double *Phi_s = phis + (i64)F * BLOCK, *pr_s = Phi_s + BLOCK, *k_s = pr_s + BLOCK;
     T *imax = ext, *imin = check_range ? ext + BLOCK : ext;
-    for (long s0 = p0; s0 < p1; s0 += BLOCK) {
-        long m = p1 - s0 < BLOCK ? p1 - s0 : BLOCK;
-        for (long j = 0; j < m; j++) ok[j] = 1;
+    for (i64 s0 = p0; s0 < p1; s0 += BLOCK) {
+        i64 m = p1 - s0 < BLOCK ? p1 - s0 : BLOCK;
+        for (i64 j = 0; j < m; j++) ok[j] = 1;
         for (int f = 0; f < F; f++) {
             const T *st = (const T *)stacks[f];
-            long N = nframes[f];
-            for (long n = 0; n < N; n++) rows[n] = st + (size_t)n * n_pix + s0;
-            long g0 = goff[f], G = goff[f + 1] - g0, g_all = sum_all[f];
+            i64 N = nframes[f];
+            for (i64 n = 0; n < N; n++) rows[n] = st + (size_t)n * n_pix + s0;
+            i64 g0 = goff[f], G = goff[f + 1] - g0, g_all = sum_all[f];
             int fuse_max = check_sat && !check_range && g_all >= 0;
             if ((check_range || check_sat) && !fuse_max) extremes_T(rows, N, m, imax, imin, check_range);
-            for (long g = 0; g < G; g++) {
+            for (i64 g = 0; g < G; g++) {
                 if (fuse_max && g == g_all) sum_and_max_T(rows, N, m, y + g * BLOCK, imax);
                 else group_sum_T(rows, ent_n, ent_s, grp_start[g0 + g], grp_start[g0 + g + 1], m, y + g * BLOCK);
             }
@@ -102,8 +102,8 @@ int mf_range_T(int F, const void *const *stacks, const long *nframes, const doub
             float_sum(y, W + g0, G, m, a_row);
             float_sum(y, W + Gt + g0, G, m, c0);
             float_sum(y, W + 2 * Gt + g0, G, m, s0v);
-            double *ph_f = phis + (long)f * BLOCK;
-            for (long j = 0; j < m; j++) {
+            double *ph_f = phis + (i64)f * BLOCK;
+            for (i64 j = 0; j < m; j++) {
                 double a = a_row[j], cc = c0[j], sn = s0v[j];
                 double Bm = sqrt(cc * cc + sn * sn);
                 int defined = (Bm > 1e-9 * fabs(a)) & (Bm > 0.0);
@@ -126,10 +126,13 @@ int mf_range_T(int F, const void *const *stacks, const long *nframes, const doub
 
 _COMMON = r"""
 #include <math.h>
+#include <stdint.h>
 #include <stdlib.h>
 #include <stddef.h>
 
-#define BLOCK {BLOCK}L
+typedef int64_t i64;    /* every integer argument: 64 bits on every platform (ctypes.c_int64) */
+
+#define BLOCK ((i64){BLOCK})
 static const double R0 = {R0}, R1 = {R1}, R2 = {R2}, R3 = {R3}, R4 = {R4}, R5 = {R5}, R6 = {R6}, R7 = {R7},
                     R8 = {R8}, R9 = {R9}, R10 = {R10};
 static const double TAN_PI_8 = {TAN_PI_8}, PI_ = {PI}, PI_2 = {PI_2}, PI_4 = {PI_4}, PI_4_LO = {PI_4_LO},
@@ -155,31 +158,31 @@ static inline double atan2_k(double y, double x) {
 }
 
 /* out[j] = sum_g w[g] * y[g][j] over the nonzero weights, g in order */
-static void float_sum(const int *y, const double *w, long G, long m, double *out) {
+static void float_sum(const int *y, const double *w, i64 G, i64 m, double *out) {
     int first = 1;
-    for (long g = 0; g < G; g++) {
+    for (i64 g = 0; g < G; g++) {
         if (w[g] == 0.0) continue;
         double wg = w[g];
         const int *yg = y + g * BLOCK;
-        if (first) for (long j = 0; j < m; j++) out[j] = wg * (double)yg[j];
-        else for (long j = 0; j < m; j++) out[j] = out[j] + wg * (double)yg[j];
+        if (first) for (i64 j = 0; j < m; j++) out[j] = wg * (double)yg[j];
+        else for (i64 j = 0; j < m; j++) out[j] = out[j] + wg * (double)yg[j];
         first = 0;
     }
-    if (first) for (long j = 0; j < m; j++) out[j] = 0.0;
+    if (first) for (i64 j = 0; j < m; j++) out[j] = 0.0;
 }
 
 static void mf_chain(int F, const double *phis, const double *ratios, double cut, double kmax, double p_lo,
-                     double p_hi, double wrap, const unsigned char *ok, long m, long n_pix, long s0, double *Phi_s,
+                     double p_hi, double wrap, const unsigned char *ok, i64 m, i64 n_pix, i64 s0, double *Phi_s,
                      double *pr_s, double *k_s, double *phase, int *order, unsigned char *valid, double *prior,
-                     long n_lev, double *lev_prior, double *lev_k) {
-    for (long j = 0; j < m; j++) {
+                     i64 n_lev, double *lev_prior, double *lev_k) {
+    for (i64 j = 0; j < m; j++) {
         double d = phis[j] - cut;
         Phi_s[j] = (d < 0.0 ? d + TWO_PI : d) + cut;
     }
     for (int i = 1; i < F; i++) {
-        const double *p_i = phis + (long)i * BLOCK;
+        const double *p_i = phis + (i64)i * BLOCK;
         double ratio = ratios[i];
-        for (long j = 0; j < m; j++) {
+        for (i64 j = 0; j < m; j++) {
             double phi = p_i[j];
             double pr = (ratio * Phi_s[j] - phi) / TWO_PI;
             double k = ceil(pr - HALF_TIE);
@@ -188,12 +191,12 @@ static void mf_chain(int F, const double *phis, const double *ratios, double cut
             k_s[j] = k;
         }
         if (n_lev > 0)
-            for (long j = 0; j < m; j++) {
+            for (i64 j = 0; j < m; j++) {
                 lev_prior[(size_t)(i - 1) * n_pix + s0 + j] = pr_s[j];
                 lev_k[(size_t)(i - 1) * n_pix + s0 + j] = k_s[j];
             }
     }
-    for (long j = 0; j < m; j++) {
+    for (i64 j = 0; j < m; j++) {
         double k = k_s[j], Phi = Phi_s[j];
         int g = ok[j] & (k >= 0.0) & (k <= kmax);
         int w = g & (wrap > 0.0), low = w & (Phi < p_lo), high = w & !low & (Phi >= p_hi);
@@ -242,7 +245,7 @@ def _bind(dll, weights):
     (:func:`unwrap._native.build`'s check)."""
     import ctypes
 
-    ptr, lng, dbl = ctypes.c_void_p, ctypes.c_long, ctypes.c_double
+    ptr, lng, dbl = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double      # int64_t on the C side
     funcs = {}
     for dtype, tag in ((np.dtype(np.uint8), "u8"), (np.dtype(np.uint16), "u16")):
         f = getattr(dll, f"mf_range_{tag}")            # AttributeError: not this library (build: None)
@@ -269,8 +272,11 @@ def _call(f, stacks, W, goff, grp_start, ent_n, ent_s, sum_all, ratios, cut, sat
            cut, sat, lo, hi, min_mod, kmax, p_lo, p_hi, wrap, n_pix, p0, p1, phase.ctypes.data, order.ctypes.data,
            valid.ctypes.data, prior.ctypes.data, A_out.ctypes.data, B_out.ctypes.data, lev_prior.shape[0],
            lev_prior.ctypes.data, lev_k.ctypes.data)
-    if rc != 0:
-        raise MemoryError("the fused MF kernel could not allocate its block buffers")
+    if rc != 0:      # its few KB of block buffers: the process is out of memory, so is every other engine
+        from .errors import UnwrapError
+
+        raise UnwrapError(f"out of memory: the fused MF decode could not allocate its block buffers "
+                          f"({n_pix} pixels, {F} frequencies); free memory and run it again")
 
 
 def _check_case(weights, seed: int, dtype, steps, levels: bool, sat: float, lo: float, hi: float,

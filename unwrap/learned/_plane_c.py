@@ -26,16 +26,19 @@ _FLAGS = ("-O2", "-fPIC", "-shared", "-fno-math-errno", "-ffp-contract=off")
 
 _SOURCE = r"""
 #include <stddef.h>
+#include <stdint.h>
 
-static void row_block(const double *Phi, const unsigned char *valid, long W, long r, long y, long x0,
-                      long x1, double *h, size_t HW) {
+typedef int64_t i64;    /* every integer argument: 64 bits on every platform (ctypes.c_int64) */
+
+static void row_block(const double *Phi, const unsigned char *valid, i64 W, i64 r, i64 y, i64 hy, i64 x0,
+                      i64 x1, double *h, size_t HW) {
     double a0 = 0.0, a1 = 0.0, a2 = 0.0, a3 = 0.0, a4 = 0.0;
     const double *P = Phi + (size_t)y * W;
     const unsigned char *v = valid + (size_t)y * W;
-    long lo = x0 - r > 0 ? x0 - r : 0, hi = x0 + r < W - 1 ? x0 + r : W - 1;
-    for (long xx = lo; xx <= hi; xx++) {
+    i64 lo = x0 - r > 0 ? x0 - r : 0, hi = x0 + r < W - 1 ? x0 + r : W - 1;
+    for (i64 xx = lo; xx <= hi; xx++) {
         if (v[xx]) {
-            long d = xx - x0;
+            i64 d = xx - x0;
             double p = P[xx];
             a0 += 1.0;
             a1 += (double)d;
@@ -44,16 +47,16 @@ static void row_block(const double *Phi, const unsigned char *valid, long W, lon
             a4 += p * (double)d;
         }
     }
-    long x = x0;
+    i64 x = x0;
     for (;;) {
-        size_t i = (size_t)y * W + x;
+        size_t i = (size_t)hy * W + x;
         h[i] = a0; h[HW + i] = a1; h[2 * HW + i] = a2; h[3 * HW + i] = a3; h[4 * HW + i] = a4;
         x += 1;
         if (x >= x1) break;
         a2 = a2 - 2.0 * a1 + a0;
         a1 = a1 - a0;
         a4 = a4 - a3;
-        long xo = x - r - 1;
+        i64 xo = x - r - 1;
         if (xo >= 0 && v[xo]) {
             double p = P[xo];
             a0 -= 1.0;
@@ -62,7 +65,7 @@ static void row_block(const double *Phi, const unsigned char *valid, long W, lon
             a3 -= p;
             a4 += p * (double)(r + 1);
         }
-        long xi = x + r;
+        i64 xi = x + r;
         if (xi < W && v[xi]) {
             double p = P[xi];
             a0 += 1.0;
@@ -74,9 +77,9 @@ static void row_block(const double *Phi, const unsigned char *valid, long W, lon
     }
 }
 
-static void solve(const double *Phi, const unsigned char *valid, long W, long y, const double *S,
+static void solve(const double *Phi, const unsigned char *valid, i64 W, i64 y, const double *S,
                   double *out) {
-    for (long x = 0; x < W; x++) {
+    for (i64 x = 0; x < W; x++) {
         size_t i = (size_t)y * W + x;
         if (!valid[i]) { out[i] = Phi[i]; continue; }
         double S0 = S[x], Sx = S[W + x], Sy = S[2 * W + x], Sxx = S[3 * W + x], Syy = S[4 * W + x];
@@ -93,10 +96,10 @@ static void solve(const double *Phi, const unsigned char *valid, long W, long y,
     }
 }
 
-static void add_row(double *S, const double *h, long W, size_t HW, long yy, double d, double sign) {
+static void add_row(double *S, const double *h, i64 W, size_t HW, i64 yy, double d, double sign) {
     const double *h0r = h + (size_t)yy * W, *h1r = h + HW + (size_t)yy * W, *h2r = h + 2 * HW + (size_t)yy * W;
     const double *h3r = h + 3 * HW + (size_t)yy * W, *h4r = h + 4 * HW + (size_t)yy * W;
-    for (long x = 0; x < W; x++) {
+    for (i64 x = 0; x < W; x++) {
         double h0 = h0r[x], h1 = h1r[x], h3 = h3r[x];
         S[x] += sign * h0;
         S[W + x] += sign * h1;
@@ -110,36 +113,42 @@ static void add_row(double *S, const double *h, long W, size_t HW, long yy, doub
     }
 }
 
-static void col_block(const double *Phi, const unsigned char *valid, long H, long W, long r, long y0, long y1,
-                      const double *h, double *out, double *S) {
-    size_t HW = (size_t)H * W;
-    for (long k = 0; k < 9 * W; k++) S[k] = 0.0;
-    long lo = y0 - r > 0 ? y0 - r : 0, hi = y0 + r < H - 1 ? y0 + r : H - 1;
-    for (long yy = lo; yy <= hi; yy++) add_row(S, h, W, HW, yy, (double)(yy - y0), 1.0);
-    long y = y0;
+static void col_block(const double *Phi, const unsigned char *valid, i64 H, i64 W, i64 r, i64 y0, i64 y1,
+                      const double *h, size_t HW, i64 off, double *out, double *S) {
+    /* h: the pass-1 rows from row off on (plane stride HW) */
+    for (i64 k = 0; k < 9 * W; k++) S[k] = 0.0;
+    i64 lo = y0 - r > 0 ? y0 - r : 0, hi = y0 + r < H - 1 ? y0 + r : H - 1;
+    for (i64 yy = lo; yy <= hi; yy++) add_row(S, h, W, HW, yy - off, (double)(yy - y0), 1.0);
+    i64 y = y0;
     for (;;) {
         solve(Phi, valid, W, y, S, out);
         y += 1;
         if (y >= y1) break;
-        for (long x = 0; x < W; x++) {
+        for (i64 x = 0; x < W; x++) {
             S[4 * W + x] = S[4 * W + x] - 2.0 * S[2 * W + x] + S[x];
             S[2 * W + x] = S[2 * W + x] - S[x];
             S[5 * W + x] = S[5 * W + x] - S[W + x];
             S[8 * W + x] = S[8 * W + x] - S[6 * W + x];
         }
-        if (y - r - 1 >= 0) add_row(S, h, W, HW, y - r - 1, (double)(-r - 1), -1.0);
-        if (y + r < H) add_row(S, h, W, HW, y + r, (double)r, 1.0);
+        if (y - r - 1 >= 0) add_row(S, h, W, HW, y - r - 1 - off, (double)(-r - 1), -1.0);
+        if (y + r < H) add_row(S, h, W, HW, y + r - off, (double)r, 1.0);
     }
 }
 
-void plane_filter(const double *Phi, const unsigned char *valid, long H, long W, long r, long block,
-                  double *h, double *S, double *out) {
-    size_t HW = (size_t)H * W;
-    for (long y = 0; y < H; y++)
-        for (long x0 = 0; x0 < W; x0 += block)
-            row_block(Phi, valid, W, r, y, x0, x0 + block < W ? x0 + block : W, h, HW);
-    for (long y0 = 0; y0 < H; y0 += block)
-        col_block(Phi, valid, H, W, r, y0, y0 + block < H ? y0 + block : H, h, out, S);
+/* Row blocks b0 .. b1 - 1 (of ``block`` rows): each block's pass-1 rows (its own and r above and below,
+   computed again for each block that needs them: the same values) into hb, 5 planes of (block + 2 r)
+   rows, then pass 2: the buffer stays in cache, and blocks are independent (threads). */
+void plane_filter(const double *Phi, const unsigned char *valid, i64 H, i64 W, i64 r, i64 block, i64 b0, i64 b1,
+                  double *hb, double *S, double *out) {
+    size_t HB = (size_t)(block + 2 * r) * W;
+    for (i64 b = b0; b < b1; b++) {
+        i64 y0 = b * block, y1 = y0 + block < H ? y0 + block : H;
+        i64 lo = y0 - r > 0 ? y0 - r : 0, hi = y1 - 1 + r < H - 1 ? y1 - 1 + r : H - 1;
+        for (i64 y = lo; y <= hi; y++)
+            for (i64 x0 = 0; x0 < W; x0 += block)
+                row_block(Phi, valid, W, r, y, y - lo, x0, x0 + block < W ? x0 + block : W, hb, HB);
+        col_block(Phi, valid, H, W, r, y0, y1, hb, HB, lo, out, S);
+    }
 }
 """
 
@@ -152,8 +161,8 @@ def _bind(dll):
     import ctypes
 
     f = dll.plane_filter
-    ptr, lng = ctypes.c_void_p, ctypes.c_long
-    f.argtypes, f.restype = [ptr, ptr, lng, lng, lng, lng, ptr, ptr, ptr], None
+    ptr, lng = ctypes.c_void_p, ctypes.c_int64      # int64_t on the C side (not long: 32 bits on Windows)
+    f.argtypes, f.restype = [ptr, ptr, lng, lng, lng, lng, lng, lng, ptr, ptr, ptr], None
     return f if _same_bits(f) else None
 
 
@@ -173,8 +182,8 @@ def _same_bits(f) -> bool:
     rng = np.random.default_rng(7)
     Phi, valid = rng.normal(0.0, 3.0, (13, 11)), rng.random((13, 11)) > 0.2
     for r in (3, 7):
-        h, S, out = np.empty((5, 13, 11)), np.empty((9, 11)), np.empty_like(Phi)       # held while f runs
-        f(Phi.ctypes.data, valid.ctypes.data, 13, 11, r, 8, h.ctypes.data, S.ctypes.data, out.ctypes.data)
+        h, S, out = np.empty((5, 8 + 2 * r, 11)), np.empty((9, 11)), np.empty_like(Phi)       # held while f runs
+        f(Phi.ctypes.data, valid.ctypes.data, 13, 11, r, 8, 0, 2, h.ctypes.data, S.ctypes.data, out.ctypes.data)
         if out.tobytes() != plane_filter_numpy(Phi, valid, r, block=8).tobytes():
             return False
     return True
@@ -192,8 +201,10 @@ def kernel():
         Phi = np.ascontiguousarray(Phi, dtype=np.float64)
         valid = np.ascontiguousarray(valid, dtype=bool)
         H, W = Phi.shape
-        h, S, out = np.empty((5, H, W)), np.empty((9, W)), np.empty((H, W))
-        f(Phi.ctypes.data, valid.ctypes.data, H, W, int(r), int(block), h.ctypes.data, S.ctypes.data,
+        r, block = int(r), int(block)
+        h, S, out = np.empty((5, block + 2 * r, W)), np.empty((9, W)), np.empty((H, W))
+        f(Phi.ctypes.data, valid.ctypes.data, H, W, r, block, 0, -(-H // block), h.ctypes.data, S.ctypes.data,
           out.ctypes.data)
         return out
+    plane_filter_c.one_thread = True        # a caller may run several on threads (fast_features.plane_filter)
     return plane_filter_c

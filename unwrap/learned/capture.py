@@ -37,9 +37,11 @@ log = logging.getLogger("unwrap.learned")
 
 
 def learned_orientation(oc, method: str, model, *, min_modulation=None, on_outside: str = "raise",
-                        check_prior: bool = True, camera_size=None, progress: bool = False) -> OrientationResult:
+                        check_prior: bool = True, camera_size=None, progress: bool = False,
+                        then=()) -> OrientationResult:
     """One orientation of a capture (:class:`unwrap.capture.OrientationCapture`) by the network
-    (checks: module docstring; ``camera_size`` (W, H) the frames must have)."""
+    (checks: module docstring; ``camera_size`` (W, H) the frames must have; ``then``: frame files to
+    start decoding once the forward is done, :func:`unwrap.capture.prefetch`)."""
     reader = FrameReader(camera_size)
     sets = sorted(oc.sets, key=lambda s: s.frequency)
     freqs = [float(s.frequency) for s in sets]
@@ -62,6 +64,10 @@ def learned_orientation(oc, method: str, model, *, min_modulation=None, on_outsi
     valid = lo_valid & hi_valid
     r = unwrap_learned(method, lo_phase, hi_phase, lo_B / full_lo, hi_B / full_hi, valid, (freqs[i_lo], freqs[i_hi]),
                        width=oc.width, model=model, on_outside=on_outside)
+    if then:
+        from ..capture import prefetch
+
+        prefetch(then)
     del lo_phase, lo_B, lo_valid
     ok = r.order >= 0
     phase = np.where(ok, np.nan_to_num(hi_phase) + TWO_PI * r.order, math.nan)
@@ -85,13 +91,41 @@ def learned_orientation(oc, method: str, model, *, min_modulation=None, on_outsi
                              extras=extras)
 
 
+def pair_files(oc, method: str) -> list:
+    """The frame files :func:`learned_orientation` reads from orientation ``oc``, in its order (the
+    low, then the high frequency of the pair; ``[]`` where the capture holds no such pair)."""
+    sets = sorted(oc.sets, key=lambda s: s.frequency)
+    try:
+        i_lo, i_hi = pair_indices(method, len(sets), ModelError)
+    except ModelError:
+        return []
+    return [f for i in (i_lo, i_hi) for f in sets[i].files]
+
+
 def unwrap_capture_learned(folder, method: str = "mf", model="learned", *, preset=None, pose=None,
                            min_modulation=None, on_outside: str = "raise", check_prior: bool = True,
                            progress: bool = False) -> dict:
-    """Every orientation of a capture folder by the network: {"v": OrientationResult, ...}."""
+    """Every orientation of a capture folder by the network: {"v": OrientationResult, ...}.
+
+    Frames are decoded ahead on the package's pool (:func:`unwrap.capture.prefetch`): an
+    orientation's pair as it starts (the high frequency's frames decode while the low one's phase
+    is fitted), the next orientation's once this one's forward is done (while its decode, checks
+    and result are made), so that no decoded frame waits through a forward, the command's peak;
+    what an error leaves unread is dropped."""
+    from ..capture import forget_prefetched, prefetch
+
     cap = load_capture(folder, preset, pose)
     net = load_predictor(model)          # loaded once (cached per process), shared by the orientations
     # (the features' plane fits run in C, else numpy, unless the process warmed numba's kernel up: a batch)
-    return each_orientation(cap, f"{method} + learned", lambda oc: learned_orientation(
-        oc, method, net, min_modulation=min_modulation, on_outside=on_outside, check_prior=check_prior,
-        camera_size=cap.camera_size, progress=progress), progress)
+    files = {o: pair_files(oc, method) for o, oc in cap.orientations.items()}
+    after = dict(zip(files, [*list(files.values())[1:], []]))
+
+    def one(oc):
+        prefetch(files[oc.orientation])
+        return learned_orientation(oc, method, net, min_modulation=min_modulation, on_outside=on_outside,
+                                   check_prior=check_prior, camera_size=cap.camera_size, progress=progress,
+                                   then=after[oc.orientation])
+    try:
+        return each_orientation(cap, f"{method} + learned", one, progress)
+    finally:
+        forget_prefetched([f for fs in files.values() for f in fs])

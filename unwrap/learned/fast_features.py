@@ -72,7 +72,17 @@ def plane_filter(Phi: np.ndarray, valid: np.ndarray, windows=SMOOTH_WINDOWS, fit
     if fit == "plane":
         kernel = _kernel()
         ok = np.ascontiguousarray(valid, dtype=bool)
-        return {int(w) | 1: kernel(np.ascontiguousarray(Phi), ok, (int(w) | 1) // 2) for w in windows}
+        Phi = np.ascontiguousarray(Phi)
+        sizes = [int(w) | 1 for w in windows]
+        if len(sizes) > 1 and Phi.size >= THREAD_MIN_PIX and getattr(kernel, "one_thread", False):
+            # the one-thread C kernel: the boxes side by side on the package's pool (ctypes releases
+            # the GIL; each box is computed alone, so the bits do not change)
+            from .._threads import pool
+
+            later = [pool("plane-fit").submit(kernel, Phi, ok, s // 2) for s in sizes[1:]]
+            first = kernel(Phi, ok, sizes[0] // 2)
+            return dict(zip(sizes, [first, *(f.result() for f in later)]))
+        return {s: kernel(Phi, ok, s // 2) for s in sizes}
     v = np.asarray(valid, dtype=bool).astype(np.float64)
     P = np.where(v > 0, Phi, 0.0)
     stack = np.stack([v, P], axis=-1)
@@ -82,6 +92,21 @@ def plane_filter(Phi: np.ndarray, valid: np.ndarray, windows=SMOOTH_WINDOWS, fit
         S0, SP = s[..., 0], s[..., 1]
         out[int(win) | 1] = np.where(v > 0, np.where(S0 > 0.5, SP / np.maximum(S0, 1.0), P), Phi)
     return out
+
+
+#: Pixels from which :func:`plane_filter` runs the C kernel's boxes on two threads.
+THREAD_MIN_PIX = 1 << 15
+
+
+def native_features():
+    """The C replica of this module's MF features and decoding and of the pair's decode
+    (:mod:`unwrap.learned._features_c`): its functions, built once per machine and checked against
+    this module's numpy code once per process; None where there is no C compiler or the bits differ."""
+    import sys
+
+    from . import _features_c as FC
+
+    return FC.lib(sys.modules[__name__])
 
 
 def native_plane_filter() -> bool:
@@ -182,7 +207,7 @@ def smoothed_priors(method: str, phi_l, phi_h, f_l: float, f_h: float, valid, wi
 
 def make_inputs(kind: str, method: str, prior, phase_low, phase_high, modulation_low, modulation_high,
                 order_traditional, valid, frequencies, windows=SMOOTH_WINDOWS, *, layout: str = "nchw",
-                multiple: int = 1) -> tuple[np.ndarray, np.ndarray]:
+                multiple: int = 1, native: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """(x (1, C, H', W') float32, ok (H, W) bool): the network input of one frame, channels as
     :func:`unwrap.learned.channels.channel_slices` (``windows``: the smoothing boxes, px).
 
@@ -194,11 +219,23 @@ def make_inputs(kind: str, method: str, prior, phase_low, phase_high, modulation
     ``layout``: "nchw" (x C-contiguous) or "nhwc" (x a (1, C, H', W') view of a C-contiguous
     (1, H', W', C) block: what a channels-last forward takes without a conversion; the same
     values). ``multiple``: H' and W' rounded up to a multiple of it, the extra rows and columns
-    zero (= invalid; the network's own padding, done here without a copy of the input)."""
+    zero (= invalid; the network's own padding, done here without a copy of the input).
+    ``native``: a physics-aware model on an MF pair of float maps runs the C replica of this code
+    (:mod:`unwrap.learned._features_c`: the same bits, ~3x faster) where it is built and checked;
+    False: this numpy code always."""
     if layout not in LAYOUTS:
         raise ValueError(f"layout {layout!r}: expected one of {LAYOUTS}")
     valid = np.asarray(valid, dtype=bool)
     at = channel_slices(kind, windows)          # raises on an unknown kind
+    if native and kind == "physics" and method == "mf" and len(windows) <= 8:
+        from . import _features_c as FC
+
+        maps = (prior, phase_low, phase_high, modulation_low, modulation_high)
+        if FC.covered(*maps) and FC.integral(order_traditional) and np.ndim(phase_high) == 2 \
+                and all(np.shape(a) == valid.shape for a in (*maps, order_traditional)) and native_features():
+            return FC.make_inputs(*maps, order_traditional, valid, frequencies, windows, layout=layout,
+                                  multiple=multiple, plane_filters=plane_filter,
+                                  coarse=coarse_cut("mf", *map(float, frequencies)), F=native_features())
 
     def f32(a):
         # the torch batch's map: NaN -> 0 and every value outside ``valid`` 0, rounded to float32
@@ -317,7 +354,7 @@ def class_planes(logits: np.ndarray) -> list:
 
 
 def decode(logits: np.ndarray, order_traditional, ok, f_high: float, kind: str, max_correction: int = 2,
-           wrap_orders=None):
+           wrap_orders=None, *, native: bool = True):
     """Logits (1, K, H, W) -> (order int64 (H, W), -1 where not ``ok``; confidence float32 (H, W)).
 
     physics: the most probable correction added to the traditional order, clipped to
@@ -328,7 +365,14 @@ def decode(logits: np.ndarray, order_traditional, ok, f_high: float, kind: str, 
     ``logits`` in either memory layout (NCHW or the channels-last forward's; :func:`class_planes`).
     Class by class on (H, W) planes, the same float32 operations in the same order as a softmax
     over the class axis then its first argmax (``max``, ``exp(z - max)``, the sum from class 0
-    up, the division): the same bits, without numpy's slow reductions along a strided axis."""
+    up, the division): the same bits, without numpy's slow reductions along a strided axis.
+    ``native``: float32 logits without ``wrap_orders`` are decoded by the C replica of this code
+    (:mod:`unwrap.learned._features_c`, the same bits) where it is built and checked."""
+    if native and not wrap_orders and np.asarray(logits).dtype == _F32 and np.ndim(logits) == 4:
+        from . import _features_c as FC
+
+        if native_features():
+            return FC.decode(logits, order_traditional, ok, f_high, kind, max_correction, native_features())
     zs = class_planes(logits)
     zmax = zs[0].copy()
     for z in zs[1:]:
