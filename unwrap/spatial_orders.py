@@ -61,7 +61,9 @@ _INF = 1e12
 #: global-light bound) and ``bias_max_correction`` (the label range with the bound: a bias of
 #: several fringes needs corrections beyond +-2) were chosen together on the 12 validation scenes
 #: (``python -m bench.global_bias --calibrate``; docs/learned.md, "A global-light bound").
-DEFAULTS = {"smoothness": 4.0, "outlier": 0.2, "sigma_floor": 0.01, "smoothness_learned": 32.0, "bias_scale": 0.5,
+#: Smoothness / outlier recalibrated in session 11 (were 4 / 0.2, stale since the noise estimate
+#: of 441dd4d; docs/learned.md, "The graph cut's weights recalibrated").
+DEFAULTS = {"smoothness": 8.0, "outlier": 0.05, "sigma_floor": 0.01, "smoothness_learned": 32.0, "bias_scale": 0.5,
             "bias_max_correction": 4}
 #: Never-worse gate thresholds per path (:func:`gate`), calibrated the same way: a correction is
 #: applied where the traditional decision's error probability - bias included, the model of
