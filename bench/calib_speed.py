@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.deploy_speed import DP_TPU, ROOT, measure, mrcal_anchor
+from bench.deploy_speed import DP_TPU, ROOT, bytecode_note, measure, mrcal_anchor
 
 
 def _stages(stages) -> str:
@@ -92,7 +92,8 @@ def main(argv=None) -> int:
         args.repeats, args.views = 1, 20
     roots = [("after", ROOT)] + ([("before", Path(args.baseline).resolve())] if args.baseline else [])
     print(f"machine: {os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.1f} at start (shared: read the "
-          f"ratios); {args.repeats} run(s) per row\n")
+          f"ratios); {args.repeats} run(s) per row")
+    print(f"{bytecode_note()}\n")
     with tempfile.TemporaryDirectory(prefix="calib_speed_") as tmp:
         tmp = Path(tmp)
         from bench.ba_scale import _simulate

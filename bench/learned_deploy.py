@@ -105,12 +105,13 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.quick:
         args.repeats, args.no_cli, args.arch = 1, True, False
-    from bench.deploy_speed import _LEARNED_ROWS, write_capture
+    from bench.deploy_speed import _LEARNED_ROWS, bytecode_note, write_capture
     from unwrap.learned.runtime import export_onnx
 
     base = Path(args.baseline).resolve() if args.baseline else None
     print(f"machine: {os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.1f} at start (shared: read the "
-          f"ratios to the anchors); minimum of {args.repeats} calls\n")
+          f"ratios to the anchors); minimum of {args.repeats} calls")
+    print(f"{bytecode_note()}\n")
     with tempfile.TemporaryDirectory(prefix="learned_deploy_") as tmp:
         tmp = Path(tmp)
         onnx_path = export_onnx("learned", tmp / "model.onnx")

@@ -45,3 +45,12 @@ def test_calib_speed_measures_through_the_same_function(monkeypatch, tmp_path):
     assert calib_speed.measure is D.measure
     r = D.measure(["run"], D.ROOT, tmp_path / "out", 3)
     assert r["walls"] == [2.0, 0.5, 4.0] and r["stages"] == {"solve": 0.25, "read": 0.0625} and r["solve_s"] == 0.125
+
+
+def test_timed_commands_run_with_pythons_default_bytecode_cache(monkeypatch, tmp_path):
+    monkeypatch.setenv("PYTHONDONTWRITEBYTECODE", "1")
+    env = D.command_env(tmp_path)
+    assert "PYTHONDONTWRITEBYTECODE" not in env and env["PYTHONPATH"] == str(tmp_path)
+    assert "dropped" in D.bytecode_note()
+    monkeypatch.delenv("PYTHONDONTWRITEBYTECODE")
+    assert "dropped" not in D.bytecode_note()
