@@ -31,6 +31,7 @@ from unwrap.phase_shift import wrapped_phase
 from unwrap.temporal import mf_unwrap
 
 from .config import ExportConfig
+from .defocus_model import choose_defocus_model, sampled
 from .scenes import draw_scene
 from ..errors import SynthError
 from ..renderer.geometry import compute_geometry
@@ -95,11 +96,13 @@ def make_sample(cfg: ExportConfig, system, index: int, sampler=None) -> Sample:
     :class:`synth.export.posterior.PosteriorSampler` drawing the sample's system."""
     timings: dict = {}
     scene, geom, params, rng = _draw_covered(cfg, system, index, timings, sampler)
+    scene = choose_defocus_model(cfg, scene, geom, params)
     system = scene.system
     W, H = system.camera.size
     t = time.perf_counter()
     plan = PlanLog()
-    res = render(scene, geometry=geom, keep_linear=True, log=plan)
+    # the thin lens renders every aperture point's own geometry (its lens centre's is geom's)
+    res = render(scene, geometry=None if sampled(scene) else geom, keep_linear=True, log=plan)
     params["plan"] = params["plan"] + plan.lines
     total_render = time.perf_counter() - t
     noise_t = res.timings.get("noise", 0.0) + res.timings.get("gain + quantisation", 0.0)
