@@ -1,5 +1,7 @@
 """The thin lens in the dataset export against the blur, on the same scenes: ``python -m
-bench.export_thin_lens --work DIR [--samples 4] [--points 8 16 32]``.
+bench.export_thin_lens --work DIR [--samples 4] [--points 8 16 32]``; ``--config
+synth/data/export_real.toml [--index 0] --points 8``: the cost of one sample of a config as
+configured and with the thin lens (config_cost); ``--quick``: 1 sample, blur vs 4 points.
 
 Writes one export config per variant to ``DIR`` (real-like scenes: 1-2 procedural objects before a
 wall or on a table, the built-in camera's central 320 x 240 window at the real pixel scale,
@@ -138,7 +140,8 @@ def run(work: Path, samples: int, points, seed: int, band: int) -> list:
         maps[name] = (e, near, inner, params)
         models = Counter(f"{d.split('_')[0]} {v['model']}" for p in params for d, v in p.get("defocus", {}).items())
         rows.append({"variant": name, "samples": samples, "wall_s": wall / samples, "cpu_s": cpu / samples,
-                     "stages": summary.get("stage_seconds"), "models": dict(sorted(models.items())), "check": check.sum(0).tolist()})
+                     "stages": summary.get("stage_seconds"), "models": dict(sorted(models.items())),
+                     "check": check.sum(0).tolist()})
     ref_name = f"lens{max(points)}" if points else "blur"
     base = [dict(p, effects=None, plan=None, defocus=None) for p in maps["blur"][3]]
     # the same pixels for every variant: lit and valid in all of them
@@ -149,6 +152,28 @@ def run(work: Path, samples: int, points, seed: int, band: int) -> list:
         r["same_scenes"] = [dict(p, effects=None, plan=None, defocus=None) for p in params] == base
         r["band"] = _stats(e, near & common, ref)
         r["interior"] = _stats(e, inner & common, ref)
+    return rows
+
+
+def config_cost(config: Path, index: int, points) -> list:
+    """CPU and wall seconds of sample ``index`` of ``config`` (e.g. synth/data/export_real.toml)
+    with its own defocus (blur unless it has ``samples``) and with ``samples`` = each of ``points``
+    on both devices, the same scene; the export's stage seconds and the models that ran."""
+    from synth.export.config import load_config
+    from synth.export.dataset import base_system
+    from synth.export.sample import make_sample
+
+    rows = []
+    for n in [0, *points]:
+        sets = [f"effects.{d}.samples={n}" for d in ("camera_defocus", "projector_defocus")] if n else []
+        cfg = load_config(config, sets)
+        system, sampler = base_system(cfg)
+        t0, c0 = time.perf_counter(), _cpu()
+        s = make_sample(cfg, system, index, sampler)
+        rows.append({"variant": "as configured" if not n else f"lens{n}", "cpu_s": _cpu() - c0,
+                     "wall_s": time.perf_counter() - t0, "stages": s.timings, "defocus": s.params.get("defocus"),
+                     "interreflection": s.params["effects"].get("interreflection"),
+                     "layout": s.params.get("layout", {}).get("kind")})
     return rows
 
 
@@ -168,14 +193,43 @@ def table(rows) -> str:
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--work", type=Path, required=True, help="folder for the configs and exports")
+    ap.add_argument("--work", type=Path, help="folder for the configs and exports")
     ap.add_argument("--samples", type=int, default=4)
     ap.add_argument("--points", type=int, nargs="*", default=[8, 16, 32])
     ap.add_argument("--seed", type=int, default=2121)
     ap.add_argument("--band", type=int, default=8, help="outline band half-width, px")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--config", type=Path, default=None,
+                    help="instead: the cost of one sample (--index) of this export config, as configured and "
+                         "with --points aperture points on both devices")
+    ap.add_argument("--index", type=int, default=0)
+    ap.add_argument("--quick", action="store_true", help="1 sample, blur vs 4 points (a temporary --work)")
     a = ap.parse_args(argv)
     load0 = os.getloadavg()[0]
+    if a.config is not None:
+        rows = config_cost(a.config, a.index, sorted(a.points))
+        print(f"load {load0:.1f} -> {os.getloadavg()[0]:.1f}; {a.config} sample {a.index}")
+        print("| defocus | CPU s | wall s | CPU vs as configured | patterns s (wall) | models | interreflection "
+              "| layout |")
+        print("|---|---|---|---|---|---|---|---|")
+        for r in rows:
+            models = ", ".join(f"{k.split('_')[0]} {v['model']} ({v['max_disc_px']:.1f} px)"
+                               for k, v in (r["defocus"] or {}).items()) or "blur"
+            print(f"| {r['variant']} | {r['cpu_s']:.1f} | {r['wall_s']:.1f} | {r['cpu_s'] / rows[0]['cpu_s']:.2f}x "
+                  f"| {r['stages'].get('patterns', 0):.1f} | {models} | {r['interreflection']} | {r['layout']} |")
+        if a.json:
+            from unwrap.safe_output import write_text
+
+            write_text(a.json, json.dumps(rows, indent=1, default=str))
+        return rows
+    if a.quick:  # make bench: that it runs, not numbers to quote
+        a.samples, a.points = 1, [4]
+        if a.work is None:
+            import tempfile
+
+            a.work = Path(tempfile.mkdtemp(prefix="export_thin_lens_"))
+    if a.work is None:
+        ap.error("--work is required (or --config, or --quick)")
     rows = run(a.work, a.samples, sorted(a.points), a.seed, a.band)
     print(f"load {load0:.1f} -> {os.getloadavg()[0]:.1f}; {a.samples} samples a variant, band {a.band} px, "
           f"reference lens{max(a.points) if a.points else ''}")

@@ -36,8 +36,8 @@ def _params(path):
 
 
 @pytest.mark.parametrize("value, words", [
-    (2.5, "whole number"), (-1, "outside"), (2000, "outside"), ([32, 8], "impossible range"), ([4, 8.5], "whole number"),
-    ("16", "samples"), (True, "samples")])
+    (2.5, "whole number"), (-1, "outside"), (2000, "outside"), ([32, 8], "impossible range"),
+    ([4, 8.5], "whole number"), ("16", "samples"), (True, "samples")])
 @pytest.mark.parametrize("device", ["camera_defocus", "projector_defocus"])
 def test_bad_samples_are_refused_naming_the_key(device, value, words):
     d = {"export": {"samples": 1}, "effects": {device: {"aperture_mm": 3, "samples": value}}}
