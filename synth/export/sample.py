@@ -4,8 +4,8 @@ images to what every unwrapping method needs (unwrap.dataset_schema).
 Stages (timed): ``geometry`` (scene draw + rays, hits, shadows), ``patterns`` (pattern stack,
 global illumination, camera defocus; with defocus ``samples``, the thin lens's aperture renders,
 each with its own geometry, where synth.export.defocus_model keeps it), ``noise`` (noise +
-quantisation), ``phase`` (N-step wrapped phase and modulation of every frequency), ``labels`` (true coordinate and orders, masks,
-the label check).
+quantisation), ``phase`` (N-step wrapped phase and modulation of every frequency), ``labels``
+(true coordinate and orders, masks, the label check).
 
 Label check (the paper's way of making labels, supplementary section 3): traditional MF from the
 unit frequency on the noise-free render must give the geometric order. It runs twice per
