@@ -127,3 +127,27 @@ def test_samples_zero_is_the_blur_and_no_samples_records_nothing(tmp_path):
         assert p == q
     a.pop("params"), b.pop("params")
     assert_same_arrays(a, b)
+
+
+@pytest.mark.realdata
+def test_the_real_like_config_asks_for_the_thin_lens_on_its_old_scenes():
+    from tests.conftest import shared_data
+
+    from dataset_helpers import REPO
+
+    shared_data("meshes")
+    path = REPO / "synth" / "data" / "export_real.toml"
+    lens = load_config(path)
+    blur = load_config(path, [f"effects.{d}.samples=0" for d in ("camera_defocus", "projector_defocus")])
+    system, _ = base_system(lens)
+    asked = 0
+    for i in range(6):
+        _, p = draw_scene(lens, system, np.random.default_rng([lens.seed, i, 0]))
+        _, q = draw_scene(blur, system, np.random.default_rng([lens.seed, i, 0]))
+        for d in ("camera_defocus", "projector_defocus"):
+            if p["effects"][d] is not None:
+                assert p["effects"][d]["samples"] == 8
+                p["effects"][d]["samples"] = 0
+                asked += 1
+        assert p == q
+    assert asked >= 6
