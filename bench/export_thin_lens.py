@@ -14,7 +14,7 @@ defocus tables (absent: the blur; a fixed number draws no random number, so ever
 the same scenes, checked).
 
 Per variant: wall and process CPU seconds per sample (the export's whole work: render, phase,
-labels, write; in the same run as the blur, the anchor), the model that ran (params "defocus"),
+labels, write; the variants exported round robin, one sample each in turn, the blur the anchor), the model that ran (params "defocus"),
 and the bias of the unit-frequency phase against the truth, ``e = wrap(phi_1 - 2 pi c / width)
 * 48 / (2 pi)`` in periods of the f = 48 fringe (|e| > 0.5: a wrong MF 1 -> 48 order), on the lit,
 valid pixels within ``--band`` px of an outline (the export's edge mask: object, lit state or
@@ -122,25 +122,39 @@ def _stats(e, mask, ref=None):
 
 
 def run(work: Path, samples: int, points, seed: int, band: int) -> list:
+    """Export every variant one sample at a time, round robin (one-sample shards, the starting
+    variant rotating), so that a changing load on shared cores falls on all variants alike; then
+    join each variant's shards (writer.combine) and measure its bias."""
     from synth.export.dataset import export_dataset
+    from synth.export.writer import combine, shard_path
 
     work.mkdir(parents=True, exist_ok=True)
-    rows, maps = [], {}
-    for n in [0, *points]:
-        name = "blur" if not n else f"lens{n}"
-        cfg = work / f"{name}.toml"
-        cfg.write_text(_config(n, samples, seed))
-        out = work / f"{name}.h5"
-        for p in (out, Path(str(out) + ".parts")):
+    names = {n: "blur" if not n else f"lens{n}" for n in [0, *points]}
+    for n, name in names.items():
+        (work / f"{name}.toml").write_text(_config(n, samples, seed))
+        for p in [work / f"{name}.h5", *work.glob(f"{name}-*-of-*.h5*")]:
             shutil.rmtree(p) if p.is_dir() else p.unlink(missing_ok=True)
-        t0, c0 = time.perf_counter(), _cpu()
-        summary = export_dataset(cfg, out, progress=False)
-        wall, cpu = time.perf_counter() - t0, _cpu() - c0
+    wall, cpu = dict.fromkeys(names.values(), 0.0), dict.fromkeys(names.values(), 0.0)
+    stages = {name: {} for name in names.values()}
+    order = list(names.items())
+    for i in range(samples):
+        for n, name in order[i % len(order):] + order[:i % len(order)]:
+            t0, c0 = time.perf_counter(), _cpu()
+            s = export_dataset(work / f"{name}.toml", work / f"{name}.h5", shard=(i, samples), progress=False)
+            wall[name] += time.perf_counter() - t0
+            cpu[name] += _cpu() - c0
+            for k, v in s.get("stage_seconds", {}).items():
+                stages[name][k] = stages[name].get(k, 0.0) + v
+    rows, maps = [], {}
+    for n, name in names.items():
+        out = work / f"{name}.h5"
+        if samples > 1:  # one shard is the file itself
+            combine([shard_path(out, i, samples) for i in range(samples)], out)
         e, near, inner, params, check = bias_maps(out, band)
         maps[name] = (e, near, inner, params)
         models = Counter(f"{d.split('_')[0]} {v['model']}" for p in params for d, v in p.get("defocus", {}).items())
-        rows.append({"variant": name, "samples": samples, "wall_s": wall / samples, "cpu_s": cpu / samples,
-                     "stages": summary.get("stage_seconds"), "models": dict(sorted(models.items())),
+        rows.append({"variant": name, "samples": samples, "wall_s": wall[name] / samples,
+                     "cpu_s": cpu[name] / samples, "stages": stages[name], "models": dict(sorted(models.items())),
                      "check": check.sum(0).tolist()})
     ref_name = f"lens{max(points)}" if points else "blur"
     base = [dict(p, effects=None, plan=None, defocus=None) for p in maps["blur"][3]]
