@@ -261,7 +261,8 @@ def _effects(d: dict) -> dict:
         out[name] = {k: _range(v, f"{key}.{k}", *subs[k]) for k, v in value.items()}
         n = out[name].get("samples")
         if n is not None and (n.lo != int(n.lo) or n.hi != int(n.hi)):
-            _fail(f"{key}.samples", f"expected a whole number of aperture points or a range of them, got {n.to_list()}")
+            _fail(f"{key}.samples", f"expected a whole number of aperture points or a range of them, "
+                                    f"got {n.to_list()}")
     return out
 
 
