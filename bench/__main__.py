@@ -10,8 +10,8 @@ import sys
 import time
 
 from . import (ba_scale, beat_wrap, calib_accuracy, calib_captures, calib_speed, cycles_testset, decision_error_fit,
-               defocus_bias, deploy_speed, detect_accuracy, export_speed, finetune_real, gi_bias, global_bias,
-               learned_deploy, learned_gpu, learned_speed, outlier_rule, prefetch_gray, retrain_compare,
+               defocus_bias, deploy_speed, detect_accuracy, export_speed, export_thin_lens, finetune_real, gi_bias,
+               global_bias, learned_deploy, learned_gpu, learned_speed, outlier_rule, prefetch_gray, retrain_compare,
                skull_parity, spatial_unwrap, synth_speed, unwrap_speed)
 
 #: (name, main(argv) of the benchmark, arguments of its quick mode)
@@ -27,6 +27,7 @@ BENCHMARKS = [
     ("calib_captures", calib_captures.main, ["--quick"]),
     ("outlier_rule", outlier_rule.main, ["--quick"]),
     ("export_speed", export_speed.main, ["--quick"]),
+    ("export_thin_lens", export_thin_lens.main, ["--quick"]),
     ("learned_speed", learned_speed.main, ["--quick"]),
     ("spatial_unwrap", spatial_unwrap.main, ["--quick"]),
     ("global_bias", global_bias.main, ["--quick"]),

@@ -120,6 +120,10 @@ def test_combine_refuses_missing_incomplete_and_foreign_shards_and_leaves_nothin
         combine([shards[0], shards[2]], tmp_path / "c.h5")
     with pytest.raises(ExportError, match="given twice"):
         combine([shards[0], shards[0], shards[1], shards[2]], tmp_path / "c.h5")
+    before = shards[1].read_bytes()
+    with pytest.raises(ExportError, match="is one of the shards"):  # joined into itself: a crash on reading
+        combine(shards, shards[1])
+    assert shards[1].read_bytes() == before
     with h5py.File(shards[2], "r+") as h5:
         h5.attrs["complete"] = False
     with pytest.raises(ExportError, match="did not finish"):

@@ -53,7 +53,11 @@ render plan of each sample says so)::
     projector_gamma = [1, 1]
     noise = {full_well_e = [3000, 20000], read_noise_e = [2, 10]}
     projector_defocus = {aperture_mm = [0, 6], focus_offset_mm = [-150, 150]}
-    camera_defocus = {aperture_mm = [0, 6], focus_offset_mm = [-150, 150]}
+    camera_defocus = {aperture_mm = [0, 6], focus_offset_mm = [-150, 150], samples = [16, 32]}
+                                  # samples: thin-lens aperture points (synth.effects.thin_lens), a whole
+                                  # number or range; absent / 0: the Gaussian blur. A device whose blur
+                                  # disc stays under THIN_LENS_MIN_DISC_PX everywhere gets the blur
+                                  # (synth.export.defocus_model; params "defocus" says which ran)
     global_illumination = {subsurface = [0, 0.5], scatter_mm = [0.5, 4], interreflection = [0, 0.1],
                            interreflection_mm = [20, 60]}
     interreflection = {chance = 0.9, bounces = [1, 2], patch_px = [32, 48]}  # physically based
@@ -202,8 +206,10 @@ _EFFECT_RANGES = {
     "projector_gamma": (None, (0.05, 10.0)),
     "gain": (None, (0.0, 10.0)),
     "noise": ({"full_well_e": (1.0, 1e9), "read_noise_e": (0.0, 1e6)}, None),
-    "projector_defocus": ({"aperture_mm": (0.0, 100.0), "focus_offset_mm": (-1e4, 1e4)}, None),
-    "camera_defocus": ({"aperture_mm": (0.0, 100.0), "focus_offset_mm": (-1e4, 1e4)}, None),
+    "projector_defocus": ({"aperture_mm": (0.0, 100.0), "focus_offset_mm": (-1e4, 1e4), "samples": (0.0, 1024.0)},
+                          None),
+    "camera_defocus": ({"aperture_mm": (0.0, 100.0), "focus_offset_mm": (-1e4, 1e4), "samples": (0.0, 1024.0)},
+                       None),
     "global_illumination": ({"subsurface": (0.0, 1.0), "scatter_mm": (1e-3, 1e3), "interreflection": (0.0, 1.0),
                              "interreflection_mm": (1e-3, 1e4)}, None),
     "interreflection": ({"chance": (0.0, 1.0), "bounces": (1.0, 2.0), "patch_px": (0.5, 256.0)}, None),
@@ -253,6 +259,10 @@ def _effects(d: dict) -> dict:
         if need and need not in value:
             _fail(f"{key}.{need}", "missing")
         out[name] = {k: _range(v, f"{key}.{k}", *subs[k]) for k, v in value.items()}
+        n = out[name].get("samples")
+        if n is not None and (n.lo != int(n.lo) or n.hi != int(n.hi)):
+            _fail(f"{key}.samples", f"expected a whole number of aperture points or a range of them, "
+                                    f"got {n.to_list()}")
     return out
 
 

@@ -2,9 +2,10 @@
 images to what every unwrapping method needs (unwrap.dataset_schema).
 
 Stages (timed): ``geometry`` (scene draw + rays, hits, shadows), ``patterns`` (pattern stack,
-global illumination, camera defocus), ``noise`` (noise + quantisation), ``phase`` (N-step
-wrapped phase and modulation of every frequency), ``labels`` (true coordinate and orders, masks,
-the label check).
+global illumination, camera defocus; with defocus ``samples``, the thin lens's aperture renders,
+each with its own geometry, where synth.export.defocus_model keeps it), ``noise`` (noise +
+quantisation), ``phase`` (N-step wrapped phase and modulation of every frequency), ``labels``
+(true coordinate and orders, masks, the label check).
 
 Label check (the paper's way of making labels, supplementary section 3): traditional MF from the
 unit frequency on the noise-free render must give the geometric order. It runs twice per
@@ -31,6 +32,7 @@ from unwrap.phase_shift import wrapped_phase
 from unwrap.temporal import mf_unwrap
 
 from .config import ExportConfig
+from .defocus_model import choose_defocus_model, sampled
 from .scenes import draw_scene
 from ..errors import SynthError
 from ..renderer.geometry import compute_geometry
@@ -95,11 +97,13 @@ def make_sample(cfg: ExportConfig, system, index: int, sampler=None) -> Sample:
     :class:`synth.export.posterior.PosteriorSampler` drawing the sample's system."""
     timings: dict = {}
     scene, geom, params, rng = _draw_covered(cfg, system, index, timings, sampler)
+    scene = choose_defocus_model(cfg, scene, geom, params)
     system = scene.system
     W, H = system.camera.size
     t = time.perf_counter()
     plan = PlanLog()
-    res = render(scene, geometry=geom, keep_linear=True, log=plan)
+    # the thin lens renders every aperture point's own geometry (its lens centre's is geom's)
+    res = render(scene, geometry=None if sampled(scene) else geom, keep_linear=True, log=plan)
     params["plan"] = params["plan"] + plan.lines
     total_render = time.perf_counter() - t
     noise_t = res.timings.get("noise", 0.0) + res.timings.get("gain + quantisation", 0.0)

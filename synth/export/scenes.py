@@ -179,6 +179,11 @@ def _draw(r: Range, rng) -> float:
     return r.draw(rng)
 
 
+def _draw_count(r: Range, rng) -> int:
+    """A whole number uniform in [lo, hi]; a fixed one draws nothing (the same scenes as without)."""
+    return int(r.lo) if r.lo == r.hi else int(rng.integers(int(r.lo), int(r.hi) + 1))
+
+
 def draw_effects(cfg: ExportConfig, system, n_objects: int, rng, params: dict) -> Effects:
     """The sample's effects from the config ranges (absent or zero: not simulated)."""
     e = cfg.effects
@@ -193,8 +198,9 @@ def draw_effects(cfg: ExportConfig, system, n_objects: int, rng, params: dict) -
         if k in e and not e[k]["aperture_mm"].off:
             aperture = _draw(e[k]["aperture_mm"], rng)
             focus = float(dev.t[2]) + _draw(e[k].get("focus_offset_mm", Range(0.0, 0.0)), rng)
+            n = _draw_count(e[k]["samples"], rng) if "samples" in e[k] else 0  # thin lens (defocus_model)
             if aperture > 0:
-                kw[k] = Defocus(aperture, max(focus, 1.0), 4)
+                kw[k] = Defocus(aperture, max(focus, 1.0), 4, n)
     if "global_illumination" in e:
         g = e["global_illumination"]
         sub, mm = g.get("subsurface", Range(0.0, 0.0)), g.get("scatter_mm", Range(2.0, 2.0))

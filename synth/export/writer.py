@@ -348,6 +348,9 @@ def combine(shards, out, *, progress=None) -> Path:
     import h5py
 
     out = Path(out)
+    if any(Path(s).resolve() == out.resolve() for s in shards):
+        raise ExportError(f"--combine: the output {out} is one of the shards (a file joined into itself "
+                          "would point at itself and be lost); name another output")
     infos, total = _checked_shards([Path(s) for s in shards])
     names = infos[0][2]
     out.parent.mkdir(parents=True, exist_ok=True)
