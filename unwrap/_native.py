@@ -224,10 +224,8 @@ def build(name: str, source: str, check=None, flags=FLAGS):
                 return None
             if returncode < 0:       # killed by a signal (out of memory, interrupted): not a refusal
                 return None
-            if returncode and b"No space left on device" in output:     # a full disk passes: not a refusal
-                return None
-            if returncode and any(m in output for m in _KILLED):   # cc1 / ld killed (out of memory): not one
-                return None
+            if returncode and any(m in output for m in (b"No space left on device", *_KILLED)):
+                return None     # a full disk passes, and so does a cc1 / ld killed (out of memory): not refusals
             if returncode and "-march=native" in flags:       # a compiler that refuses it
                 # remembered: later processes go straight to the build without it (its own library
                 # and note), not through this failing compile again
