@@ -21,7 +21,7 @@ only through two quantities, and both are checked before it runs:
   (table S5's unseen f = 96 is 2x), 2.5-4x runs with a :class:`FrequencyRangeWarning`, more than 4x
   (or less than 1/8) is refused: the prior's noise alone then decides most pixels.
 - the fringe period on the camera, measured from the high wrapped phase (median over valid
-  pixels of ``2 pi / |grad phi|``, on every 4th row unless that lands near the threshold:
+  pixels of ``2 pi / |grad phi|``, on one row in 4 unless that lands near the threshold:
   :func:`measured_period_px`): below :data:`MIN_PERIOD_PX` pixels the phase is aliased and
   no order can be trusted, so it is refused.
 """
@@ -116,8 +116,8 @@ def _median_period(p00, p01, p10, ok) -> float:
 
 
 def measured_period_px(phase_high, valid) -> float:
-    """The range check's fringe period (px): :func:`fringe_period_px` on every
-    :data:`PERIOD_ROW_STEP`-th row (~1/4 of the time), over every row where that estimate lies
+    """The range check's fringe period (px): :func:`fringe_period_px` on one row in
+    :data:`PERIOD_ROW_STEP` (~1/4 of the time), over every row where that estimate lies
     within :data:`PERIOD_RECHECK_BAND` of :data:`MIN_PERIOD_PX` (the refusal's threshold): the
     decision is then the full frame's wherever the sample's median is within 25 % of the frame's
     (a sample at ``(1 + e) p`` with ``|e| < 0.25`` lies outside the band only on the side of 3 px
