@@ -154,6 +154,22 @@ def without_traceback(message: str) -> str:
     return f"{head}: {last[-1]}" if last else head
 
 
+def _torch_out_of_memory(exc: BaseException) -> bool:
+    """Whether ``exc`` is torch's allocator out of memory: a RuntimeError, not a MemoryError (its CPU
+    allocator's "DefaultCPUAllocator: can't allocate memory", torch.OutOfMemoryError on a GPU)."""
+    return isinstance(exc, RuntimeError) and (type(exc).__name__ == "OutOfMemoryError"
+                                              or ("DefaultCPUAllocator" in str(exc) and "memory" in str(exc)))
+
+
+def _out_of_memory(args) -> int:
+    """Report running out of memory (a resource, not a bug: say so and what to try); exit status 2."""
+    if args.debug:
+        traceback.print_exc()
+    hint = " (try --low-memory)" if getattr(args, "low_memory", True) is False else ""
+    print(f"calib {args.command}: error: out of memory{hint}", file=sys.stderr)
+    return 2
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
@@ -178,12 +194,10 @@ def main(argv=None) -> int:
         print(f"calib {args.command}: error: {prefix}{message}", file=sys.stderr)
         return code
     except MemoryError:                     # a resource, not a bug: say so and what to try
-        if args.debug:
-            traceback.print_exc()
-        hint = " (try --low-memory)" if hasattr(args, "low_memory") else ""
-        print(f"calib {args.command}: error: out of memory{hint}", file=sys.stderr)
-        return 2
+        return _out_of_memory(args)
     except Exception as exc:                # a bug: one line, the traceback with --debug
+        if _torch_out_of_memory(exc):
+            return _out_of_memory(args)
         if args.debug:
             raise
         print(f"calib {args.command}: internal error: {type(exc).__name__}: {without_traceback(str(exc))}\n"

@@ -214,3 +214,28 @@ def test_calib_help_imports_no_heavy_package():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"})
     assert out.stdout.strip() == "[]", out.stdout + out.stderr
+
+
+def test_torch_out_of_memory_is_an_error_not_a_bug(monkeypatch, capsys):
+    """torch's CPU allocator refuses with a RuntimeError, not a MemoryError (the learned forward, the
+    peak of ``calib unwrap --model``): the same exit 2 as a MemoryError; no --low-memory hint
+    where it was given; other RuntimeErrors stay bugs."""
+    from sltwin.commands import unwrap as unwrap_command
+
+    def exhausted(args):
+        raise RuntimeError("[enforce fail at alloc_cpu.cpp:127] err == 0. DefaultCPUAllocator: can't allocate "
+                           "memory: you tried to allocate 1125899906842624 bytes. Error code 12")
+
+    monkeypatch.setattr(unwrap_command, "run", exhausted)
+    assert main(["unwrap", "somewhere", "-o", "elsewhere"]) == 2
+    err = capsys.readouterr().err
+    assert "out of memory (try --low-memory)" in err and "bug" not in err
+    assert main(["unwrap", "somewhere", "-o", "elsewhere", "--low-memory"]) == 2
+    err = capsys.readouterr().err
+    assert "error: out of memory" in err and "--low-memory" not in err
+
+    def broken(args):
+        raise RuntimeError("a shape mismatch")
+
+    monkeypatch.setattr(unwrap_command, "run", broken)
+    assert main(["unwrap", "somewhere", "-o", "elsewhere"]) == 1

@@ -166,13 +166,13 @@ def _real_high_phases():
 
 @pytest.mark.realdata
 def test_range_check_sample_on_real_captures():
-    """The sampled period of real captures within 0.5 % of the full frame's (measured: 0.25-0.36 %),
-    the same decision."""
+    """The sampled period of real captures within 1 % of the full frame's (measured with the staggered
+    rows: 0.01-0.77 %; rows 0, 4, 8, ...: 0.17-0.36 %), the same decision."""
     frames = _real_high_phases()
     assert len(frames) == 3
     for name, phase, valid in frames:
         full, sample = I.fringe_period_px(phase, valid), I.measured_period_px(phase, valid)
-        assert sample != full and abs(sample / full - 1) < 5e-3, (name, full, sample)
+        assert sample != full and abs(sample / full - 1) < 1e-2, (name, full, sample)
         assert (sample < I.MIN_PERIOD_PX) == (full < I.MIN_PERIOD_PX)
 
 

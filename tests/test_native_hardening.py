@@ -105,12 +105,14 @@ def test_an_interrupted_compile_is_not_remembered(tmp_path, monkeypatch):
     assert not list(_kernels(tmp_path).glob("t_*.refused")) and not list(_kernels(tmp_path).glob("tmp*"))
 
 
-def test_a_full_disk_is_not_remembered_as_a_refusal(tmp_path, monkeypatch):
-    """A compile that fails because the disk is full leaves no note: the next process, the disk
-    freed, compiles again (a note would refuse the C kernel on this machine for good)."""
+@pytest.mark.parametrize("message", ["fatal error: error writing to /tmp/ccX.s: No space left on device",
+                                     "gcc: fatal error: Killed signal terminated program cc1"])
+def test_a_full_disk_is_not_remembered_as_a_refusal(tmp_path, monkeypatch, message):
+    """A compile that fails because the disk is full, or whose cc1 the out-of-memory killer ended (gcc
+    then exits 1, not by a signal), leaves no note, neither the -march=native one nor a refusal: the
+    next process compiles again (a note would refuse the C kernel on this machine for good)."""
     monkeypatch.setenv("SLTWIN_CACHE_DIR", str(tmp_path / "c"))
-    monkeypatch.setenv("CC", _fake_cc(tmp_path, "echo 'fatal error: error writing to /tmp/ccX.s: No space left on "
-                                                "device' >&2; exit 1"))
+    monkeypatch.setenv("CC", _fake_cc(tmp_path, f"echo '{message}' >&2; exit 1"))
     assert _native.build("t", SRC) is None
     assert not list(_kernels(tmp_path).glob("t_*.refused")) and not list(_kernels(tmp_path).glob("tmp*"))
     assert _native.build("t", SRC) is None
@@ -156,3 +158,4 @@ def test_the_compiler_speaks_c_locale(tmp_path, monkeypatch):
     monkeypatch.setenv("CC", _fake_cc(tmp_path, f'echo "$LC_ALL" > {tmp_path / "locale"}; exit 1'))
     assert _native.build("t", SRC) is None
     assert (tmp_path / "locale").read_text().strip() == "C"
+

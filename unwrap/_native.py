@@ -107,6 +107,13 @@ NO_NATIVE = "-march=native refused"
 under its own key, library and note."""
 
 
+_KILLED = (b"Killed signal terminated program", b"internal compiler error: Killed", b"unable to execute command",
+           b"due to signal")
+"""What a compiler driver prints, exiting with a positive status, when a program it ran was killed by a
+signal (gcc: ``fatal error: Killed signal terminated program cc1``; clang: ``unable to execute command:
+Killed``, ``... failed due to signal``): the out-of-memory killer's victim, not a refusal."""
+
+
 def _still_refused(note: Path) -> str | None:
     """The first line of the refusal ``note`` where it holds, else None: every note holds but a
     timed-out compile's older than :data:`RETRY_TIMED_OUT_S`."""
@@ -217,8 +224,8 @@ def build(name: str, source: str, check=None, flags=FLAGS):
                 return None
             if returncode < 0:       # killed by a signal (out of memory, interrupted): not a refusal
                 return None
-            if returncode and b"No space left on device" in output:     # a full disk passes: not a refusal
-                return None
+            if returncode and any(m in output for m in (b"No space left on device", *_KILLED)):
+                return None     # a full disk passes, and so does a cc1 / ld killed (out of memory): not refusals
             if returncode and "-march=native" in flags:       # a compiler that refuses it
                 # remembered: later processes go straight to the build without it (its own library
                 # and note), not through this failing compile again

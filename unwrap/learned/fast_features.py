@@ -371,7 +371,8 @@ def decode(logits: np.ndarray, order_traditional, ok, f_high: float, kind: str, 
     if native and not wrap_orders and np.asarray(logits).dtype == _F32 and np.ndim(logits) == 4:
         from . import _features_c as FC
 
-        if native_features():
+        hw = np.shape(logits)[2:]       # the C code reads (H, W) of each: other shapes are numpy's to refuse
+        if np.shape(ok) == hw and np.shape(order_traditional) == hw and native_features():
             return FC.decode(logits, order_traditional, ok, f_high, kind, max_correction, native_features())
     zs = class_planes(logits)
     zmax = zs[0].copy()

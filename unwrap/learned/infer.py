@@ -21,7 +21,7 @@ only through two quantities, and both are checked before it runs:
   (table S5's unseen f = 96 is 2x), 2.5-4x runs with a :class:`FrequencyRangeWarning`, more than 4x
   (or less than 1/8) is refused: the prior's noise alone then decides most pixels.
 - the fringe period on the camera, measured from the high wrapped phase (median over valid
-  pixels of ``2 pi / |grad phi|``, on every 4th row unless that lands near the threshold:
+  pixels of ``2 pi / |grad phi|``, on one row in 4 unless that lands near the threshold:
   :func:`measured_period_px`): below :data:`MIN_PERIOD_PX` pixels the phase is aliased and
   no order can be trusted, so it is refused.
 """
@@ -69,7 +69,7 @@ def resolve_model(model, device="cpu"):
     return pred.net, pred.ck
 
 
-#: Row step of the range check's sample (:func:`fringe_period_px`): every 4th row.
+#: Row step of the range check's sample (:func:`fringe_period_px`): one row in 4, staggered.
 PERIOD_ROW_STEP = 4
 #: Fewest sampled pixel pairs from which the sample's median stands for the frame's (else: every row).
 PERIOD_MIN_SAMPLES = 4096
@@ -83,17 +83,23 @@ def fringe_period_px(phase_high, valid, row_step: int = 1) -> float:
     ``2 pi / median |(wrap(dx), wrap(dy))|`` over the pixels valid with their right and lower
     neighbours (the differences taken at those pixels only: a third of the full-frame passes).
 
-    ``row_step`` > 1: over the rows 0, step, 2 step, ... only (their lower neighbours one row down),
+    ``row_step`` > 1: over the rows ``k step + (k mod step)`` only (their lower neighbours one row down),
     where they hold at least :data:`PERIOD_MIN_SAMPLES` such pixels (else every row): the range check's
     estimate (:func:`check_frequency_range`; on the test captures and the 640 x 480 speed ramp within
-    0.5 % of the full frame's, tests/test_learned_whole_path.py)."""
+    1 % of the full frame's, tests/test_learned_whole_path.py)."""
     phi = np.asarray(phase_high, dtype=np.float64)
     v = np.asarray(valid, dtype=bool)
     if row_step > 1 and phi.ndim == 2 and phi.shape[0] > row_step:
-        rows, below = slice(0, phi.shape[0] - 1, row_step), slice(1, phi.shape[0], row_step)
-        ok = v[rows, :-1] & v[rows, 1:] & v[below, :-1]
+        # rows k step + (k mod step): every residue mod step (and mod 2) as often as in the frame, so
+        # that a defect every 2nd or step-th row weighs in the sample as in the frame (rows 0, step,
+        # 2 step, ... alone saw every step-th row's pairs or none of them)
+        k = np.arange(-(-(phi.shape[0] - 1) // row_step))
+        rows = k * row_step + k % row_step
+        rows = rows[rows < phi.shape[0] - 1]
+        p0, v0, p1, v1 = phi[rows], v[rows], phi[rows + 1], v[rows + 1]
+        ok = v0[:, :-1] & v0[:, 1:] & v1[:, :-1]
         if np.count_nonzero(ok) >= PERIOD_MIN_SAMPLES:
-            return _median_period(phi[rows, :-1], phi[rows, 1:], phi[below, :-1], ok)
+            return _median_period(p0[:, :-1], p0[:, 1:], p1[:, :-1], ok)
     ok = v[:-1, :-1] & v[:-1, 1:] & v[1:, :-1]
     return _median_period(phi[:-1, :-1], phi[:-1, 1:], phi[1:, :-1], ok)
 
@@ -110,8 +116,8 @@ def _median_period(p00, p01, p10, ok) -> float:
 
 
 def measured_period_px(phase_high, valid) -> float:
-    """The range check's fringe period (px): :func:`fringe_period_px` on every
-    :data:`PERIOD_ROW_STEP`-th row (~1/4 of the time), over every row where that estimate lies
+    """The range check's fringe period (px): :func:`fringe_period_px` on one row in
+    :data:`PERIOD_ROW_STEP` (~1/4 of the time), over every row where that estimate lies
     within :data:`PERIOD_RECHECK_BAND` of :data:`MIN_PERIOD_PX` (the refusal's threshold): the
     decision is then the full frame's wherever the sample's median is within 25 % of the frame's
     (a sample at ``(1 + e) p`` with ``|e| < 0.25`` lies outside the band only on the side of 3 px
