@@ -161,12 +161,15 @@ def _torch_out_of_memory(exc: BaseException) -> bool:
                                               or ("DefaultCPUAllocator" in str(exc) and "memory" in str(exc)))
 
 
-def _out_of_memory(args) -> int:
-    """Report running out of memory (a resource, not a bug: say so and what to try); exit status 2."""
+def _out_of_memory(args, exc: BaseException) -> int:
+    """Report running out of memory (a resource, not a bug: say so, how much where the allocator said,
+    and what to try); exit status 2."""
     if args.debug:
         traceback.print_exc()
+    detail = without_traceback(str(exc)).strip().splitlines()
+    detail = f": {detail[0][:200]}" if detail else ""
     hint = " (try --low-memory)" if getattr(args, "low_memory", True) is False else ""
-    print(f"calib {args.command}: error: out of memory{hint}", file=sys.stderr)
+    print(f"calib {args.command}: error: out of memory{hint}{detail}", file=sys.stderr)
     return 2
 
 
@@ -193,11 +196,11 @@ def main(argv=None) -> int:
             message += f" (while writing {' '.join(map(str, output)) if isinstance(output, list) else output})"
         print(f"calib {args.command}: error: {prefix}{message}", file=sys.stderr)
         return code
-    except MemoryError:                     # a resource, not a bug: say so and what to try
-        return _out_of_memory(args)
+    except MemoryError as exc:              # a resource, not a bug: say so and what to try
+        return _out_of_memory(args, exc)
     except Exception as exc:                # a bug: one line, the traceback with --debug
         if _torch_out_of_memory(exc):
-            return _out_of_memory(args)
+            return _out_of_memory(args, exc)
         if args.debug:
             raise
         print(f"calib {args.command}: internal error: {type(exc).__name__}: {without_traceback(str(exc))}\n"

@@ -69,6 +69,13 @@ def test_running_out_of_memory_is_an_error_with_a_hint_not_a_bug(monkeypatch, ca
     assert main(["unwrap", "somewhere", "-o", "elsewhere"]) == 2
     assert "out of memory (try --low-memory)" in capsys.readouterr().err
 
+    def numpy_exhausted(args):      # numpy says how much it wanted: kept
+        raise MemoryError("Unable to allocate 3.20 GiB for an array with shape (700, 900, 682) and data type float64")
+
+    monkeypatch.setattr(plan_fringes, "run", numpy_exhausted)
+    assert main(["plan-fringes"]) == 2
+    assert "out of memory: Unable to allocate 3.20 GiB" in capsys.readouterr().err
+
 
 def test_commands_that_render_nothing_do_not_import_torch(tmp_path):
     code = ("import sys; from sltwin.cli import main; "

@@ -49,3 +49,16 @@ def test_range_check_sample_sees_a_defect_every_4th_row_as_the_frame_does():
     assert I.fringe_period_px(aliased, v) < I.MIN_PERIOD_PX
     assert I.measured_period_px(aliased, v) < I.MIN_PERIOD_PX
     assert I.check_frequency_range(meta, "mf", (1, 48), aliased, v, on_outside="ignore")["status"] == "refused"
+
+
+@needs_c
+def test_the_c_features_refuse_more_windows_than_their_row_buffers_hold():
+    """features2 keeps MAX_WINDOWS row buffers: a direct call with more windows is refused before any C
+    runs (the public make_inputs sends more to the numpy code)."""
+    from unwrap.learned import _features_c as FC
+
+    windows = tuple(range(3, 3 + 2 * (FC.MAX_WINDOWS + 1), 2))
+    m = np.zeros((4, 4))
+    with pytest.raises(ValueError, match="at most"):
+        FC.make_inputs(m, m, m, m, m, np.zeros((4, 4), np.int64), np.ones((4, 4), bool), (1.0, 16.0), windows,
+                       layout="nhwc", multiple=1, plane_filters=None, coarse=(1.0, 0.5), F=None)

@@ -336,6 +336,8 @@ def make_inputs(prior, phase_low, phase_high, modulation_low, modulation_high, o
     bool), the same bits. Float inputs only (:func:`covered`)."""
     from .._xp import TIE_BAND, TWO_PI
     from .channels import MODULATION_GAIN, channel_slices
+    if len(windows) > MAX_WINDOWS:   # features2 keeps a fixed array of row buffers
+        raise ValueError(f"_features_c.make_inputs: at most {MAX_WINDOWS} smoothing windows, got {len(windows)}")
     at = channel_slices("physics", windows)
     C = max(s.stop for s in at.values())
     pr, pl, ph, ml, mh = (_f64(a) for a in (prior, phase_low, phase_high, modulation_low, modulation_high))
