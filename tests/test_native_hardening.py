@@ -159,3 +159,19 @@ def test_the_compiler_speaks_c_locale(tmp_path, monkeypatch):
     assert _native.build("t", SRC) is None
     assert (tmp_path / "locale").read_text().strip() == "C"
 
+
+
+def test_a_note_does_not_outlive_the_compiler_it_is_about(tmp_path, monkeypatch):
+    """A compiler fixed or upgraded in place (the same path, another program) is asked again: the key of
+    the library and of its notes carries the compiler's size and time, not only its path."""
+    monkeypatch.setenv("SLTWIN_CACHE_DIR", str(tmp_path / "c"))
+    cc = _fake_cc(tmp_path, "echo 'error: cc1 missing' >&2; exit 1")
+    monkeypatch.setenv("CC", cc)
+    assert _native.build("t", SRC) is None and _calls(tmp_path) == 2
+    assert _native.build("t", SRC) is None and _calls(tmp_path) == 2       # remembered
+    real = shutil.which("cc") or shutil.which("gcc")
+    if real is None:
+        pytest.skip("no C compiler")
+    Path(cc).write_text(f"#!/bin/sh\necho run >> {tmp_path / 'calls'}\nexec {real} \"$@\"\n")   # reinstalled
+    os.utime(cc, ns=(time.time_ns() + 10**9, time.time_ns() + 10**9))
+    assert _native.build("t", SRC).f() == 7 and _calls(tmp_path) == 3

@@ -6,7 +6,8 @@ of the result. :func:`build` compiles ``source`` once per machine without fast-m
 ``-ffp-contract=off`` (no fused multiply-adds, as numba compiles) into the cache folder
 (``$SLTWIN_CACHE_DIR/unwrap_kernels``, else ``$XDG_CACHE_HOME/sltwin/unwrap_kernels``, else
 ``~/.cache/sltwin/unwrap_kernels``) under a hash of the source, the compiler (``$CC``, which may
-carry arguments: ``ccache gcc``), the flags and the machine's architecture, and loads it (~1 ms).
+carry arguments: ``ccache gcc``; and the size and time of the programs it names, so an upgraded
+compiler builds afresh), the flags and the machine's architecture, and loads it (~1 ms).
 A library is loaded only from a folder and file this user owns and no one else can write: it runs
 inside this process. The caller checks the loaded functions' bits against a numpy replica on a
 small input before it uses them (a compiler that defaults to fast-math, a damaged file).
@@ -95,10 +96,29 @@ def _open(path: Path, check):
         return None
 
 
+def compiler_identity(cc) -> tuple:
+    """Which programs ``cc`` (the compiler's command words) runs: for each word that names an
+    executable on the PATH, its resolved path, size and modification time (ns). Upgrading or
+    reinstalling the compiler changes them, so a library or a refusal note of the old one is not
+    taken for the new one's (no ``cc --version`` run: a stat costs microseconds)."""
+    out = []
+    for word in cc:
+        found = shutil.which(word)
+        if found:
+            real = os.path.realpath(found)
+            try:
+                st = os.stat(real)
+            except OSError:
+                continue
+            out.append(f"{real}:{st.st_size}:{st.st_mtime_ns}")
+    return tuple(out)
+
+
 def _refused_path(name: str, source: str, cc, flags) -> Path:
     """``NAME_HASH.refused`` in the cache (the library beside it: ``NAME_HASH.so``), HASH of the source,
-    the compiler, the flags and the machine (module docstring)."""
-    key = hashlib.sha256("\0".join((source, *cc, *flags, platform.machine(), cpu_id())).encode()).hexdigest()[:16]
+    the compiler (its words and :func:`compiler_identity`), the flags and the machine (module docstring)."""
+    key = hashlib.sha256("\0".join((source, *cc, *compiler_identity(cc), *flags, platform.machine(),
+                                     cpu_id())).encode()).hexdigest()[:16]
     return cache_dir() / f"{name}_{key}.refused"
 
 
