@@ -62,3 +62,13 @@ def test_the_c_features_refuse_more_windows_than_their_row_buffers_hold():
     with pytest.raises(ValueError, match="at most"):
         FC.make_inputs(m, m, m, m, m, np.zeros((4, 4), np.int64), np.ones((4, 4), bool), (1.0, 16.0), windows,
                        layout="nhwc", multiple=1, plane_filters=None, coarse=(1.0, 0.5), F=None)
+
+
+@needs_c
+def test_the_per_process_check_crosses_the_c_loops_chunks():
+    """The library's check runs a frame whose rows are wider than the C loops' 512-pixel chunks (the
+    user's own compiler's code at a chunk boundary, not only the tests' machine's), and it passes."""
+    from unwrap.learned import _features_c as FC
+
+    assert any(W > 512 for _, _, W in FC.CHECK_FRAMES) and "#define CH 512" in FC._SOURCE
+    assert FC._same_bits(FF.native_features(), FF)

@@ -397,6 +397,11 @@ def decode(logits, order_traditional, ok, f_high: float, kind: str, max_correcti
     return order, conf
 
 
+#: (seed, H, W) of the frames :func:`_same_bits` runs: a small one, and rows wider than the C loops'
+#: chunk of 512 pixels (so a chunk boundary falls inside a row, and the decoding's flat range crosses it)
+CHECK_FRAMES = ((0, 21, 19), (1, 5, 530))
+
+
 def _check_frame(seed: int, H: int = 21, W: int = 19):
     """A small MF frame with holes, NaN, infinities, signed zeros, huge values, negative and large
     modulations, and priors near rounding boundaries (what :func:`_same_bits` runs)."""
@@ -415,7 +420,8 @@ def _check_frame(seed: int, H: int = 21, W: int = 19):
 def _same_bits(F, FF) -> bool:
     """Whether the library gives the numpy code's bits (module docstring): the pair's decode, the
     features in both layouts with and without padding, the decoding of both model kinds in both
-    layouts (~10 ms once per process; tests/test_learned_whole_path.py covers more)."""
+    layouts, on :data:`CHECK_FRAMES` (~4 ms once per process; tests/test_learned_whole_path.py covers more,
+    the two threads' split of a large frame included)."""
     with np.errstate(over="ignore", invalid="ignore"):       # the frame's float64 beyond float32's range
         return _same_bits_on_frames(F, FF)
 
@@ -423,8 +429,8 @@ def _same_bits(F, FF) -> bool:
 def _same_bits_on_frames(F, FF) -> bool:
     from ..temporal import decode_pair
 
-    for seed in (0,):
-        plo, phi, ml, mh, valid = _check_frame(seed)
+    for seed, H, W in CHECK_FRAMES:
+        plo, phi, ml, mh, valid = _check_frame(seed, H, W)
         v = valid & np.isfinite(plo) & np.isfinite(phi)
         want = decode_pair("mf", np.nan_to_num(plo), np.nan_to_num(phi), 1.0, 16.0, 40.0, v)
         got = mf_prior(plo, phi, v, 1.0, 16.0, 40.0, F)
@@ -443,11 +449,11 @@ def _same_bits_on_frames(F, FF) -> bool:
                     a[0].view(np.uint32), b[0].view(np.uint32)):
                 return False
         rng = np.random.default_rng(seed)
-        z = rng.normal(0.0, 3.0, (1, 5, 21, 19)).astype(np.float32)
+        z = rng.normal(0.0, 3.0, (1, 5, H, W)).astype(np.float32)
         z[0, :, 0, 0] = 1.0                             # ties: the first class wins
         z[0, 2, 1, 1] = np.nan
         for logits, kinds in ((z, ("prior_free",)),
-                              (np.ascontiguousarray(z.transpose(0, 2, 3, 1)).transpose(0, 3, 1, 2)[..., :20, :18],
+                              (np.ascontiguousarray(z.transpose(0, 2, 3, 1)).transpose(0, 3, 1, 2)[..., :H - 1, :W - 1],
                                ("physics",))):
             t, k = trad[:logits.shape[2], :logits.shape[3]], ok[:logits.shape[2], :logits.shape[3]]
             for kind in kinds:
