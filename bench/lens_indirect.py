@@ -1,5 +1,5 @@
 """The thin lens's shared indirect light against the exact one: ``python -m bench.lens_indirect
-[--points 8] [--real 0 1 2] [--size 160 120] [-q]``.
+[--points 8] [--real 0 1 2] [--size 160 120] [--no-ball] [--quick] [-q]``.
 
 Per scene, three renders with the same thin lens (8 steps of vertical fringes at f = 1, linear
 images, no noise): direct light only (D), interreflection computed per aperture point (E,
@@ -151,10 +151,13 @@ def main(argv=None):
     ap.add_argument("--real", type=int, nargs="*", default=[0, 1, 2])
     ap.add_argument("--size", type=int, nargs=2, default=[160, 120])
     ap.add_argument("--no-ball", action="store_true")
+    ap.add_argument("--quick", action="store_true", help="4 points, the ball focused on the ball only, no export sample")
     ap.add_argument("-q", action="store_true")
     a = ap.parse_args(argv)
+    if a.quick:
+        a.points, a.real = 4, []
     rows = []
-    scenes = [] if a.no_ball else list(ball_scenes(a.points))
+    scenes = [] if a.no_ball else list(ball_scenes(a.points))[:1 if a.quick else 2]
     for name, scene in scenes + list(real_scenes(a.real, a.size, a.points)):
         rows.append(compare_scene(name, scene))
         if not a.q:
