@@ -1,7 +1,8 @@
 """The thin lens in the dataset export against the blur, on the same scenes: ``python -m
 bench.export_thin_lens --work DIR [--samples 4] [--points 8 16 32]``; ``--config
-synth/data/export_real.toml [--index 0] --points 8``: the cost of one sample of a config as
-configured and with the thin lens (config_cost); ``--quick``: 1 sample, blur vs 4 points.
+synth/data/export_real.toml [--index 0] --points 8 [--exact]``: the cost of one sample of a config
+with the blur and with the thin lens (config_cost; ``--exact``: also with the interreflection
+computed per aperture point instead of shared, synth.effects.lens_indirect); ``--quick``: 1 sample, blur vs 4 points.
 
 Writes one export config per variant to ``DIR`` (real-like scenes: 1-2 procedural objects before a
 wall or on a table, the built-in camera's central 320 x 240 window at the real pixel scale,
@@ -173,22 +174,40 @@ def run(work: Path, samples: int, points, seed: int, band: int) -> list:
     return rows
 
 
-def config_cost(config: Path, index: int, points) -> list:
+def config_cost(config: Path, index: int, points, exact: bool = False, warmup: bool = True) -> list:
     """CPU and wall seconds of sample ``index`` of ``config`` (e.g. synth/data/export_real.toml)
-    with its own defocus (blur unless it has ``samples``) and with ``samples`` = each of ``points``
-    on both devices, the same scene; the export's stage seconds and the models that ran."""
+    with the blur (``samples`` = 0 on both devices) and with ``samples`` = each of ``points`` on
+    both devices (the interreflection shared between aperture points, synth.effects.lens_indirect;
+    with ``exact`` also computed per aperture point), the same scene, after an untimed warm-up
+    sample with the blur; the export's stage seconds and the models that ran."""
+    from dataclasses import replace as _replace
+    from unittest import mock
+
+    from synth.export import scenes as export_scenes
     from synth.export.config import load_config
     from synth.export.dataset import base_system
     from synth.export.sample import make_sample
 
+    from synth.effects.spec import Interreflection
+
+    def exact_ir(*args, **kw):
+        return _replace(Interreflection(*args, **kw), thin_lens="exact")
+
     rows = []
-    for n in [0, *points]:
-        sets = [f"effects.{d}.samples={n}" for d in ("camera_defocus", "projector_defocus")] if n else []
+    variants = [(0, "shared")] * (2 if warmup else 1) + [(n, m) for n in points
+                                                         for m in (("shared", "exact") if exact else ("shared",))]
+    for k, (n, mode) in enumerate(variants):
+        sets = [f"effects.{d}.samples={n}" for d in ("camera_defocus", "projector_defocus")]
         cfg = load_config(config, sets)
         system, sampler = base_system(cfg)
         t0, c0 = time.perf_counter(), _cpu()
-        s = make_sample(cfg, system, index, sampler)
-        rows.append({"variant": "as configured" if not n else f"lens{n}", "cpu_s": _cpu() - c0,
+        # the export draws its interreflection table without the option: "exact" patched in here
+        with mock.patch.object(export_scenes, "Interreflection", exact_ir if mode == "exact" else Interreflection):
+            s = make_sample(cfg, system, index, sampler)
+        if warmup and k == 0:
+            continue
+        rows.append({"variant": "blur" if not n else f"lens{n}" + (", exact indirect" if mode == "exact" else ""),
+                     "cpu_s": _cpu() - c0,
                      "wall_s": time.perf_counter() - t0, "stages": s.timings, "defocus": s.params.get("defocus"),
                      "interreflection": s.params["effects"].get("interreflection"),
                      "layout": s.params.get("layout", {}).get("kind")})
@@ -218,16 +237,18 @@ def main(argv=None):
     ap.add_argument("--band", type=int, default=8, help="outline band half-width, px")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--config", type=Path, default=None,
-                    help="instead: the cost of one sample (--index) of this export config, as configured and "
+                    help="instead: the cost of one sample (--index) of this export config with the blur and "
                          "with --points aperture points on both devices")
     ap.add_argument("--index", type=int, default=0)
+    ap.add_argument("--exact", action="store_true",
+                    help="with --config: also the thin lens with the interreflection computed per aperture point")
     ap.add_argument("--quick", action="store_true", help="1 sample, blur vs 4 points (a temporary --work)")
     a = ap.parse_args(argv)
     load0 = os.getloadavg()[0]
     if a.config is not None:
-        rows = config_cost(a.config, a.index, sorted(a.points))
+        rows = config_cost(a.config, a.index, sorted(a.points), exact=a.exact)
         print(f"load {load0:.1f} -> {os.getloadavg()[0]:.1f}; {a.config} sample {a.index}")
-        print("| defocus | CPU s | wall s | CPU vs as configured | patterns s (wall) | models | interreflection "
+        print("| defocus | CPU s | wall s | CPU vs blur | patterns s (wall) | models | interreflection "
               "| layout |")
         print("|---|---|---|---|---|---|---|---|")
         for r in rows:

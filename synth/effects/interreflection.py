@@ -403,54 +403,71 @@ def _occluded_pairs(objects, skip, X, Y) -> torch.Tensor | None:
     return out
 
 
+def patch_values(scene, fine: Patches, other: list) -> tuple[torch.Tensor, int]:
+    """The pattern values the fine patches emit: (values (R + len(other), P_f) float64, R): the
+    linear patterns' R basis rows, then the nonlinear patterns ``other`` (indices into
+    ``scene.patterns``). Each fine patch integrates the pattern over its projector footprint (a
+    box of ``patch_px / refine`` px): a Gaussian of the box's variance step^2 / 12, with the
+    projector's defocus if any (patterns finer than the patches average out instead of
+    aliasing)."""
+    from ..renderer.geometry import defocus_sigma
+    from ..renderer.projection import linear_model, nonlinear_values
+
+    eff, prj = scene.effects, scene.system.projector
+    ir = eff.interreflection
+    step = ir.patch_px / ir.refine
+    sig = torch.full((fine.X.shape[0], 2), step / math.sqrt(12.0), dtype=F64)
+    if eff.projector_defocus is not None:
+        sig = torch.sqrt(sig ** 2 + torch.stack([defocus_sigma(eff.projector_defocus, prj.fx, fine.z_prj),
+                                                 defocus_sigma(eff.projector_defocus, prj.fy, fine.z_prj)], 1) ** 2)
+    u, v = fine.uv[:, 0], fine.uv[:, 1]
+    _, _, basis = linear_model(scene.patterns, u, v, prj.size, eff, sig)
+    if not other:
+        return basis, basis.shape[0]
+    return torch.cat([basis, nonlinear_values(scene.patterns, other, u, v, prj.size, eff, sig)]), basis.shape[0]
+
+
 def apply_interreflection(full: torch.Tensor, nl: torch.Tensor | None, scene, geometry, other: list,
                           log=None) -> tuple[torch.Tensor, torch.Tensor | None, dict]:
     """Add the indirect light to the renderer's basis rows ``full`` (R + 1, N) float32 (row 0:
     ambient, rows 1..R: the linear patterns' basis rows scaled by the direct radiance) and to the
     nonlinear patterns' images ``nl`` (len(other), N) (or None), at every pixel that sees a
     surface (lit or in a cast shadow). Returns (full, nl, stats)."""
-    from ..renderer.geometry import camera_rays, defocus_sigma
-    from ..renderer.projection import linear_model, nonlinear_values
+    from ..renderer.geometry import camera_rays
 
-    eff, cam, prj = scene.effects, scene.system.camera, scene.system.projector
+    eff, cam = scene.effects, scene.system.camera
     ir = eff.interreflection
     hit = torch.nonzero(geometry.hit).squeeze(1)
-    Rc, tc = torch.tensor(cam.R), torch.tensor(cam.t)
-    Xr = (geometry.points_cam[hit] - tc) @ Rc
-    nr = geometry.normals_cam[hit] @ Rc
-    T = Transport(scene, Xr, nr, geometry.albedo[hit], geometry.object_id[hit], ir)
     vign = torch.ones(hit.numel(), dtype=F64)
     if eff.vignetting > 0:
         rays, _ = camera_rays(cam, eff.camera_distortion and bool(np.any(cam.distortion)))
         rx = torch.nan_to_num(rays.xy[hit], nan=0.0)
         vign = 1.0 - eff.vignetting * (1.0 - 1.0 / (1.0 + (rx ** 2).sum(1)) ** 2)
-    f = T.fine
-    # each fine patch integrates the pattern over its projector footprint (a box of ``step``
-    # px): a Gaussian of the box's variance step^2 / 12, with the projector's defocus if any
-    # (patterns finer than the patches average out instead of aliasing)
-    step = ir.patch_px / ir.refine
-    sig = torch.full((f.X.shape[0], 2), step / math.sqrt(12.0), dtype=F64)
-    if eff.projector_defocus is not None:
-        sig = torch.sqrt(sig ** 2 + torch.stack([defocus_sigma(eff.projector_defocus, prj.fx, f.z_prj),
-                                                 defocus_sigma(eff.projector_defocus, prj.fy, f.z_prj)], 1) ** 2)
-    u, v = f.uv[:, 0], f.uv[:, 1]
-    _, _, basis = linear_model(scene.patterns, u, v, prj.size, eff, sig)
-    values = basis
-    if nl is not None and other:
-        values = torch.cat([basis, nonlinear_values(scene.patterns, other, u, v, prj.size, eff, sig)])
-    add = T.apply(values) * vign
-    R = basis.shape[0]
+    shared = getattr(geometry, "shared_indirect", None)
+    if shared is not None:  # synth.effects.lens_indirect: one aperture point of the thin lens
+        add, R, stats = shared.rows(geometry, hit)
+    else:
+        Rc, tc = torch.tensor(cam.R), torch.tensor(cam.t)
+        Xr = (geometry.points_cam[hit] - tc) @ Rc
+        nr = geometry.normals_cam[hit] @ Rc
+        T = Transport(scene, Xr, nr, geometry.albedo[hit], geometry.object_id[hit], ir)
+        values, R = patch_values(scene, T.fine, other if nl is not None else [])
+        add = T.apply(values)
+        stats = T.stats
+    add = add * vign
     full = full.clone()
     full[1:, hit] += add[:R].to(full.dtype)
     if nl is not None and other:
         nl = nl.clone()
         nl[:, hit] += add[R:].to(nl.dtype)
-    if log is not None:
-        s = T.stats
+    if log is not None and shared is not None:
+        log.info("interreflection: %s", shared.describe())
+    elif log is not None:
+        s = stats
         log.info("interreflection: %d bounce(s), %d fine / %d coarse patches (%.3g / %.3g projector px), "
                  "%d far + %d near pair(s), %d occluded (spheres and planes tested; meshes: %s)",
                  ir.bounces, s["fine patches"], s["coarse patches"], ir.patch_px / ir.refine, ir.patch_px,
                  s["far pairs"], s["near pairs (fine)"], s["occluded pairs"],
                  ("traced (segment grid)" if T.occluder is not None else "none in the scene")
                  if ir.mesh_visibility else "not tested")
-    return full, nl, T.stats
+    return full, nl, stats

@@ -93,6 +93,10 @@ class Interreflection:
     refine: int = 4
     near: float = 2.0
     mesh_visibility: bool = True
+    #: with the thin lens (``*_defocus.samples``): "shared", the lens centre's indirect light looked
+    #: up at every aperture point's surface points (synth.effects.lens_indirect), or "exact", a
+    #: transport per aperture point
+    thin_lens: str = "shared"
 
 
 @dataclass(frozen=True)
@@ -209,6 +213,10 @@ def _interreflection(d) -> Interreflection | None:
         if k == "mesh_visibility":
             if not isinstance(v, bool):
                 raise SynthError(f"effects.interreflection.mesh_visibility: expected true or false, got {v!r}")
+            kw[k] = v
+        elif k == "thin_lens":
+            if v not in ("shared", "exact"):
+                raise SynthError(f'effects.interreflection.thin_lens: expected "shared" or "exact", got {v!r}')
             kw[k] = v
         elif k in ("bounces", "refine"):
             lo, hi = (1, 2) if k == "bounces" else (1, 16)

@@ -20,8 +20,11 @@ disc, sigma ``c / (4 sqrt(samples))``, was measured (plain spiral) against 128 s
 and did not help: 8 samples 0.62 / 0.58 of the bias RMS with / without, 16 samples 0.21 / 0.21;
 it is not offered.)
 
-Everything after the camera rays (projector coordinates, shadows, shading, interreflection) runs
-per aperture point through the normal renderer; noise, gain and quantisation run once on the
+Everything after the camera rays (projector coordinates, shadows, shading) runs per aperture
+point through the normal renderer; the interreflection too with ``interreflection.thin_lens =
+"exact"``, while the default ``"shared"`` computes it once at the lens centre and looks it up at
+each aperture point's surface points, exactly only where the centre does not see them
+(synth.effects.lens_indirect; validated in docs/synth.md); noise, gain and quantisation run once on the
 average (and the PSF tail and response curve, synth.effects.response). The ground truth is the lens centre's pinhole geometry.
 """
 from __future__ import annotations
@@ -41,7 +44,7 @@ GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
 
 #: plan lines of an aperture point's render that the average replaces (render() adds the sensor's)
 SAMPLE_PLAN_REPLACED = ("camera defocus: skipped", "projector defocus: skipped", "sensor noise", "camera PSF tail",
-                        "camera response", "gain + quantisation")
+                        "camera response", "gain + quantisation", "interreflection: shared")
 
 
 def aperture_points(n: int) -> np.ndarray:
@@ -153,6 +156,7 @@ def aperture_average(scene, render_fn, log=None):
                          projector_defocus=None if prj_on else plain.effects.projector_defocus,
                          noise=None, gain=1.0, saturation=1.0, camera_gamma=1.0, camera_psf_tail=None,
                          reference_distance_mm=d_ref)
+    shared = _shared_indirect(plain, centre, timings)
     acc = None
     for i in range(n):
         sub = PlanLog.of(None)
@@ -165,6 +169,8 @@ def aperture_average(scene, render_fn, log=None):
                                                              cdof.focus_mm), log=sub)
         else:
             g = compute_geometry(s_scene, rays=pinhole, hits=pinhole_hits, log=sub)
+        if shared is not None:
+            g.shared_indirect = shared  # read by synth.effects.interreflection.apply_interreflection
         res = render_fn(s_scene, keep_linear=False, quantised=False, geometry=g, log=sub)
         if i == 0:  # the first point's stage decisions, less those the average makes itself
             for line in sub.lines:
@@ -174,4 +180,22 @@ def aperture_average(scene, render_fn, log=None):
         for k, v in list(g.timings.items()) + list(res.timings.items()):
             key = f"thin lens: {k}"
             timings[key] = timings.get(key, 0.0) + v
+    if shared is not None:
+        plan.info("interreflection: %s", shared.describe())
     return acc.div_(n).to(torch.float32), centre, timings
+
+
+def _shared_indirect(plain, centre, timings):
+    """synth.effects.lens_indirect.SharedIndirect of the lens centre when the scene's
+    interreflection runs and asks for ``thin_lens = "shared"`` (else None: every aperture point
+    computes its own)."""
+    from .interreflection import skip_reason
+    from .lens_indirect import SharedIndirect
+
+    ir = plain.effects.interreflection
+    if ir is None or ir.thin_lens != "shared" or skip_reason(plain.objects) or not bool(centre.lit.any()):
+        return None
+    t0 = time.perf_counter()
+    shared = SharedIndirect(plain, centre)
+    timings["thin lens: shared indirect (centre)"] = time.perf_counter() - t0
+    return shared
