@@ -282,6 +282,16 @@ class Transport:
         counts = torch.bincount(self.parent, minlength=self.coarse.X.shape[0])
         self.child_order, self.child_start, self.child_count = order, torch.cumsum(counts, 0) - counts, counts
 
+    def towards(self, Xr, nr, rho_r, obj_r) -> "Transport":
+        """This transport (the same patches and occluders) towards other receivers (world mm, as
+        the constructor's): a shallow copy whose pair counts start at 0."""
+        import copy
+
+        t = copy.copy(self)
+        t.Xr, t.nr, t.rho_r, t.obj_r = Xr, nr, rho_r, obj_r
+        t.stats = {**self.stats, "far pairs": 0, "near pairs (fine)": 0, "occluded pairs": 0}
+        return t
+
     def _skip(self, a, b):
         return {i for i in (a, b) if self.objects[i].convex}
 

@@ -26,8 +26,6 @@ the look-up; shapes: rows Q, centre receivers M0, one aperture point's hit pixel
 """
 from __future__ import annotations
 
-import copy
-
 import numpy as np
 import torch
 
@@ -121,12 +119,8 @@ class SharedIndirect:
         bad = torch.nonzero(~good).squeeze(1)
         stats = {"looked up": int(gi.numel()), "exact": int(bad.numel())}
         if bad.numel():
-            T = copy.copy(self.T)
-            T.stats = dict.fromkeys(self.T.stats, 0)
-            T.Xr = (P[bad] - self.tc) @ self.Rc
-            T.nr = n[bad] @ self.Rc
-            T.rho_r = torch.ones(bad.numel(), dtype=F64)
-            T.obj_r = geometry.object_id[hit][bad]
+            T = self.T.towards((P[bad] - self.tc) @ self.Rc, n[bad] @ self.Rc, torch.ones(bad.numel(), dtype=F64),
+                               geometry.object_id[hit][bad])
             out[:, bad] = T.apply(self.values)
             stats.update(T.stats)
         self.counts["points"] += hit.numel()
