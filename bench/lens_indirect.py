@@ -106,12 +106,12 @@ def real_scenes(indices, size, points: int):
     from synth.export.config import load_config
     from synth.export.dataset import base_system
     from synth.export.defocus_model import choose_defocus_model, sampled
-    from synth.export.sample import _draw_covered
+    from synth.export.sample import draw_covered
 
     cfg = load_config(REPO / "synth" / "data" / "export_real.toml", [])
     system, sampler = base_system(cfg)
     for i in indices:
-        scene, geom, params, _ = _draw_covered(cfg, system, i, {}, sampler)
+        scene, geom, params, _ = draw_covered(cfg, system, i, {}, sampler)
         scene = choose_defocus_model(cfg, scene, geom, params)
         eff = scene.effects
         if not sampled(scene):

@@ -68,8 +68,10 @@ def edge_mask(geometry, depth_jump_mm: float = 3.0) -> np.ndarray:
     return e
 
 
-def _draw_covered(cfg: ExportConfig, system, index: int, timings: dict, sampler=None):
-    """Scene + geometry of sample ``index``, redrawn until the objects cover enough pixels."""
+def draw_covered(cfg: ExportConfig, system, index: int, timings: dict, sampler=None):
+    """Sample ``index``'s (scene, lens-centre Geometry, params, rng), redrawn until the objects cover
+    ``export.min_object_fraction`` of the image (what :func:`make_sample` renders; benchmarks that
+    render the export's scenes another way draw them here too)."""
     W, H = system.camera.size
     for attempt in range(cfg.max_redraws):
         rng = np.random.default_rng([cfg.seed, index, attempt])
@@ -96,7 +98,7 @@ def make_sample(cfg: ExportConfig, system, index: int, sampler=None) -> Sample:
     """Render and reduce sample ``index`` (see the module docstring). ``sampler``: optional
     :class:`synth.export.posterior.PosteriorSampler` drawing the sample's system."""
     timings: dict = {}
-    scene, geom, params, rng = _draw_covered(cfg, system, index, timings, sampler)
+    scene, geom, params, rng = draw_covered(cfg, system, index, timings, sampler)
     scene = choose_defocus_model(cfg, scene, geom, params)
     system = scene.system
     W, H = system.camera.size
