@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 #: odds of a whole-fringe depth step against one surface per edge (0: the weights unchanged)
-ODDS_GRID = (0.0, 1e-6, 1e-4, 1e-3, 1e-2, 0.1, 1.0)
+ODDS_GRID = (0.0, 0.01, 0.03, 0.1, 0.3, 1.0, 3.0)
 
 
 def grid(items, odds_grid, smoothness_grid, quiet=False) -> list:

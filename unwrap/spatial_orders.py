@@ -67,7 +67,7 @@ _INF = 1e12
 #: the probability that the neighbours lie on one surface given the prior's step (the prior's data
 #: term only; :mod:`unwrap.spatial_edges`; session 12, docs/learned.md "The graph cut's depth-edge weight").
 DEFAULTS = {"smoothness": 8.0, "outlier": 0.05, "sigma_floor": 0.01, "smoothness_learned": 32.0, "bias_scale": 0.5,
-            "bias_max_correction": 4, "step_odds": 0.0}
+            "bias_max_correction": 4, "step_odds": 0.03}
 #: Never-worse gate thresholds per path (:func:`gate`), calibrated the same way: a correction is
 #: applied where the traditional decision's error probability - bias included, the model of
 #: :mod:`unwrap.decision_error` - is at least ``min_p_wrong`` and the network's probability of the
@@ -451,9 +451,9 @@ def graphcut_orders(method: str, phase_low, phase_high, frequencies, valid, sigm
         step_odds = DEFAULTS["step_odds"] if given_cost is None else 0.0
     if step_odds:
         from .spatial_edges import scale_grid_weights, scale_pair_weights
-        wx, wy = scale_grid_weights(wx, wy, prior, phi_hi, sig, odds=step_odds)
+        wx, wy = scale_grid_weights(wx, wy, prior, phi_hi, sig, odds=step_odds, outlier=outlier)
         if extra is not None:
-            extra = scale_pair_weights(*extra, prior, phi_hi, sig, odds=step_odds)
+            extra = scale_pair_weights(*extra, prior, phi_hi, sig, odds=step_odds, outlier=outlier)
     c, energy = solve_corrections(cost, phi_hi, n, ok, wx, wy, extra)
     order = np.where(ok, n + c, -1)
     return SpatialResult(order.astype(np.int64), n.astype(np.int64), c, np.where(ok, prior, 0.0), p_wrong, ok,
