@@ -1,7 +1,7 @@
 """Calibrate the graph cut's depth-edge odds (``unwrap.spatial_orders.DEFAULTS["step_odds"]``,
 :mod:`unwrap.spatial_edges`) on the twin validation scenes, and print the grid.
 
-    python -m bench.spatial_edge_odds --work DIR [--odds 0,1e-6,...] [--smoothness 8] [--json OUT]
+    python -m bench.spatial_edge_odds --work DIR [--odds 0,0.01,...] [--smoothness 8,16] [--json OUT] [--quick]
 
 Scenes: the validation set of ``python -m bench.spatial_unwrap --calibrate-gate`` (rendered once
 into ``--work``, the same cache): the 6 noise-dominated scenes of ``bench/data/spatial_val.toml``
@@ -96,15 +96,18 @@ def main(argv=None) -> int:
     ap.add_argument("--smoothness", default=None, help="comma-separated (default: the shipped one)")
     ap.add_argument("--json", default=None)
     ap.add_argument("-q", "--quiet", action="store_true")
+    ap.add_argument("--quick", action="store_true",
+                    help="one interreflection scene, odds 0 and the shipped one: a smoke run, not the calibration")
     args = ap.parse_args(argv)
-    from bench.spatial_unwrap import validation_items
+    from bench.spatial_unwrap import bias_items, validation_items
     from unwrap.spatial_orders import DEFAULTS
 
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
-    odds = [float(v) for v in args.odds.split(",")]
+    odds = [0.0, DEFAULTS["step_odds"]] if args.quick else [float(v) for v in args.odds.split(",")]
     lams = [float(v) for v in args.smoothness.split(",")] if args.smoothness else [DEFAULTS["smoothness"]]
-    rows = grid(validation_items(work), odds, lams, args.quiet)
+    items = bias_items(work, limit=1) if args.quick else validation_items(work)
+    rows = grid(items, odds, lams, args.quiet)
     print(table(rows))
     best = choose(rows)
     print(f"\ncalibrated step odds (least noise-dominated validation error): {best['odds']:g} "

@@ -447,13 +447,9 @@ def graphcut_orders(method: str, phase_low, phase_high, frequencies, valid, sigm
                           max_prior_step=max_prior_step)
     extra = bridge_edges(phi_hi, ok, weight=smoothness, prior=prior, max_wrapped_step=max_wrapped_step,
                          max_prior_step=max_prior_step) if bridge else None
-    if step_odds is None:
-        step_odds = DEFAULTS["step_odds"] if given_cost is None else 0.0
-    if step_odds:
-        from .spatial_edges import scale_grid_weights, scale_pair_weights
-        wx, wy = scale_grid_weights(wx, wy, prior, phi_hi, sig, odds=step_odds, outlier=outlier)
-        if extra is not None:
-            extra = scale_pair_weights(*extra, prior, phi_hi, sig, odds=step_odds, outlier=outlier)
+    from .spatial_edges import scale_weights
+    wx, wy, extra = scale_weights(wx, wy, extra, prior, phi_hi, sig, outlier=outlier, odds=(
+        step_odds if step_odds is not None else DEFAULTS["step_odds"] if given_cost is None else 0.0))
     c, energy = solve_corrections(cost, phi_hi, n, ok, wx, wy, extra)
     order = np.where(ok, n + c, -1)
     return SpatialResult(order.astype(np.int64), n.astype(np.int64), c, np.where(ok, prior, 0.0), p_wrong, ok,
