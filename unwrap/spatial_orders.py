@@ -17,7 +17,9 @@ traditional order ``n_p`` (what rounding the temporal prior gives). The energy i
   round((Phi_p - Phi_q) / 2 pi)``, zero where ``|Phi_p - Phi_q| < pi``. ``w_pq`` (nats per jump)
   is cut to zero where the phase says a depth edge is (:func:`edge_weights`: a large wrapped
   phase step, a prior step of more than ``max_prior_step`` fringes, low modulation, an invalid
-  neighbour), so an occlusion edge never pulls orders across.
+  neighbour), so an occlusion edge never pulls orders across; with the prior's data term the
+  remaining weights are scaled by the probability that the neighbours lie on one surface given the
+  prior's step (:mod:`unwrap.spatial_edges`: a one-fringe depth step the high phase cannot see).
 
 The pairwise term is a convex function of the label difference, so the energy is minimised
 *exactly* (not by alpha-expansion's local moves) by Ishikawa's layered graph (H. Ishikawa, "Exact
