@@ -77,7 +77,7 @@ def choose(rows) -> dict:
 
 
 def table(rows) -> str:
-    lines = ["| step odds | smoothness | noise-dominated: wrong (% ) | interreflection: wrong (%) | scenes worse than "
+    lines = ["| step odds | smoothness | noise-dominated: wrong (%) | interreflection: wrong (%) | scenes worse than "
              "traditional | gated worst broken / fixed (noise) |", "|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         nz, bs = r["noise"], r["bias"]
@@ -110,8 +110,11 @@ def main(argv=None) -> int:
     rows = grid(items, odds, lams, args.quiet)
     print(table(rows))
     best = choose(rows)
-    print(f"\ncalibrated step odds (least noise-dominated validation error): {best['odds']:g} "
-          f"(smoothness {best['smoothness']:g})")
+    if args.quick:
+        print("\n(--quick: one interreflection scene, a smoke run; no odds chosen)")
+    else:
+            print(f"\ncalibrated step odds (least noise-dominated validation error): {best['odds']:g} "
+              f"(smoothness {best['smoothness']:g})")
     if args.json:
         from unwrap.safe_output import write_text
         write_text(Path(args.json), json.dumps(rows, indent=1))
