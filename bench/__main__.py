@@ -12,7 +12,7 @@ import time
 from . import (ba_scale, beat_wrap, calib_accuracy, calib_captures, calib_speed, cycles_testset, decision_error_fit,
                defocus_bias, deploy_speed, detect_accuracy, export_speed, export_thin_lens, finetune_real, gi_bias,
                global_bias, learned_deploy, learned_gpu, learned_speed, lens_indirect, outlier_rule, prefetch_gray,
-               retrain_compare, skull_parity, spatial_unwrap, synth_speed, unwrap_speed)
+               retrain_compare, skull_parity, spatial_edge_odds, spatial_unwrap, synth_speed, unwrap_speed)
 
 #: (name, main(argv) of the benchmark, arguments of its quick mode)
 BENCHMARKS = [
@@ -31,6 +31,7 @@ BENCHMARKS = [
     ("lens_indirect", lens_indirect.main, ["--quick"]),
     ("learned_speed", learned_speed.main, ["--quick"]),
     ("spatial_unwrap", spatial_unwrap.main, ["--quick"]),
+    ("spatial_edge_odds", spatial_edge_odds.main, ["--quick", "-q"]),
     ("global_bias", global_bias.main, ["--quick"]),
     ("deploy_speed", deploy_speed.main, ["--quick"]),
     ("calib_speed", calib_speed.main, ["--quick"]),

@@ -17,7 +17,9 @@ traditional order ``n_p`` (what rounding the temporal prior gives). The energy i
   round((Phi_p - Phi_q) / 2 pi)``, zero where ``|Phi_p - Phi_q| < pi``. ``w_pq`` (nats per jump)
   is cut to zero where the phase says a depth edge is (:func:`edge_weights`: a large wrapped
   phase step, a prior step of more than ``max_prior_step`` fringes, low modulation, an invalid
-  neighbour), so an occlusion edge never pulls orders across.
+  neighbour), so an occlusion edge never pulls orders across; with the prior's data term the
+  remaining weights are scaled by the probability that the neighbours lie on one surface given the
+  prior's step (:mod:`unwrap.spatial_edges`: a one-fringe depth step the high phase cannot see).
 
 The pairwise term is a convex function of the label difference, so the energy is minimised
 *exactly* (not by alpha-expansion's local moves) by Ishikawa's layered graph (H. Ishikawa, "Exact
@@ -63,8 +65,11 @@ _INF = 1e12
 #: (``python -m bench.global_bias --calibrate``; docs/learned.md, "A global-light bound").
 #: Smoothness / outlier recalibrated in session 11 (were 4 / 0.2, stale since the noise estimate
 #: of 441dd4d; docs/learned.md, "The graph cut's weights recalibrated").
+#: ``step_odds``: prior odds of a whole-fringe depth step on an edge, which scale the smoothness by
+#: the probability that the neighbours lie on one surface given the prior's step (the prior's data
+#: term only; :mod:`unwrap.spatial_edges`; session 12, docs/learned.md "The graph cut's depth-edge weight").
 DEFAULTS = {"smoothness": 8.0, "outlier": 0.05, "sigma_floor": 0.01, "smoothness_learned": 32.0, "bias_scale": 0.5,
-            "bias_max_correction": 4}
+            "bias_max_correction": 4, "step_odds": 0.03}
 #: Never-worse gate thresholds per path (:func:`gate`), calibrated the same way: a correction is
 #: applied where the traditional decision's error probability - bias included, the model of
 #: :mod:`unwrap.decision_error` - is at least ``min_p_wrong`` and the network's probability of the
@@ -379,7 +384,7 @@ def graphcut_orders(method: str, phase_low, phase_high, frequencies, valid, sigm
                     sigma_floor: float | None = None, max_correction: int = MAX_CORRECTION, modulation=None,
                     min_modulation: float = 0.0, max_wrapped_step: float = math.pi / 2,
                     max_prior_step: float = 1.5, bridge: bool = True, bias_bound=None,
-                    bias_scale: float | None = None) -> SpatialResult:
+                    bias_scale: float | None = None, step_odds: float | None = None) -> SpatialResult:
     """Fringe orders of the high frequency of one orientation by the spatial energy (module docstring).
 
     ARGUMENTS: method "mf" | "mw" | "nt"; wrapped phases (rad, (H, W), NaN allowed where invalid);
@@ -395,6 +400,9 @@ def graphcut_orders(method: str, phase_low, phase_high, frequencies, valid, sigm
     :meth:`unwrap.global_light.GlobalBias.fringes`); the prior's likelihood then gets a bias spread
     ``bias_scale * bias_bound`` (None: :data:`DEFAULTS` ``bias_scale``) in quadrature with its noise
     (``prior_data_cost``'s ``bias_sigma``). None (default): the data term without it, as before.
+    ``step_odds``: the smoothness of each edge is scaled by the probability that its pixels lie on
+    one surface given the prior's step (:mod:`unwrap.spatial_edges`; 0: off). None: :data:`DEFAULTS`
+    ``step_odds`` with the prior's data term, 0 with a given ``cost`` (not calibrated for it).
     """
     from .temporal import decode_pair as traditional
 
@@ -417,6 +425,7 @@ def graphcut_orders(method: str, phase_low, phase_high, frequencies, valid, sigm
     if np.any(ok & ~(np.isfinite(sig) & (sig > 0))):
         raise UnwrapError("graphcut_orders: the phase noise must be finite and > 0 at valid pixels")
     p_wrong = traditional_error_probability(prior, n, sig, ok, max_correction=max_correction)
+    given_cost = cost
     if cost is not None and bias_bound is not None:
         raise UnwrapError("graphcut_orders: bias_bound widens the prior's data term; it cannot act on a given cost")
     if cost is None:
@@ -440,6 +449,9 @@ def graphcut_orders(method: str, phase_low, phase_high, frequencies, valid, sigm
                           max_prior_step=max_prior_step)
     extra = bridge_edges(phi_hi, ok, weight=smoothness, prior=prior, max_wrapped_step=max_wrapped_step,
                          max_prior_step=max_prior_step) if bridge else None
+    from .spatial_edges import scale_weights
+    wx, wy, extra = scale_weights(wx, wy, extra, prior, phi_hi, sig, outlier=outlier, odds=(
+        step_odds if step_odds is not None else DEFAULTS["step_odds"] if given_cost is None else 0.0))
     c, energy = solve_corrections(cost, phi_hi, n, ok, wx, wy, extra)
     order = np.where(ok, n + c, -1)
     return SpatialResult(order.astype(np.int64), n.astype(np.int64), c, np.where(ok, prior, 0.0), p_wrong, ok,
