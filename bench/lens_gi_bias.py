@@ -22,7 +22,7 @@ render times of one seed's 8 frames (from the run that rendered and cached them 
 ``--work``), and, as an anchor measured in this run, one fresh frame at ``--anchor-samples`` x 8.
 
 ``--quick``: no Blender: ball-wall-lens against the stored test reference
-(tests/data/lens_gi_bias_ball_wall.npz, written by ``--write-reference``).
+(tests/data/lens_gi_bias_ball_wall.npz, written by ``--write-reference``), three of the models.
 """
 from __future__ import annotations
 
@@ -35,6 +35,8 @@ import numpy as np
 
 REFERENCE = Path(__file__).resolve().parents[1] / "tests" / "data" / "lens_gi_bias_ball_wall.npz"
 HEADLINE = "thin lens + interreflection, shared"
+#: the models of ``--quick`` (the exact path's 32 transports are left to the full run)
+QUICK_MODELS = (HEADLINE, "old image blur + interreflection", "thin lens alone (no interreflection)")
 
 
 def _log(quiet, *a):
@@ -90,7 +92,7 @@ def _quick(a) -> int:
     from experiments.gi_bias import compare, load_reference
 
     ref, mask, meta = load_reference(REFERENCE)
-    ours = ours_models("ball-wall-lens", 1)
+    ours = ours_models("ball-wall-lens", 1, QUICK_MODELS)
     band = mask & outline_band(next(iter(ours.values()))[0]["geometry"])
     print(f"## ball-wall-lens against the stored Cycles reference ({int(meta['samples'])} samples x "
           f"{int(meta['seeds'])} seeds, noise {float(meta['noise_rms_per_seed']):.4f} rad per seed)\n")
