@@ -114,7 +114,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, default=2)
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--anchor-samples", type=int, default=64, help="one fresh Cycles frame at this many (0: none)")
-    ap.add_argument("--figures", type=Path, default=Path("out/lens_gi_bias"))
+    ap.add_argument("--figures", type=lambda v: Path(v) if v else None, default=Path("out/lens_gi_bias"),
+                    help='folder of the figures ("": none)')
     ap.add_argument("--write-reference", type=Path, default=None)
     ap.add_argument("-q", "--quiet", action="store_true")
     a = ap.parse_args(argv)
@@ -166,10 +167,13 @@ def main(argv=None) -> int:
     if anchors:
         print(f"\nSame-run anchor: one fresh Cycles frame (depth of field, 4 bounces, {a.anchor_samples} samples) "
               "x 8, against our headline model's stack:\n")
-        print("| scene | Cycles s (8 x 1 frame, this run) | ours ms | speed-up |\n|---|---|---|---|")
+        print("| scene | Cycles s (8 x 1 frame, this run) | ours ms | speed-up | at the reference's samples "
+              "(Cycles time linear in samples) |\n|---|---|---|---|---|")
         for name, t in anchors.items():
             sec = next(r[5] for r in rows if r[0] == name and r[2] == HEADLINE)
-            print(f"| {name} | {t:.1f} | {sec * 1e3:.0f} | {t / sec:.0f}x |")
+            ref = t * samples[name] / a.anchor_samples
+            print(f"| {name} | {t:.1f} | {sec * 1e3:.0f} | {t / sec:.0f}x | {ref:.0f} s ({samples[name]}): "
+                  f"{ref / sec:.0f}x |")
     print()
     for name, lines in plans.items():
         for line in lines:
