@@ -11,8 +11,8 @@ import time
 
 from . import (ba_scale, beat_wrap, calib_accuracy, calib_captures, calib_speed, cycles_testset, decision_error_fit,
                defocus_bias, deploy_speed, detect_accuracy, export_speed, export_thin_lens, finetune_real, gi_bias,
-               global_bias, learned_deploy, learned_gpu, learned_speed, lens_indirect, outlier_rule, prefetch_gray,
-               retrain_compare, skull_parity, spatial_edge_odds, spatial_unwrap, synth_speed, unwrap_speed)
+               global_bias, learned_deploy, learned_gpu, learned_speed, lens_gi_bias, lens_indirect, outlier_rule,
+               prefetch_gray, retrain_compare, skull_parity, spatial_edge_odds, spatial_unwrap, synth_speed, unwrap_speed)
 
 #: (name, main(argv) of the benchmark, arguments of its quick mode)
 BENCHMARKS = [
@@ -21,6 +21,7 @@ BENCHMARKS = [
     ("decision_error_fit", decision_error_fit.main, ["--quick"]),
     ("gi_bias", gi_bias.main, ["--quick", "-q"]),
     ("defocus_bias", defocus_bias.main, ["--quick", "-q"]),
+    ("lens_gi_bias", lens_gi_bias.main, ["--quick", "-q"]),
     ("detect_accuracy", detect_accuracy.main, ["--quick", "--setup", "0"]),
     ("calib_accuracy", calib_accuracy.main, ["--quick"]),
     ("ba_scale", ba_scale.main, ["--quick"]),
