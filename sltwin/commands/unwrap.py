@@ -176,18 +176,15 @@ def report(results, path) -> None:
 
 def decode_and_write(args, decode, folder, out_dir, progress: bool = True, capture: str | None = None):
     """``(results, unwrap.h5 path)`` of one capture folder written into ``out_dir``. The learned path
-    on an ONNX model (``--model model.onnx`` without ``--spatial``) streams the write: each
-    orientation's group compressed while the next one is decoded, the file flushed while the last
-    preview is drawn (the same files: :mod:`unwrap.streamed_write`; +20-40 MB of peak for v's
-    compressed group held through h's forward, so not with torch, whose forward peaks at ~480 MB);
-    the others write once the capture is decoded, their previews drawn beside the write except with
-    --model (their temporaries beside the write's raised the peak by up to ~30 MB: docs/speed.md,
-    session 10). ``capture``: the file's ``capture`` attribute (default the folder)."""
-    from unwrap.learned.runtime import is_onnx
+    (``--model`` without ``--spatial``) streams the write: each orientation's group compressed while
+    the next one is decoded, the file flushed while the last preview is drawn (the same files:
+    :mod:`unwrap.streamed_write`); the others write once the capture is decoded, their previews drawn
+    beside the write except with --model (their temporaries beside the write's raised the peak by up
+    to ~30 MB: docs/speed.md, session 10). ``capture``: the file's ``capture`` attribute (default the folder)."""
     from unwrap.pipeline import write_results
 
     attrs = {"capture": str(folder) if capture is None else capture}
-    if not is_onnx(args.model) or args.spatial is not None:
+    if args.model is None or args.spatial is not None:
         res = decode(folder, progress=progress)
         return res, write_results(res, out_dir, previews=not args.no_previews, attrs=attrs,
                                   previews_beside=args.model is None)
