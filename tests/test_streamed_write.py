@@ -72,24 +72,3 @@ def test_a_group_that_fails_to_write_is_raised_by_close(tmp_path):
     with pytest.raises(ValueError, match="orientation"):
         w.close()
     assert not (tmp_path / "c").exists() or not list((tmp_path / "c").iterdir())
-
-
-def test_calib_unwrap_with_a_model_writes_what_write_results_writes(tmp_path):
-    """``calib unwrap --model`` (one capture, and a folder of them) streams its write: the files are
-    the ones ``write_results`` writes from the same decode (unwrap.h5 byte for byte, the previews)."""
-    import shutil
-
-    from bench.deploy_speed import write_capture
-    from sltwin.cli import main
-    from unwrap.learned.capture import unwrap_capture_learned
-
-    cap = write_capture(tmp_path / "cap" / "scene", size=(320, 240), seed=3)
-    ref = write_results(unwrap_capture_learned(cap, "mf", "learned"), tmp_path / "ref", attrs={"capture": str(cap)},
-                        previews_beside=False)
-    assert main(["unwrap", str(cap), "--model", "learned", "-o", str(tmp_path / "one"), "-q"]) == 0
-    assert (tmp_path / "one" / "unwrap.h5").read_bytes() == ref.read_bytes()
-    for o in ("v", "h"):
-        assert (tmp_path / "one" / f"{o}_unwrap.png").read_bytes() == (tmp_path / "ref" / f"{o}_unwrap.png").read_bytes()
-    shutil.copytree(cap, tmp_path / "batch" / "a")
-    assert main(["unwrap", str(tmp_path / "batch"), "--model", "learned", "-o", str(tmp_path / "many"), "-q"]) == 0
-    assert _datasets(tmp_path / "many" / "a" / "unwrap.h5") == {**_datasets(ref), "/": {"capture": str(tmp_path / "batch" / "a")}}

@@ -174,37 +174,13 @@ def report(results, path) -> None:
     print(f"wrote {path}")
 
 
-def decode_and_write(args, decode, folder, out_dir, progress: bool = True, capture: str | None = None):
-    """``(results, unwrap.h5 path)`` of one capture folder written into ``out_dir``. The learned path
-    (``--model`` without ``--spatial``) streams the write: each orientation's group compressed while
-    the next one is decoded, the file flushed while the last preview is drawn (the same files:
-    :mod:`unwrap.streamed_write`); the others write once the capture is decoded, their previews drawn
-    beside the write except with --model (their temporaries beside the write's raised the peak by up
-    to ~30 MB: docs/speed.md, session 10). ``capture``: the file's ``capture`` attribute (default the folder)."""
-    from unwrap.pipeline import write_results
-
-    attrs = {"capture": str(folder) if capture is None else capture}
-    if args.model is None or args.spatial is not None:
-        res = decode(folder, progress=progress)
-        return res, write_results(res, out_dir, previews=not args.no_previews, attrs=attrs,
-                                  previews_beside=args.model is None)
-    from unwrap.streamed_write import StreamedWrite
-
-    writer = StreamedWrite(out_dir, previews=not args.no_previews, attrs=attrs)
-    try:
-        res = decode(folder, progress=progress, on_result=writer.add)
-    except BaseException:
-        writer.abandon()
-        raise
-    return res, writer.close()
-
-
 def run_batch(args, folders, decode) -> int:
     """Several captures: streamed, one output sub-folder each, a summary (module docstring)."""
     import time
     from pathlib import Path
 
     from unwrap.batch import output_names, stream, summary
+    from unwrap.pipeline import write_results
 
     if args.model is not None:      # many captures: numba's plane-fit kernel pays for its ~1 s load
         from unwrap import warmup     # unless the features' plane fits run in C (no C compiler here)
@@ -216,8 +192,11 @@ def run_batch(args, folders, decode) -> int:
     names = dict(zip(folders, output_names(folders)))
     t0, items = time.perf_counter(), []
 
-    for item in stream(folders, lambda folder: decode_and_write(args, decode, folder, out / names[folder], False),
-                       progress=not args.quiet,
+    def decode_and_write(folder):
+        res = decode(folder, progress=False)
+        return res, write_results(res, out / names[folder], previews=not args.no_previews,
+                                  attrs={"capture": str(folder)}, previews_beside=args.model is None)
+    for item in stream(folders, decode_and_write, progress=not args.quiet,
                        label="unwrap" + (" (learned)" if args.model else "")):
         items.append(item)
         if item.error is None and not args.quiet:
@@ -237,6 +216,7 @@ def run(args) -> int:
 
     from unwrap.batch import capture_folders, is_capture
     from unwrap.errors import UnwrapError
+    from unwrap.pipeline import write_results
 
     claim(args.output, "dir", inputs=[*args.capture_dir, args.model])
     if args.low_memory:
@@ -255,6 +235,24 @@ def run(args) -> int:
         except UnwrapError as exc:
             raise CommandError(str(exc)) from None
         return run_batch(args, folders, decode)
-    results, path = decode_and_write(args, decode, one, args.output, capture=str(args.capture_dir[0]))
+    attrs = {"capture": str(args.capture_dir[0])}
+    if args.model is not None and args.spatial is None:
+        # the learned path: each orientation's group compressed while the next one is decoded, the file
+        # flushed while the last preview is drawn (unwrap.streamed_write; the same unwrap.h5)
+        from unwrap.streamed_write import StreamedWrite
+
+        writer = StreamedWrite(args.output, previews=not args.no_previews, attrs=attrs)
+        try:
+            results = decode(one, on_result=writer.add)
+        except BaseException:
+            writer.abandon()
+            raise
+        path = writer.close()
+    else:
+        results = decode(one)
+        # previews drawn beside the write, except with --model: there their temporaries beside the write's
+        # raised the peak by up to ~30 MB (docs/speed.md, session 10)
+        path = write_results(results, args.output, previews=not args.no_previews, attrs=attrs,
+                             previews_beside=args.model is None)
     report(results, path)
     return 0
