@@ -341,31 +341,15 @@ def unwrap_capture(folder, method: str | None = None, *, preset: str | None = No
         forget_prefetched([f for files in after.values() for f in files])
 
 
-def each_orientation(cap: Capture, label: str, decode, progress: bool = False, on_result=None) -> dict:
+def each_orientation(cap: Capture, label: str, decode, progress: bool = False) -> dict:
     """The per-orientation loop of a capture: ``{"v": decode(oc), ...}`` over its
     :class:`unwrap.capture.OrientationCapture` items, one progress line each (``label``: the
-    method named in it). The traditional and the learned capture paths share it. ``on_result(o,
-    result)``, if given, is called as each orientation is done (:class:`unwrap.streamed_write.StreamedWrite`)."""
+    method named in it). The traditional and the learned capture paths share it."""
     out = {}
     for o, oc in cap.orientations.items():
         _log(progress, f"unwrap {cap.folder} [{cap.preset}] orientation {o}, method {label}")
         out[o] = decode(oc)
-        if on_result is not None:
-            on_result(o, out[o])
     return out
-
-
-def result_group(r: OrientationResult) -> dict:
-    """The keyword arguments of :func:`unwrap.phase_io.write_phase_group` (``phase`` included) that
-    write one orientation's result into ``unwrap.h5`` (DESIGN.md layout)."""
-    u = r.result
-    return {"phase": u.phase, "order": u.order, "valid": u.valid, "frequency": u.frequency,
-            "extra": {"prior": np.asarray(u.prior, dtype=np.float64),
-                      "modulation": np.asarray(r.modulation, np.float64),
-                      "projector_coordinate": projector_coordinate(np.asarray(u.phase), u.frequency, r.width),
-                      **r.extras},
-            "attrs": {"method": u.method, "width": r.width, "valid_fraction": float(np.mean(u.valid)),
-                      **({} if r.quantisation_px is None else {"quantisation_px": r.quantisation_px})}}
 
 
 def write_results(results: dict, out_dir, *, previews: bool = True, attrs: dict | None = None,
@@ -374,7 +358,17 @@ def write_results(results: dict, out_dir, *, previews: bool = True, attrs: dict 
     ``out_dir``; returns the h5 path. ``previews_beside``: draw the previews on a thread while the
     file is compressed (written after it either way); False draws them after the file, which keeps
     their temporaries apart from the write's (the learned command's peak: docs/speed.md)."""
-    groups = {o: result_group(r) for o, r in results.items()}
+    groups = {}
+    for o, r in results.items():
+        u = r.result
+        groups[o] = {"phase": u.phase, "order": u.order, "valid": u.valid, "frequency": u.frequency,
+                     "extra": {"prior": np.asarray(u.prior, dtype=np.float64),
+                               "modulation": np.asarray(r.modulation, np.float64),
+                               "projector_coordinate": projector_coordinate(np.asarray(u.phase), u.frequency,
+                                                                            r.width),
+                               **r.extras},
+                     "attrs": {"method": u.method, "width": r.width, "valid_fraction": float(np.mean(u.valid)),
+                               **({} if r.quantisation_px is None else {"quantisation_px": r.quantisation_px})}}
     drawn = None
     if previews and previews_beside:     # drawn and encoded on a thread while the file is compressed
         from ._threads import pool

@@ -146,10 +146,10 @@ def decoder(args):
     if model is not None:
         from unwrap.learned.capture import unwrap_capture_learned
 
-        return lambda folder, progress=True, on_result=None: unwrap_capture_learned(
+        return lambda folder, progress=True: unwrap_capture_learned(
             folder, args.method or "mf", model, preset=args.preset, pose=args.pose,
             min_modulation=args.min_modulation, on_outside=args.outside, check_prior=not args.no_prior_check,
-            progress=progress, on_result=on_result)
+            progress=progress)
     from unwrap.pipeline import unwrap_capture
 
     return lambda folder, progress=True: unwrap_capture(
@@ -235,24 +235,10 @@ def run(args) -> int:
         except UnwrapError as exc:
             raise CommandError(str(exc)) from None
         return run_batch(args, folders, decode)
-    attrs = {"capture": str(args.capture_dir[0])}
-    if args.model is not None and args.spatial is None:
-        # the learned path: each orientation's group compressed while the next one is decoded, the file
-        # flushed while the last preview is drawn (unwrap.streamed_write; the same unwrap.h5)
-        from unwrap.streamed_write import StreamedWrite
-
-        writer = StreamedWrite(args.output, previews=not args.no_previews, attrs=attrs)
-        try:
-            results = decode(one, on_result=writer.add)
-        except BaseException:
-            writer.abandon()
-            raise
-        path = writer.close()
-    else:
-        results = decode(one)
-        # previews drawn beside the write, except with --model: there their temporaries beside the write's
-        # raised the peak by up to ~30 MB (docs/speed.md, session 10)
-        path = write_results(results, args.output, previews=not args.no_previews, attrs=attrs,
-                             previews_beside=args.model is None)
+    results = decode(one)
+    # previews drawn beside the write, except with --model: there their temporaries beside the write's
+    # raised the peak by up to ~30 MB (docs/speed.md, session 10)
+    path = write_results(results, args.output, previews=not args.no_previews,
+                         attrs={"capture": str(args.capture_dir[0])}, previews_beside=args.model is None)
     report(results, path)
     return 0

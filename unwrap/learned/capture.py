@@ -104,9 +104,8 @@ def pair_files(oc, method: str) -> list:
 
 def unwrap_capture_learned(folder, method: str = "mf", model="learned", *, preset=None, pose=None,
                            min_modulation=None, on_outside: str = "raise", check_prior: bool = True,
-                           progress: bool = False, on_result=None) -> dict:
+                           progress: bool = False) -> dict:
     """Every orientation of a capture folder by the network: {"v": OrientationResult, ...}.
-    ``on_result(o, result)``: called as each orientation is done (:func:`unwrap.pipeline.each_orientation`).
 
     Frames are decoded ahead on the package's pool (:func:`unwrap.capture.prefetch`): an
     orientation's pair as it starts (the high frequency's frames decode while the low one's phase
@@ -127,6 +126,6 @@ def unwrap_capture_learned(folder, method: str = "mf", model="learned", *, prese
                                    check_prior=check_prior, camera_size=cap.camera_size, progress=progress,
                                    then=after[oc.orientation])
     try:
-        return each_orientation(cap, f"{method} + learned", one, progress, on_result)
+        return each_orientation(cap, f"{method} + learned", one, progress)
     finally:
         forget_prefetched([f for fs in files.values() for f in fs])
