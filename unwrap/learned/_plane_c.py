@@ -2,10 +2,14 @@
 
 Why: the numpy replica (:mod:`unwrap.learned._plane_numpy`) spares a one-capture ``calib unwrap
 --model`` numba's ~1 s of start-up but spends ~0.1 s of CPU a box on numpy's per-step overhead;
-the same loops in C take ~10-20 ms a box and load in ~1 ms. The source below is
-``_plane_kernel``'s functions line for line (one thread: no ``prange``), compiled once by the
-system C compiler without fast-math and with ``-ffp-contract=off`` (no fused multiply-adds, as
-numba compiles), and cached on disk by :func:`unwrap._native.build` (the same cache and rules as the
+the same loops in C take ~4-7 ms a box and load in ~1 ms. The source below is
+``_plane_kernel``'s functions line for line (one thread: no ``prange``), except that pass 2's three
+sweeps over the moments per output row (shift, the row leaving, the row entering) run as one sweep,
+and the solve picks between its two quotients without a branch: per element the same operations in
+the same order, written so that the compiler vectorises them over x (each plane a ``restrict``
+argument; elementwise vector arithmetic rounds as the scalar one does). Compiled once by the system
+C compiler with :data:`unwrap._native.FLAGS` (``-O3 -march=native``, no fast-math,
+``-ffp-contract=off``: no fused multiply-adds, as numba compiles), and cached on disk by :func:`unwrap._native.build` (the same cache and rules as the
 traditional decode's fused kernel, :mod:`unwrap._fused_c`). Same operations in the same order: the outputs are bitwise the compiled
 kernel's (tests/test_plane_numpy.py); each process checks that on a small frame against the numpy
 replica before using the library (a compiler that defaults to fast-math, a foreign or damaged file)
@@ -22,7 +26,6 @@ import numpy as np
 BLOCK = 64
 """Outputs per sliding run (:data:`unwrap.learned._plane_kernel.BLOCK`; a test holds them equal)."""
 
-_FLAGS = ("-O2", "-fPIC", "-shared", "-fno-math-errno", "-ffp-contract=off")
 
 _SOURCE = r"""
 #include <stddef.h>
@@ -77,23 +80,31 @@ static void row_block(const double *Phi, const unsigned char *valid, i64 W, i64 
     }
 }
 
-static void solve(const double *Phi, const unsigned char *valid, i64 W, i64 y, const double *S,
-                  double *out) {
+/* The plane at every pixel of row y from its box's moments (S: 9 planes of W): as solve() was, written
+   branch-free (both quotients computed, one kept: the same value, bit for bit) with every plane its own
+   restrict argument, so that the compiler vectorises it over x. */
+static void solve_planes(i64 W, const double *restrict P, const unsigned char *restrict v, const double *restrict S0,
+                         const double *restrict S1, const double *restrict S2, const double *restrict S3,
+                         const double *restrict S4, const double *restrict S5, const double *restrict S6,
+                         const double *restrict S7, const double *restrict S8, double *restrict o) {
     for (i64 x = 0; x < W; x++) {
-        size_t i = (size_t)y * W + x;
-        if (!valid[i]) { out[i] = Phi[i]; continue; }
-        double S0 = S[x], Sx = S[W + x], Sy = S[2 * W + x], Sxx = S[3 * W + x], Syy = S[4 * W + x];
-        double Sxy = S[5 * W + x], SP = S[6 * W + x], SxP = S[7 * W + x], SyP = S[8 * W + x];
-        double det = S0 * (Sxx * Syy - Sxy * Sxy) - Sx * (Sx * Syy - Sxy * Sy) + Sy * (Sx * Sxy - Sxx * Sy);
+        double S0x = S0[x], Sx = S1[x], Sy = S2[x], Sxx = S3[x], Syy = S4[x];
+        double Sxy = S5[x], SP = S6[x], SxP = S7[x], SyP = S8[x];
+        double det = S0x * (Sxx * Syy - Sxy * Sxy) - Sx * (Sx * Syy - Sxy * Sy) + Sy * (Sx * Sxy - Sxx * Sy);
         double t = Sxx + Syy;
-        double scale = S0 * (t * t) + 1e-12;
-        if (S0 >= 3.0 && det > 1e-6 * scale) {
-            double num = SP * (Sxx * Syy - Sxy * Sxy) - Sx * (SxP * Syy - Sxy * SyP) + Sy * (SxP * Sxy - Sxx * SyP);
-            out[i] = num / det;
-        } else {
-            out[i] = SP / (S0 < 1.0 ? 1.0 : S0);
-        }
+        double scale = S0x * (t * t) + 1e-12;
+        double num = SP * (Sxx * Syy - Sxy * Sxy) - Sx * (SxP * Syy - Sxy * SyP) + Sy * (SxP * Sxy - Sxx * SyP);
+        double plane = num / det;
+        double mean = SP / (S0x < 1.0 ? 1.0 : S0x);
+        double fit = (S0x >= 3.0 && det > 1e-6 * scale) ? plane : mean;
+        o[x] = v[x] ? fit : P[x];
     }
+}
+
+static void solve(const double *Phi, const unsigned char *valid, i64 W, i64 y, const double *S, double *out) {
+    size_t i = (size_t)y * W;
+    solve_planes(W, Phi + i, valid + i, S, S + W, S + 2 * W, S + 3 * W, S + 4 * W, S + 5 * W, S + 6 * W, S + 7 * W,
+                 S + 8 * W, out + i);
 }
 
 static void add_row(double *S, const double *h, i64 W, size_t HW, i64 yy, double d, double sign) {
@@ -113,6 +124,59 @@ static void add_row(double *S, const double *h, i64 W, size_t HW, i64 yy, double
     }
 }
 
+/* One output row further in pass 2, for every x: the moments shifted to the new centre, the pass-1 row
+   leaving the box (r0..r4, or none) and the row entering it (a0..a4, or none): per element add_row's
+   operations in their order (shift, remove, add), in one pass over S instead of three. Every plane is its
+   own restrict argument (they do not overlap) so that the compiler vectorises the loop over x:
+   elementwise, the same operations, the same bits. */
+#define STEP_ROW(NAME, REM, ADD)                                                                           \
+static void NAME(i64 W, double *restrict S0, double *restrict S1, double *restrict S2, double *restrict S3,  \
+                 double *restrict S4, double *restrict S5, double *restrict S6, double *restrict S7,          \
+                 double *restrict S8, const double *restrict r0, const double *restrict r1,                  \
+                 const double *restrict r2, const double *restrict r3, const double *restrict r4,            \
+                 const double *restrict a0, const double *restrict a1, const double *restrict a2,            \
+                 const double *restrict a3, const double *restrict a4, double dr, double da) {               \
+    for (i64 x = 0; x < W; x++) {                                                                          \
+        double s0 = S0[x], s1 = S1[x], s2 = S2[x], s3 = S3[x], s4 = S4[x];                                  \
+        double s5 = S5[x], s6 = S6[x], s7 = S7[x], s8 = S8[x];                                              \
+        s4 = s4 - 2.0 * s2 + s0;                                                                           \
+        s2 = s2 - s0;                                                                                      \
+        s5 = s5 - s1;                                                                                      \
+        s8 = s8 - s6;                                                                                      \
+        if (REM) {                                                                                         \
+            double h0 = r0[x], h1 = r1[x], h3 = r3[x];                                                     \
+            s0 += -1.0 * h0; s1 += -1.0 * h1; s2 += -1.0 * (h0 * dr); s3 += -1.0 * r2[x];                  \
+            s4 += -1.0 * (h0 * (dr * dr)); s5 += -1.0 * (h1 * dr); s6 += -1.0 * h3;                        \
+            s7 += -1.0 * r4[x]; s8 += -1.0 * (h3 * dr);                                                    \
+        }                                                                                                  \
+        if (ADD) {                                                                                         \
+            double h0 = a0[x], h1 = a1[x], h3 = a3[x];                                                     \
+            s0 += 1.0 * h0; s1 += 1.0 * h1; s2 += 1.0 * (h0 * da); s3 += 1.0 * a2[x];                      \
+            s4 += 1.0 * (h0 * (da * da)); s5 += 1.0 * (h1 * da); s6 += 1.0 * h3;                           \
+            s7 += 1.0 * a4[x]; s8 += 1.0 * (h3 * da);                                                      \
+        }                                                                                                  \
+        S0[x] = s0; S1[x] = s1; S2[x] = s2; S3[x] = s3; S4[x] = s4;                                        \
+        S5[x] = s5; S6[x] = s6; S7[x] = s7; S8[x] = s8;                                                    \
+    }                                                                                                      \
+}
+STEP_ROW(step_both, 1, 1)
+STEP_ROW(step_rem, 1, 0)
+STEP_ROW(step_add, 0, 1)
+STEP_ROW(step_none, 0, 0)
+
+static void step_row(double *S, i64 W, const double *hr, const double *ha, size_t HW, double dr, double da) {
+    /* hr, ha: the leaving and entering pass-1 rows (plane stride HW), or NULL */
+    static const double none = 0.0;
+    const double *r = hr ? hr : &none, *a = ha ? ha : &none;
+    size_t hr_s = hr ? HW : 0, ha_s = ha ? HW : 0;
+    void (*f)(i64, double *, double *, double *, double *, double *, double *, double *, double *, double *,
+              const double *, const double *, const double *, const double *, const double *,
+              const double *, const double *, const double *, const double *, const double *, double, double)
+        = hr ? (ha ? step_both : step_rem) : (ha ? step_add : step_none);
+    f(W, S, S + W, S + 2 * W, S + 3 * W, S + 4 * W, S + 5 * W, S + 6 * W, S + 7 * W, S + 8 * W,
+      r, r + hr_s, r + 2 * hr_s, r + 3 * hr_s, r + 4 * hr_s, a, a + ha_s, a + 2 * ha_s, a + 3 * ha_s, a + 4 * ha_s, dr, da);
+}
+
 static void col_block(const double *Phi, const unsigned char *valid, i64 H, i64 W, i64 r, i64 y0, i64 y1,
                       const double *h, size_t HW, i64 off, double *out, double *S) {
     /* h: the pass-1 rows from row off on (plane stride HW) */
@@ -124,14 +188,8 @@ static void col_block(const double *Phi, const unsigned char *valid, i64 H, i64 
         solve(Phi, valid, W, y, S, out);
         y += 1;
         if (y >= y1) break;
-        for (i64 x = 0; x < W; x++) {
-            S[4 * W + x] = S[4 * W + x] - 2.0 * S[2 * W + x] + S[x];
-            S[2 * W + x] = S[2 * W + x] - S[x];
-            S[5 * W + x] = S[5 * W + x] - S[W + x];
-            S[8 * W + x] = S[8 * W + x] - S[6 * W + x];
-        }
-        if (y - r - 1 >= 0) add_row(S, h, W, HW, y - r - 1 - off, (double)(-r - 1), -1.0);
-        if (y + r < H) add_row(S, h, W, HW, y + r - off, (double)r, 1.0);
+        step_row(S, W, y - r - 1 >= 0 ? h + (size_t)(y - r - 1 - off) * W : 0,
+                 y + r < H ? h + (size_t)(y + r - off) * W : 0, HW, (double)(-r - 1), (double)r);
     }
 }
 
@@ -171,7 +229,7 @@ def _build():
     a damaged cached file rebuilt, a refused build remembered); None when that cannot be done."""
     from .._native import build
 
-    return build("plane_filter", _SOURCE, _bind, flags=_FLAGS)
+    return build("plane_filter", _SOURCE, _bind)
 
 
 def _same_bits(f) -> bool:
