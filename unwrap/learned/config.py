@@ -51,6 +51,7 @@ class DataConfig:
     val_fraction: float = 0.1                       # scenes held out for validation
     val_files: tuple[str, ...] = ()                 # whole files (captures) held out for validation instead (fine-tuning)
     val_samples: int = 8                            # at most this many validation scenes per (method, orientation)
+    split_files: tuple[str, ...] = ()               # with val_files: files split by scene as a from-scratch run splits data.train
     workers: int = 0                                # DataLoader worker processes
 
     def frequencies(self, method: str) -> tuple[float, float]:
@@ -99,6 +100,7 @@ class RunConfig:
     val_every: int = 200
     checkpoint_every: int = 100
     threads: int = 0
+    val_score: str = "pooled"                       # best step by: "pooled" error rate, or "groups": geometric mean of per-group rates
 
 
 @dataclass(frozen=True)
@@ -117,7 +119,7 @@ _POSITIVE_INT = {"data.synthetic_samples": 0, "data.val_samples": 1, "data.worke
                  "optim.steps": 1, "optim.warmup_steps": 0, "run.log_every": 1, "run.val_every": 1,
                  "run.checkpoint_every": 1, "run.threads": 0}
 _CHOICES = {"optim.name": ("adamw", "sgd"), "model.kind": KINDS, "model.conv": CONV_KINDS, "model.norm": NORM_KINDS, "model.stem": STEM_KINDS, "loss.fourier_weighting": WEIGHTINGS, "optim.schedule": ("cosine", "constant"),
-            "run.device": ("auto", "cpu", "cuda")}
+            "run.device": ("auto", "cpu", "cuda"), "run.val_score": ("pooled", "groups")}
 
 
 #: Learning rate of a fine-tuning run (``model.init`` set) when neither the file nor an override
@@ -157,6 +159,11 @@ def _check(cfg: TrainConfig):
     both = sorted(set(map(str, d.val_files)) & set(map(str, d.train)))
     if both:
         raise ConfigError(f"data.val_files and data.train share {both}: a capture is either trained on or held out")
+    if d.split_files and not d.val_files:
+        raise ConfigError("data.split_files mixes a scene split into a fine-tuning split: give data.val_files as well")
+    both = sorted(set(map(str, d.split_files)) & (set(map(str, d.val_files)) | set(map(str, d.train))))
+    if both:
+        raise ConfigError(f"data.split_files shares {both} with data.train or data.val_files: a file is split, trained on or held out")
     if not d.train and d.synthetic_samples == 0:
         raise ConfigError("no training data: set data.train (HDF5 files) or data.synthetic_samples > 0")
     o = cfg.optim

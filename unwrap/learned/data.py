@@ -8,6 +8,7 @@ ever seen in training.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -109,20 +110,52 @@ def _by_file(cfg, files, train: bool):
                 crop = tuple(d.crop) if (train and d.crop) else None
                 ds = FringeOrderDataset(p, method=m, frequencies=d.frequencies(m), orientation=o,
                                         crop=crop, flip=bool(d.flip) and train, seed=seed)
-                parts.append(MethodTagged(ds, m))
+                part = MethodTagged(ds, m)
+                part.group = Path(p).name
+                parts.append(part)
     return parts
+
+
+def _split_parts(cfg, files):
+    """``data.split_files``: the files' scenes split as a from-scratch run on them as ``data.train``
+    splits them (:func:`split_scenes` with ``val_fraction``, ``val_samples``, ``run.seed``), so a
+    fine-tune on a mix keeps that run's validation scenes out of training. (train parts, val
+    parts, held-out scene indices)."""
+    from ..dataset import FringeOrderDataset
+    d, seed = cfg.data, int(cfg.run.seed)
+    m0 = d.methods[0]
+    n = len(FringeOrderDataset(list(files), method=m0, frequencies=d.frequencies(m0),
+                               orientation=d.orientations[0], crop=None, seed=0))
+    tr, va = split_scenes(n, d.val_fraction, d.val_samples, seed)
+    parts = {True: [], False: []}
+    for train, idx in ((True, tr), (False, va)):
+        for m in d.methods:
+            for o in d.orientations:
+                ds = FringeOrderDataset(list(files), method=m, frequencies=d.frequencies(m), orientation=o,
+                                        crop=tuple(d.crop) if (train and d.crop) else None,
+                                        flip=bool(d.flip) and train, samples=idx, seed=seed)
+                parts[train].append(MethodTagged(ds, m))
+    return parts[True], parts[False], va
 
 
 def build_by_capture(cfg):
     """Fine-tuning split (``data.val_files`` given): every file of ``data.train`` trains, every file
     of ``data.val_files`` validates; a file is one capture (or a disjoint half of one), so no pixel
-    of a validation capture is ever trained on. Each file serves the orientations it holds."""
+    of a validation capture is ever trained on. Each file serves the orientations it holds.
+    ``data.split_files`` (optional) adds files split by scene (:func:`_split_parts`). Every
+    validation part carries ``group``: its file's name, or ``"split"`` (per-group error rates)."""
     d = cfg.data
-    train = EpochDataset(_by_file(cfg, d.train, True))
-    val = EpochDataset(_by_file(cfg, d.val_files, False))
+    tr_parts, va_parts = _by_file(cfg, d.train, True), _by_file(cfg, d.val_files, False)
+    split = []
+    if d.split_files:
+        s_tr, s_va, split = _split_parts(cfg, d.split_files)
+        for part in s_va:
+            part.group = "split"
+        tr_parts, va_parts = s_tr + tr_parts, s_va + va_parts
+    train, val = EpochDataset(tr_parts), EpochDataset(va_parts)
     info = {"scenes": len(d.train) + len(d.val_files), "train_scenes": [str(p) for p in d.train],
-            "val_scenes": [str(p) for p in d.val_files], "train_items": len(train), "val_items": len(val),
-            "split": "by file (capture)"}
+            "val_scenes": [str(p) for p in d.val_files] + [f"split:{int(i)}" for i in split],
+            "train_items": len(train), "val_items": len(val), "split": "by file (capture)"}
     return train, val, info
 
 

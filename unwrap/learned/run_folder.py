@@ -20,6 +20,7 @@ RESUMABLE_OVERRIDES = ("optim.steps", "run.log_every", "run.val_every", "run.che
                        "data.workers")
 TRAIN_FIELDS = ("step", "epoch", "loss", "mse", "fourier", "ce", "lr", "samples_per_s", "time_s", "cpu_s")
 VAL_FIELDS = ("step", "loss", "error_traditional", "error_model", "pixels")
+VAL_GROUP_FIELDS = ("step", "group", "error_traditional", "error_model", "pixels")   # val_groups.csv (by-file validation)
 
 
 class RunFiles:
@@ -27,8 +28,10 @@ class RunFiles:
 
     def __init__(self, run_dir: Path, resume_step: int | None):
         self.dir = run_dir
-        for name, fields in (("train.csv", TRAIN_FIELDS), ("val.csv", VAL_FIELDS)):
+        for name, fields in (("train.csv", TRAIN_FIELDS), ("val.csv", VAL_FIELDS), ("val_groups.csv", VAL_GROUP_FIELDS)):
             path = run_dir / name
+            if name == "val_groups.csv" and not path.exists():
+                continue
             rows = []
             if resume_step is not None and path.exists():   # drop rows written after the checkpoint
                 with open(path, newline="") as fh:
@@ -39,8 +42,12 @@ class RunFiles:
                 w.writerows(rows)
 
     def append(self, name: str, fields, row: dict):
+        new = not (self.dir / name).exists()
         with open(self.dir / name, "a", newline="") as fh:
-            csv.DictWriter(fh, fieldnames=fields).writerow({k: row.get(k, "") for k in fields})
+            w = csv.DictWriter(fh, fieldnames=fields)
+            if new:
+                w.writeheader()
+            w.writerow({k: row.get(k, "") for k in fields})
 
     def read(self, name: str) -> list[dict]:
         with open(self.dir / name, newline="") as fh:

@@ -45,7 +45,7 @@ from .errors import ConfigError, DatasetTooSmallError
 from .losses import LossWeights, composite_loss
 from .memory import check_training_memory, training_crop
 from .metrics import ErrorCount
-from .run_folder import (TRAIN_FIELDS, VAL_FIELDS, RunFiles, attach_file_log, cpu_seconds, open_run,
+from .run_folder import (TRAIN_FIELDS, VAL_FIELDS, VAL_GROUP_FIELDS, RunFiles, attach_file_log, cpu_seconds, open_run,
                          plot_metrics)
 from ..safe_output import write_text
 
@@ -94,23 +94,40 @@ def training_step_loss(model, batch, cfg, weights: LossWeights, amp_dtype=None):
 
 @torch.no_grad()
 def validate(model, val, cfg, weights, device) -> dict:
-    """Loss and error rates (traditional and model) over the validation scenes, full frames."""
+    """Loss and error rates (traditional and model) over the validation scenes, full frames.
+
+    ``groups``: {group: (traditional, model) ErrorCount} over the parts of ``val`` that carry a
+    ``group`` (``data.build_by_capture``: one per validation file); ``score``: what picks the best
+    step, the pooled model error rate, or with ``run.val_score = "groups"`` the geometric mean of
+    the groups' model error rates (each kind of validation scene counts alike, whatever its
+    pixel count or error level)."""
     model.eval()
     kind, K = cfg.model.kind, cfg.model.max_correction
-    loader = torch.utils.data.DataLoader(val, batch_size=1, shuffle=False, num_workers=0)
-    trad, net, losses = ErrorCount(), ErrorCount(), []
-    for batch in loader:
-        batch = _to(batch, device)
-        loss, _ = training_step_loss(model, batch, cfg, weights)
-        losses.append(float(loss))
-        x, ok = Fe.make_inputs(batch, kind)
-        order, _ = Fe.decode(model(x).float(), batch, kind, K)
-        m = (ok & (batch["order_true"] >= 0)).cpu()
-        trad = trad + ErrorCount.of(batch["order_traditional"].cpu(), batch["order_true"].cpu(), m)
-        net = net + ErrorCount.of(order.cpu(), batch["order_true"].cpu(), m)
+    parts = getattr(val, "datasets", [val])
+    trad, net, losses, groups = ErrorCount(), ErrorCount(), [], {}
+    for part in parts:
+        g = getattr(part, "group", None)
+        loader = torch.utils.data.DataLoader(part, batch_size=1, shuffle=False, num_workers=0)
+        for batch in loader:
+            batch = _to(batch, device)
+            loss, _ = training_step_loss(model, batch, cfg, weights)
+            losses.append(float(loss))
+            x, ok = Fe.make_inputs(batch, kind)
+            order, _ = Fe.decode(model(x).float(), batch, kind, K)
+            m = (ok & (batch["order_true"] >= 0)).cpu()
+            t = ErrorCount.of(batch["order_traditional"].cpu(), batch["order_true"].cpu(), m)
+            n = ErrorCount.of(order.cpu(), batch["order_true"].cpu(), m)
+            trad, net = trad + t, net + n
+            if g is not None:
+                gt, gn = groups.get(g, (ErrorCount(), ErrorCount()))
+                groups[g] = (gt + t, gn + n)
     model.train()
+    score = net.rate
+    if cfg.run.val_score == "groups" and groups:
+        rates = [gn.rate for _, gn in groups.values()]
+        score = float(np.exp(np.mean(np.log(np.maximum(rates, 1e-9)))))
     return {"loss": float(np.mean(losses)) if losses else float("nan"), "error_traditional": trad.rate,
-            "error_model": net.rate, "pixels": net.counted}
+            "error_model": net.rate, "pixels": net.counted, "score": score, "groups": groups}
 
 
 def _make_optimiser(model, cfg: TrainConfig, device):
@@ -265,7 +282,12 @@ class _Session:
             self.files.append("val.csv", VAL_FIELDS, {"step": step, **self.val_row})
             log.info("step %d: val loss %.4g, error traditional %.4f %%, model %.4f %%", step, self.val_row["loss"],
                      100 * self.val_row["error_traditional"], 100 * self.val_row["error_model"])
-            score = self.val_row["error_model"]
+            for g, (gt, gn) in self.val_row.pop("groups").items():
+                self.files.append("val_groups.csv", VAL_GROUP_FIELDS, {
+                    "step": step, "group": g, "error_traditional": gt.rate, "error_model": gn.rate, "pixels": gn.counted})
+                log.info("step %d: %s: error traditional %.4f %%, model %.4f %% (%d pixels)", step, g,
+                         100 * gt.rate, 100 * gn.rate, gn.counted)
+            score = self.val_row.pop("score")
             if score == score and score < self.best:
                 self.best = score
                 save_atomic(self.state(), self.run_dir / "best.pt")
