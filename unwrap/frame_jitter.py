@@ -27,7 +27,9 @@ What a set can tell (the identifiability this module enforces):
   ``Im((C + iS) e^{-i phi_ref})`` on ``(-sin phi_ref, cos phi_ref)``; (b) in a high-frequency set
   whose phases cover the period evenly, as the spatial low-pass of ``C + iS`` (a Gaussian of one
   fringe period removes the carrier, exp(-2 pi^2) ~ 3e-9, and leaves the constant); (c) otherwise
-  it is not identified (``how`` says why) and :func:`expected_bias_rms` gives the bias it causes
+  it is not identified (``how`` says why; also when it is below ``SIGNIFICANT`` jackknife
+  standard errors: on real captures the spatial low-pass and the reference both see more than a
+  constant) and :func:`expected_bias_rms` gives the bias it causes
   in expectation, if the frames' offsets are independent with the size measured by ``o_perp``.
 - Gains act through their product with the fringe: ``(g_n - 1) B cos(phi - delta_n)`` has
   components outside span{1, cos, sin} that depend on phi, so every gain but their mean is
@@ -68,6 +70,8 @@ TWO_PI = 2 * math.pi
 MIN_PIXELS = 2000
 #: a set's phases cover the period evenly when its 12-bin histogram's min / max is at least this
 UNIFORM_MIN_RATIO = 0.5
+#: a first harmonic is reported only when it exceeds this many jackknife standard errors
+SIGNIFICANT = 3.0
 #: calib unwrap's warning: RMS of the per-frame offsets (o_perp) above this fraction of the background
 WARN_FRACTION = 0.01
 
@@ -269,7 +273,7 @@ def _first_harmonic(J, d, mask, tile_img, reference_phase, uniform):
 
 def estimate_frame_jitter(frames, shifts, *, valid=None, min_modulation: float = 3.0, saturation: float | None = None,
                           harmonics: int = 3, reference_phase=None, max_pixels: int = 50_000, iterations: int = 3,
-                          seed: int = 0) -> FrameJitter:
+                          seed: int = 0, gains: bool = True) -> FrameJitter:
     """Per-frame offsets and gains of one fringe set (module docstring).
 
     ARGUMENTS
@@ -280,7 +284,8 @@ def estimate_frame_jitter(frames, shifts, *, valid=None, min_modulation: float =
     - harmonics: harmonics of the shared waveform in the model (0: none; then the phases must cover
       the period evenly); reference_phase: optional (H, W) phase of this set's fringe known by
       other means (rad, NaN where unknown), to identify the first harmonic.
-    - max_pixels: pixels sampled for the residual regression; iterations: Gauss-Newton passes.
+    - max_pixels: pixels sampled for the residual regression; iterations: Gauss-Newton passes;
+      gains: False fits offsets only (gains 1).
 
     RETURNED VALUE: :class:`FrameJitter`. Raises :class:`FrameJitterError` when N < 4, when fewer
     than ``MIN_PIXELS`` pixels qualify, and when the phases are uneven and ``harmonics`` is 0.
@@ -325,12 +330,22 @@ def estimate_frame_jitter(frames, shifts, *, valid=None, min_modulation: float =
         J = (Is - o1[:, None]) / g[:, None]
         XtX, Xty = _normal_equations(J, d, Q, ks, tile, 16, None if sol is None else sol[2 * N:])
         keep = np.array([np.trace(a) > 0 for a in XtX])
-        sol, std = _jackknife(XtX, Xty, N, keep)
+        if not gains:                                   # drop the gain columns
+            cols = np.r_[0:N, 2 * N:XtX.shape[1]]
+            s_, sd_ = _jackknife(XtX[:, cols][:, :, cols], Xty[:, cols], N, keep)
+            sol, std = np.zeros(XtX.shape[1]), np.zeros(XtX.shape[1])
+            sol[cols], std[cols] = s_, sd_
+        else:
+            sol, std = _jackknife(XtX, Xty, N, keep)
         o = o + g * sol[:N]
         g = g * (1 + sol[N:2 * N])
         o, g = Q @ o / g.mean(), g / g.mean()
         z, z_std, how = _first_harmonic((I - o[:, None, None]) / g[:, None, None], d, mask, tile_img,
                                         reference_phase, uniform)
+    if z is not None and z_std is not None and abs(z) < SIGNIFICANT * z_std:
+        how = (f"not significant: |z_o| = {abs(z):.3g} +- {z_std:.3g} grey by the {how} (< {SIGNIFICANT:g} standard "
+               "errors across tiles)")
+        z = None
     offsets = o + (M[:, 1:] @ np.array([z.real, z.imag]) if z is not None else 0.0)
     o_std = np.abs(g) * std[:N]
     harm = {k: complex(sol[2 * N + i], sol[2 * N + len(ks) + i]) for i, k in enumerate(ks)}
