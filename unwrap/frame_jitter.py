@@ -94,7 +94,8 @@ class FrameJitter:
       grey): the scale of the fluctuation whatever part is identified.
     - background: median A of the pixels used (grey; relative numbers divide by it); pixels:
       how many were used; uniform: whether their phases cover the period evenly; harmonics:
-      {k: complex amplitude relative to B} of the shared waveform.
+      {k: h_k relative to B} of the shared waveform, the term ``B (Re h_k cos k t + Im h_k sin k t)``,
+      t = phi - delta_n.
     """
     shifts: np.ndarray
     offsets: np.ndarray
