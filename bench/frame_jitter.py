@@ -9,8 +9,8 @@ and gains g_n - 1 (%), the fluctuation's RMS sigma, the first harmonic |z_o| (th
 the phase), and the phase bias predicted on the capture's own pixels (those the ladder trusts; B
 >= 5 grey elsewhere): RMS / p99 from the identified part (0 where the first harmonic is not
 identified) and the RMS expected from sigma alone. 3-step captures (kamino, the SLStudio skull):
-per-frame fluctuation is not identifiable (N = 3); the ratio of the sets' median backgrounds is
-printed instead.
+per-frame fluctuation is not identifiable (N = 3); the ratio of the sets' mean backgrounds (over
+pixels valid in every set) is printed instead.
 
 The pyramid's MF 1 -> 16 decision against its own ladder reference, raw and with the frames
 corrected (gains and the identified first harmonic; at f = 1 and 4 estimated on one half of the
@@ -169,9 +169,9 @@ def _three_step():
             if both.sum() < 1000 or len(ws) < 2:
                 out.append(f"| {label} {o} | N = 3: per-frame not identifiable; too few pixels for a set ratio | |")
                 continue
-            r = [np.median(w.A[both]) for _, w in ws]
+            r = [np.mean(w.A[both]) for _, w in ws]
             ratio = " / ".join(f"f = {f:g}: {v / r[0]:.4f}" for (f, _), v in zip(ws, r))
-            out.append(f"| {label} {o} | N = 3: per-frame not identifiable | median A relative to the first set: "
+            out.append(f"| {label} {o} | N = 3: per-frame not identifiable | mean A relative to the first set: "
                        f"{ratio} ({int(both.sum())} px) |")
     return out
 

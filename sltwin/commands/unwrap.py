@@ -241,4 +241,9 @@ def run(args) -> int:
     path = write_results(results, args.output, previews=not args.no_previews,
                          attrs={"capture": str(args.capture_dir[0])}, previews_beside=args.model is None)
     report(results, path)
+    from unwrap.frame_jitter import capture_jitter_line   # per-frame fluctuation (docs/unwrap.md)
+
+    line = capture_jitter_line(one, args.preset, args.pose)
+    if line:
+        print(f"note: {line}")
     return 0
