@@ -13,6 +13,7 @@ from . import (ba_scale, beat_wrap, calib_accuracy, calib_captures, calib_speed,
                defocus_bias, deploy_speed, detect_accuracy, export_speed, export_thin_lens, finetune_real, gi_bias,
                global_bias, learned_deploy, learned_gpu, learned_speed, lens_indirect, outlier_rule, prefetch_gray,
                retrain_compare, skull_parity, spatial_unwrap, synth_speed, unwrap_speed)
+from . import frame_jitter
 
 #: (name, main(argv) of the benchmark, arguments of its quick mode)
 BENCHMARKS = [
@@ -42,6 +43,7 @@ BENCHMARKS = [
     ("learned_gpu", learned_gpu.main, ["--quick", "--skip", "onnx"]),
     ("skull_parity", skull_parity.main, ["--quick"]),
     ("prefetch_gray", prefetch_gray.main, ["--quick"]),
+    ("frame_jitter", frame_jitter.main, ["--quick", "--no-correction", "-q"]),
 ]
 
 

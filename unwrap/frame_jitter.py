@@ -279,6 +279,34 @@ def _first_harmonic(J, d, mask, tile_img, reference_phase, uniform):
     return z, std, "spatial low-pass"
 
 
+def _usable(I, coef, min_modulation, saturation, valid):
+    """(mask, count) of the pixels the regression may use; FrameJitterError when too few."""
+    B = np.hypot(coef[1], coef[2])
+    mask = (B >= min_modulation) & np.all(np.isfinite(I), 0)
+    if saturation is not None:
+        mask &= I.max(0) < saturation
+    if valid is not None:
+        mask &= np.asarray(valid, dtype=bool)
+    n_px = int(mask.sum())
+    if n_px < MIN_PIXELS:
+        raise FrameJitterError(f"{n_px} pixels with modulation >= {min_modulation} grey: the per-frame fluctuation "
+                               f"needs at least {MIN_PIXELS}")
+    return mask, n_px
+
+
+def _solve_tiles(XtX, Xty, N, gains):
+    """Solution and jackknife errors of the stacked normal equations; without ``gains`` the gain
+    columns are left out (0 +- 0)."""
+    keep = np.array([np.trace(a) > 0 for a in XtX])
+    if gains:
+        return _jackknife(XtX, Xty, N, keep)
+    cols = np.r_[0:N, 2 * N:XtX.shape[1]]
+    s_, sd_ = _jackknife(XtX[:, cols][:, :, cols], Xty[:, cols], N, keep)
+    sol, std = np.zeros(XtX.shape[1]), np.zeros(XtX.shape[1])
+    sol[cols], std[cols] = s_, sd_
+    return sol, std
+
+
 def estimate_frame_jitter(frames, shifts, *, valid=None, min_modulation: float = 3.0, saturation: float | None = None,
                           harmonics: int = 3, reference_phase=None, max_pixels: int = 50_000, iterations: int = 3,
                           seed: int = 0, gains: bool | None = None,
@@ -308,16 +336,7 @@ def estimate_frame_jitter(frames, shifts, *, valid=None, min_modulation: float =
     M = np.stack([np.ones(N), np.cos(d), np.sin(d)], 1)
     Q = np.eye(N) - M @ P3
     coef = np.tensordot(P3, I, 1)
-    B = np.hypot(coef[1], coef[2])
-    mask = (B >= min_modulation) & np.all(np.isfinite(I), 0)
-    if saturation is not None:
-        mask &= I.max(0) < saturation
-    if valid is not None:
-        mask &= np.asarray(valid, dtype=bool)
-    n_px = int(mask.sum())
-    if n_px < MIN_PIXELS:
-        raise FrameJitterError(f"{n_px} pixels with modulation >= {min_modulation} grey: the per-frame fluctuation "
-                               f"needs at least {MIN_PIXELS}")
+    mask, n_px = _usable(I, coef, min_modulation, saturation, valid)
     phi = np.arctan2(coef[2], coef[1])
     uniform = _phase_uniform(phi[mask])
     if not uniform and harmonics <= 0:
@@ -326,14 +345,12 @@ def estimate_frame_jitter(frames, shifts, *, valid=None, min_modulation: float =
                                "use harmonics > 0")
     ks = _harmonic_orders(N, harmonics) if harmonics > 0 else []
     gains = uniform if gains is None else bool(gains)
-    tile_img = np.zeros((H, W), np.int64)
-    tile_img[:] = _tiles((H, W), np.ones((H, W), bool)).reshape(H, W)
+    tile_img = _tiles((H, W), np.ones((H, W), bool)).reshape(H, W)
     flat = np.flatnonzero(mask)
     rng = np.random.default_rng(seed)
     pick = rng.choice(flat, max_pixels, replace=False) if flat.size > max_pixels else flat
     pick = pick[np.argsort(tile_img.reshape(-1)[pick], kind="stable")]
-    Is = I.reshape(N, -1)[:, pick]
-    tile = tile_img.reshape(-1)[pick]
+    Is, tile = I.reshape(N, -1)[:, pick], tile_img.reshape(-1)[pick]
     o, g = np.zeros(N), np.ones(N)
     sol, std, z = None, None, None
     for _ in range(max(1, iterations)):
@@ -342,14 +359,7 @@ def estimate_frame_jitter(frames, shifts, *, valid=None, min_modulation: float =
         o1 = o + (M[:, 1:] @ np.array([z.real, z.imag]) if z is not None else 0.0)
         J = (Is - o1[:, None]) / g[:, None]
         XtX, Xty = _normal_equations(J, d, Q, ks, tile, 16, None if sol is None else sol[2 * N:])
-        keep = np.array([np.trace(a) > 0 for a in XtX])
-        if not gains:                                   # drop the gain columns
-            cols = np.r_[0:N, 2 * N:XtX.shape[1]]
-            s_, sd_ = _jackknife(XtX[:, cols][:, :, cols], Xty[:, cols], N, keep)
-            sol, std = np.zeros(XtX.shape[1]), np.zeros(XtX.shape[1])
-            sol[cols], std[cols] = s_, sd_
-        else:
-            sol, std = _jackknife(XtX, Xty, N, keep)
+        sol, std = _solve_tiles(XtX, Xty, N, gains)
         o = o + g * sol[:N]
         g = g * (1 + sol[N:2 * N])
         o, g = Q @ o / g.mean(), g / g.mean()
