@@ -62,7 +62,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import UnwrapError
+from .errors import FrameJitterError
 from .phase_shift import least_squares_weights
 
 TWO_PI = 2 * math.pi
@@ -74,10 +74,6 @@ UNIFORM_MIN_RATIO = 0.5
 SIGNIFICANT = 3.0
 #: calib unwrap's warning: RMS of the per-frame offsets (o_perp) above this fraction of the background
 WARN_FRACTION = 0.01
-
-
-class FrameJitterError(UnwrapError):
-    """A fringe set whose per-frame fluctuation cannot be identified (names the reason)."""
 
 
 @dataclass
