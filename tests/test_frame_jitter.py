@@ -41,14 +41,14 @@ def test_offsets_and_gains_of_a_high_frequency_set_are_recovered_within_0_2_perc
 
 
 def test_a_unit_set_needs_the_harmonic_model_and_a_reference_phase_for_its_first_harmonic():
-    I, o, g, phi = _set(240.0, seed=2)
+    I, o, g, phi = _set(240.0, seed=2, g_std=0.0)      # gains: not fitted where the phases are uneven
     with pytest.raises(FrameJitterError, match="do not cover the period evenly"):
         estimate_frame_jitter(I, D, min_modulation=10, harmonics=0)
     alone = estimate_frame_jitter(I, D, min_modulation=10)
     assert alone.first_harmonic is None and alone.how.startswith("not identified")
     j = estimate_frame_jitter(I, D, min_modulation=10, reference_phase=phi)
     assert j.how == "reference phase"
-    assert np.abs(j.offsets - o).max() < 0.6 and np.abs(j.gains - g).max() < 0.01
+    assert np.abs(j.offsets - o).max() < 0.6 and np.all(j.gains == 1)
 
 
 def test_non_identifiable_sets_are_refused_with_a_named_error():

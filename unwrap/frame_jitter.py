@@ -48,7 +48,7 @@ SYNOPSIS
     >>> N, (H, W) = 8, (96, 128)
     >>> d = 2 * np.pi * np.arange(N) / N
     >>> x = np.arange(W)[None, :] * np.ones((H, 1))
-    >>> phi = 2 * np.pi * x / 16.0                              # 8 periods across the image
+    >>> phi = 2 * np.pi * x / 12.0 + np.arange(H)[:, None] / 20  # 10.7 periods across
     >>> o = np.array([0, 2, -1, 0, 1, -3, 0, 1.0])              # grey
     >>> I = o[:, None, None] + 100 + 60 * np.cos(phi[None] - d[:, None, None])
     >>> j = estimate_frame_jitter(I, d, min_modulation=10)
