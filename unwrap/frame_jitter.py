@@ -62,7 +62,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import FrameJitterError
+from .errors import FrameJitterError, UnwrapError
 from .phase_shift import least_squares_weights
 
 TWO_PI = 2 * math.pi
@@ -436,7 +436,10 @@ def capture_jitter_line(folder, preset=None, pose=None, threshold: float = WARN_
     sampled, one pass, 2 harmonics, no first harmonic), as :func:`jitter_line`; None when below ``threshold`` or when no set qualifies."""
     from .capture import load_capture, read_stack
 
-    cap = load_capture(folder, preset, pose)
+    try:                                      # a diagnosis never fails a decode that succeeded
+        cap = load_capture(folder, preset, pose)
+    except (UnwrapError, OSError):
+        return None
     jitters, top = {}, None
     for o, oc in cap.orientations.items():
         sets = [s for s in oc.sets if len(s.files) >= 4]
@@ -444,7 +447,10 @@ def capture_jitter_line(folder, preset=None, pose=None, threshold: float = WARN_
             continue
         s = max(sets, key=lambda s: s.frequency)
         top = max(top or 0.0, max(x.frequency for x in oc.sets))
-        I = read_stack(s.files)
+        try:
+            I = read_stack(s.files)
+        except (UnwrapError, OSError):
+            continue
         step = max(1, int(math.sqrt(I.shape[1] * I.shape[2] / 150_000)))   # a sparse grid: the offsets are global
         I = I[:, ::step, ::step]
         sat = 0.98 * float(np.iinfo(I.dtype).max) if I.dtype.kind in "ui" else None
