@@ -149,7 +149,8 @@ def _slmaster(log):
                 rows.append(_row(f"slmaster {o}", s.frequency, f"refused: {e}", None))
                 continue
             w = wrapped_phase(I, s.shifts, min_modulation=5, saturation=250)
-            rows.append(_row(f"slmaster {o}", s.frequency, j, _bias_stats(j, w.A, w.B, np.nan_to_num(w.phase), w.valid)))
+            bias = _bias_stats(j, w.A, w.B, np.nan_to_num(w.phase), w.valid)
+            rows.append(_row(f"slmaster {o}", s.frequency, j, bias))
     log("slmaster done")
     return rows
 

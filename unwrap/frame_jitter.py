@@ -420,20 +420,21 @@ def jitter_line(jitters: dict, top_frequency: float | None = None, threshold: fl
     if worst is None or worst[1].sigma_rel <= threshold:
         return None
     label, j = worst
-    # the bias at the median modulation of a unit set: sigma * sqrt(2 / N) / B
-    N = j.shifts.size
+    # the bias of a unit set with the same N and fluctuation: sigma * sqrt(2 / N) / B
+    bias = math.sqrt(2 / j.shifts.size) * j.sigma_rel
     line = (f"frames fluctuate: per-frame offsets of {100 * j.sigma_rel:.1f} % of the background RMS ({label}; "
-            f"> {100 * threshold:.0f} %), a coherent coarse-phase bias of about {math.sqrt(2 / N) * j.sigma_rel:.3f} "
-            "rad x (A / B) RMS (unwrap.frame_jitter)")
+            f"> {100 * threshold:.0f} %), an expected coherent coarse-phase bias of {bias:.3f} rad x (A / B) RMS "
+            "(unwrap.frame_jitter)")
     if top_frequency:
-        line += f", i.e. {top_frequency * math.sqrt(2 / N) * j.sigma_rel / TWO_PI:.3f} periods of f = {top_frequency:g} x (A / B)"
+        line += f", i.e. {top_frequency * bias / TWO_PI:.3f} periods of f = {top_frequency:g} x (A / B)"
     return line
 
 
 def capture_jitter_line(folder, preset=None, pose=None, threshold: float = WARN_FRACTION) -> str | None:
     """``calib unwrap``'s diagnosis: the size of the per-frame fluctuation of the highest-frequency
     set with N >= 4 of every orientation of a capture (on a grid of ~150000 pixels, 8000 of them
-    sampled, one pass, 2 harmonics, no first harmonic), as :func:`jitter_line`; None when below ``threshold`` or when no set qualifies."""
+    sampled, one pass, 2 harmonics, no first harmonic), as :func:`jitter_line`; None when below
+    ``threshold`` or when no set qualifies."""
     from .capture import load_capture, read_stack
 
     try:                                      # a diagnosis never fails a decode that succeeded
