@@ -153,3 +153,30 @@ def test_pyramid_frames_fluctuate_by_percent_of_the_background():
     assert j.sigma_rel > 0.02
     with pytest.raises(FrameJitterError, match="N >= 4"):
         estimate_frame_jitter(I[:3].astype(np.float64), -D[:3])
+
+
+def test_calib_unwrap_diagnosis_notes_fluctuating_frames_and_stays_silent_otherwise(tmp_path):
+    import cv2
+
+    from tests.conftest import DESIGN_CAPTURE_TOML
+    from unwrap.frame_jitter import capture_jitter_line
+    from unwrap.patterns import absolute_phase, fringe_intensity
+
+    y, x = np.mgrid[0:48, 0:64].astype(np.float64)
+    c = 5.0 + 14.1 * x + 0.3 * y
+    rng = np.random.default_rng(4)
+    for name, o_std in (("steady", 0.0), ("jitter", 0.05)):
+        pose = tmp_path / name / "pose_00"
+        pose.mkdir(parents=True)
+        (tmp_path / name / "capture.toml").write_text(DESIGN_CAPTURE_TOML)
+        for f in (1, 8, 48):
+            for n in range(12):
+                I = fringe_intensity(absolute_phase(c, f, 912), n, 12, A=30000, B=25000)
+                I += (rng.normal(0, o_std) * 30000 if f == 48 else 0) + rng.normal(0, 30, I.shape)
+                for o in ("v", "h"):
+                    cv2.imwrite(str(pose / f"{o}_f{f:03d}_n{n:02d}.png"), np.round(I).astype(np.uint16))
+        line = capture_jitter_line(tmp_path / name, pose="pose_00")
+        if name == "steady":
+            assert line is None
+        else:
+            assert line is not None and line.startswith("frames fluctuate") and "f = 48" in line

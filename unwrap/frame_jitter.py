@@ -204,10 +204,14 @@ def _normal_equations_1(J, d, Q, ks, tile, n_tiles, harm, chunk):
 
 
 def _solve(XtX, Xty, N):
-    """Minimum-norm solution; the gauge directions (o in span{1, cos, sin}, the mean gain) are
-    exact null directions and come out 0."""
-    s = np.linalg.svd(XtX, compute_uv=False)
-    return np.linalg.pinv(XtX, rcond=1e-9 if s[0] > 0 else 1.0) @ Xty
+    """Minimum-norm solution (of the column-scaled system); the gauge directions (o in span{1,
+    cos, sin}, the mean gain) are exact null directions, fixed again by the caller."""
+    # columns scaled to unit diagonal first: offsets (grey) and gains (x F^2) differ by ~F^2, 1e9
+    # for 16-bit frames, and an unscaled cut-off would drop the offsets
+    dg = np.diag(XtX)
+    D = np.where(dg > 0, 1.0 / np.sqrt(np.where(dg > 0, dg, 1.0)), 0.0)
+    A = XtX * D[:, None] * D[None, :]
+    return D * (np.linalg.pinv(A, rcond=1e-9, hermitian=True) @ (D * Xty))
 
 
 def _jackknife(XtX_t, Xty_t, N, keep):
