@@ -10,7 +10,8 @@ import sys
 import time
 
 from . import (ba_scale, beat_wrap, calib_accuracy, calib_captures, calib_speed, cycles_testset, decision_error_fit,
-               defocus_bias, deploy_speed, detect_accuracy, export_speed, export_thin_lens, finetune_real, gi_bias,
+               defocus_bias, deploy_speed, detect_accuracy, export_speed, export_thin_lens, finetune_real, frame_jitter,
+               gi_bias,
                global_bias, learned_deploy, learned_gpu, learned_speed, lens_gi_bias, lens_indirect, outlier_rule,
                prefetch_gray, retrain_compare, skull_parity, spatial_edge_odds, spatial_unwrap, synth_speed, unwrap_speed)
 
@@ -44,6 +45,7 @@ BENCHMARKS = [
     ("learned_gpu", learned_gpu.main, ["--quick", "--skip", "onnx"]),
     ("skull_parity", skull_parity.main, ["--quick"]),
     ("prefetch_gray", prefetch_gray.main, ["--quick"]),
+    ("frame_jitter", frame_jitter.main, ["--quick", "--no-correction", "-q"]),
 ]
 
 

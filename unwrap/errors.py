@@ -1,5 +1,6 @@
 """Exception and warning types of the unwrap package: ``UnwrapError``, its one error root (a
-``ValueError``), ``DatasetSchemaError``, ``OutputError``, ``GlobalLightError`` and ``UnreliableFringesWarning``.
+``ValueError``), ``DatasetSchemaError``, ``OutputError``, ``GlobalLightError``,
+``FrameJitterError`` and ``UnreliableFringesWarning``.
 
 Every error names the input, the offending value and what was expected.
 """
@@ -21,6 +22,11 @@ class OutputError(UnwrapError):
 class GlobalLightError(UnwrapError):
     """A capture on which the direct / global separation (:mod:`unwrap.global_light`) cannot be
     trusted (names the problem)."""
+
+
+class FrameJitterError(UnwrapError):
+    """A fringe set whose per-frame intensity fluctuation cannot be identified
+    (:mod:`unwrap.frame_jitter`; names the reason: N = 3, too few pixels, uneven phases)."""
 
 
 class UnreliableFringesWarning(UserWarning):

@@ -78,6 +78,10 @@ def add_arguments(parser):
                              "the coarse phase's bias from global light (unwrap.global_light; helps bias-dominated "
                              "scenes, costs some accuracy on clean ones: docs/learned.md)")
     parser.add_argument("--no-previews", action="store_true", help="skip the PNG previews")
+    parser.add_argument("--check-frames", action="store_true",
+                        help="also measure how much the frames' brightness fluctuates from frame to frame (sets "
+                             "of >= 4 steps; unwrap.frame_jitter) and note it when above 1 %% of the background; "
+                             "reads the top set's frames again (0.5-2 s): off by default")
     parser.add_argument("--low-memory", action="store_true",
                         help="return freed memory to the system at once (glibc): a lower peak (900x700 with --model: "
                              "~375 -> ~305 MB) for 10-30 %% more CPU time (docs/speed.md)")
@@ -241,4 +245,10 @@ def run(args) -> int:
     path = write_results(results, args.output, previews=not args.no_previews,
                          attrs={"capture": str(args.capture_dir[0])}, previews_beside=args.model is None)
     report(results, path)
+    if args.check_frames:
+        from unwrap.frame_jitter import capture_jitter_line   # per-frame fluctuation (docs/unwrap.md)
+
+        line = capture_jitter_line(one, args.preset, args.pose)
+        print(f"note: {line}" if line else "frames: steady (per-frame fluctuation <= 1 % of the background, "
+              "or no set of >= 4 steps to measure it)")
     return 0

@@ -10,6 +10,7 @@ between the surface normal and the direction to the projector (Lambertian; 1 whe
 ``falloff`` is false), ``d_ref`` the reference distance (default: projector centre to world
 origin). Then: global illumination (optional, synth.effects.global_illumination), camera defocus
 (a blur, or the thin lens of synth.effects.thin_lens with ``samples``), the PSF's tail,
+per-frame fluctuation (optional, synth.effects.frame_jitter),
 Poisson-Gaussian noise (electrons), gain, saturation at full scale, the camera's response curve
 (synth.effects.response), quantisation to ``bits``. Interreflection (optional, synth.effects.interreflection) adds
 light that reaches a point from other surfaces, before the camera stages.
@@ -109,6 +110,21 @@ class PsfTail:
 
 
 @dataclass(frozen=True)
+class FrameJitter:
+    """Per-frame intensity fluctuation (synth.effects.frame_jitter): per frame an additive offset
+    of standard deviation ``offset`` and a gain of standard deviation ``gain``, both fractions of
+    the stack's background, drawn from ``seed``."""
+
+    offset: float = 0.0
+    gain: float = 0.0
+    seed: int = 0
+
+    @property
+    def active(self) -> bool:
+        return self.offset > 0 or self.gain > 0
+
+
+@dataclass(frozen=True)
 class Effects:
     exposure: float = 0.8
     shading: str = "lambert"          # "lambert" | "none"
@@ -128,6 +144,7 @@ class Effects:
     noise: Noise | None = None
     global_illumination: GlobalIllumination | None = None
     interreflection: Interreflection | None = None
+    frame_jitter: FrameJitter | None = None
     bits: int = 8
     vignetting: float = 0.0           # strength: factor 1 - s * (1 - cos^4 theta)
     fringe_sampling: str = "analytic"  # "analytic" | "bilinear" | "nearest"
@@ -270,6 +287,10 @@ def effects_from_table(d: dict | None) -> Effects:
             kw[k] = _global_illumination(v)
         elif k == "interreflection":
             kw[k] = _interreflection(v)
+        elif k == "frame_jitter":
+            kw[k] = _sub(v, FrameJitter, k)
+            if kw[k] is not None and (kw[k].offset > 1 or kw[k].gain > 1):
+                raise SynthError(f"effects.frame_jitter: offset and gain are fractions in [0, 1], got {v!r}")
         elif k == "bits":
             if v not in (8, 10, 12, 16):
                 raise SynthError(f"effects.bits: expected 8, 10, 12 or 16, got {v!r}")

@@ -61,6 +61,9 @@ render plan of each sample says so)::
     global_illumination = {subsurface = [0, 0.5], scatter_mm = [0.5, 4], interreflection = [0, 0.1],
                            interreflection_mm = [20, 60]}
     interreflection = {chance = 0.9, bounces = [1, 2], patch_px = [32, 48]}  # physically based
+    frame_jitter = {offset = [0, 0.03], gain = [0, 0.01]}   # per-frame fluctuation: the standard
+                                  # deviations drawn per sample (fractions of the background), the
+                                  # frames' values from a drawn seed (synth.effects.frame_jitter)
     bits = 8
     shadows = "auto"
 
@@ -213,10 +216,11 @@ _EFFECT_RANGES = {
     "global_illumination": ({"subsurface": (0.0, 1.0), "scatter_mm": (1e-3, 1e3), "interreflection": (0.0, 1.0),
                              "interreflection_mm": (1e-3, 1e4)}, None),
     "interreflection": ({"chance": (0.0, 1.0), "bounces": (1.0, 2.0), "patch_px": (0.5, 256.0)}, None),
+    "frame_jitter": ({"offset": (0.0, 1.0), "gain": (0.0, 1.0)}, None),
 }
 _EFFECT_DEFAULTS = {"exposure": Range(0.8, 0.8)}
 _SUB_REQUIRED = {"noise": "full_well_e", "projector_defocus": "aperture_mm", "camera_defocus": "aperture_mm",
-                 "global_illumination": None, "interreflection": "chance"}
+                 "global_illumination": None, "interreflection": "chance", "frame_jitter": None}
 
 _RANGE = float | tuple[float, ...]
 #: The TOML's layout (section -> key -> type) that the strict reader (unwrap.strict) checks first.

@@ -10,7 +10,7 @@ quantisation), ``phase`` (N-step wrapped phase and modulation of every frequency
 Label check (the paper's way of making labels, supplementary section 3): traditional MF from the
 unit frequency on the noise-free render must give the geometric order. It runs twice per
 orientation and frequency: on a *clean* render (same geometry, direct light only: no defocus,
-global illumination, interreflection, gamma or noise, float32 linear images) - this validates the labels, and is
+global illumination, interreflection, gamma, frame jitter or noise, float32 linear images) - this validates the labels, and is
 0 up to float32 ties - and on the noise-free render *with* the sample's effects, where defocus
 and global illumination bias the unit phase: those mismatches are the errors the effects alone
 cause, counted apart in the interior and within 1 px of an edge. Sample ``index`` depends only on ``(seed, index)``: its generator is
@@ -144,7 +144,7 @@ def make_sample(cfg: ExportConfig, system, index: int, sampler=None) -> Sample:
     linear = res.linear.numpy()
     clean_scene = replace(scene, effects=replace(scene.effects, projector_defocus=None, camera_defocus=None,
                                                  global_illumination=None, interreflection=None,
-                                                 projector_gamma=1.0, noise=None))
+                                                 projector_gamma=1.0, noise=None, frame_jitter=None))
     clean_imgs = render(clean_scene, geometry=replace(geom, sigma_prj=None, sigma_cam=None), quantised=False,
                         log=PlanLog()).images.numpy()
     for i, o in enumerate(cfg.orientations):

@@ -16,7 +16,7 @@ from functools import lru_cache
 import numpy as np
 
 from .config import ExportConfig, ExportConfigError, Range
-from ..effects.spec import Defocus, Effects, GlobalIllumination, Interreflection, Noise
+from ..effects.spec import Defocus, Effects, FrameJitter, GlobalIllumination, Interreflection, Noise
 from ..errors import SynthError
 from ..scenes.meshes import blobs_heights, heightfield_mesh, load_mesh, steps_mesh
 from ..scenes.objects import Mesh, Plane, Sphere
@@ -217,6 +217,11 @@ def draw_effects(cfg: ExportConfig, system, n_objects: int, rng, params: dict) -
             kw["interreflection"] = Interreflection(
                 bounces=int(rng.integers(int(b.lo), int(b.hi) + 1)),
                 patch_px=_draw(ir.get("patch_px", Range(32.0, 32.0)), rng))
+    if "frame_jitter" in e:  # drawn last: configs without it draw the same scenes as before
+        fj = FrameJitter(_draw(e["frame_jitter"].get("offset", Range(0.0, 0.0)), rng),
+                         _draw(e["frame_jitter"].get("gain", Range(0.0, 0.0)), rng), int(rng.integers(1 << 62)))
+        if fj.active:
+            kw["frame_jitter"] = fj
     eff = Effects(**kw)
     params["effects"] = eff.to_dict()
     return eff
@@ -239,4 +244,8 @@ def draw_scene(cfg: ExportConfig, system, rng) -> tuple[Scene, dict]:
         objects.append(_background([o.t.numpy() for o in objects], cfg, system, rng, params))
     eff = draw_effects(cfg, system, len(objects), rng, params)
     patterns = phase_sequence(cfg.orientations, cfg.frequencies, list(cfg.steps))
+    if eff.frame_jitter is not None:
+        from ..effects.frame_jitter import frame_factors
+        o, g = frame_factors(eff.frame_jitter, len(patterns))
+        params["frame_jitter"] = {"offsets": o.tolist(), "gains": g.tolist()}  # per frame, pattern order
     return Scene(system, objects, patterns, eff, "export-sample"), params

@@ -188,6 +188,19 @@ def _linear_images(geometry, lit, idx, C, rows, other, p_other, K, eff, cam_blur
     return images.reshape(K, H, W)
 
 
+def _frame_jitter(images, eff, plan, timings):
+    """synth.effects.frame_jitter on the linear stack (before the sensor; kept in ``linear``)."""
+    fj = eff.frame_jitter
+    if fj is None or not fj.active:
+        return images
+    from ..effects.frame_jitter import apply_frame_jitter
+
+    t = time.perf_counter()
+    images = apply_frame_jitter(images, fj)
+    timings["frame jitter"] = time.perf_counter() - t
+    return images
+
+
 def _sensor(images, eff, quantised: bool, timings):
     """The PSF's tail, sensor noise, then gain, saturation, the response curve and quantisation
     (or all but the quantisation); synth.effects.response."""
@@ -243,7 +256,11 @@ def _sensor_plan(eff, plan) -> bool:
               else "skipped (not asked for)" if tail is None else "skipped (fraction 0)")
     if eff.camera_gamma == 1.0:
         plan.info("camera response: skipped (gamma 1.0)")
-    return eff.camera_gamma != 1.0 or (tail is not None and tail.fraction > 0)
+    fj = eff.frame_jitter
+    plan.info("frame jitter: %s", "run" if fj is not None and fj.active
+              else "skipped (not asked for)" if fj is None else "skipped (zero offset and gain)")
+    return (eff.camera_gamma != 1.0 or (tail is not None and tail.fraction > 0)
+            or (eff.frame_jitter is not None and eff.frame_jitter.active))
 
 
 def _thin_lens(scene, keep_linear, quantised, plan) -> RenderResult:
@@ -256,6 +273,7 @@ def _thin_lens(scene, keep_linear, quantised, plan) -> RenderResult:
         return render(without_sampling(scene), keep_linear=keep_linear, quantised=quantised, log=plan)
     images, geometry, timings = avg
     _sensor_plan(scene.effects, plan)
+    images = _frame_jitter(images, scene.effects, plan, timings)
     linear = images.clone() if keep_linear else None
     images = _sensor(images, scene.effects, quantised, timings)
     timings["total"] = time.perf_counter() - t0
@@ -320,6 +338,7 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
                                 gi=eff.global_illumination if gi_on else None,
                                 f_px=max(scene.system.camera.fx, scene.system.camera.fy), plan=plan,
                                 scene=scene if ir_on else None)
+        images = _frame_jitter(images, eff, plan, timings)
         linear = images.clone() if keep_linear else None
         images = _sensor(images, eff, quantised, timings)
     timings["total"] = time.perf_counter() - t0
