@@ -209,3 +209,21 @@ def test_calib_unwrap_checks_the_frames_only_when_asked(tmp_path, capsys):
     assert main([*base, "-o", str(tmp_path / "checked"), "--check-frames"]) == 0
     out = capsys.readouterr().out
     assert "note: frames fluctuate" in out and "f = 48" in out
+
+
+def test_thin_lens_render_applies_the_jitter_once_after_the_aperture_average():
+    """The thin lens averages pinhole renders, then runs the camera stages once: the jitter must be
+    applied to the average only (not also inside every aperture sample: twice in all)."""
+    from dataclasses import replace
+
+    from synth.effects.frame_jitter import apply_frame_jitter
+    from synth.effects.spec import Defocus, Effects, FrameJitter
+
+    base = Effects(camera_defocus=Defocus(8.0, 300.0, samples=3))
+    plain = _render(base, keep_linear=True)
+    assert any(line.startswith("camera defocus: thin lens") for line in plain.plan)
+    fj = FrameJitter(0.04, 0.03, 7)
+    on = _render(replace(base, frame_jitter=fj), keep_linear=True)
+    want = apply_frame_jitter(plain.linear, fj)
+    assert torch.allclose(on.linear, want, rtol=1e-6, atol=1e-7)
+    assert [line for line in on.plan if line.startswith("frame jitter")] == ["frame jitter: run"]
