@@ -71,7 +71,8 @@ def test_best_step_by_the_groups_geometric_mean(captures, tmp_path):
     for step in ("1", "2"):
         g = [r for r in rows if r["step"] == step]
         rates = [float(r["error_model"]) for r in g]
-        scores[step] = math.exp(np.mean(np.log(np.maximum(rates, 1e-9))))
+        floors = [0.5 / int(r["pixels"]) for r in g]                                  # half a pixel per group
+        scores[step] = math.exp(np.mean(np.log(np.maximum(rates, floors))))
         wrong = sum(round(float(r["error_model"]) * int(r["pixels"])) for r in g)     # the pooled rate is their sum
         p = next(r for r in pooled if r["step"] == step)
         assert int(p["pixels"]) == sum(int(r["pixels"]) for r in g)
@@ -79,3 +80,20 @@ def test_best_step_by_the_groups_geometric_mean(captures, tmp_path):
     assert res.best_error == pytest.approx(min(scores.values()), rel=1e-9)
     with pytest.raises(ConfigError, match="val_score"):
         resolve_config(None, ["run.val_score=mean"])
+    with pytest.raises(ConfigError, match="val_files"):                               # one group: nothing to weigh
+        resolve_config(None, BASE + [f"data.train={json.dumps(captures[:2])}", "run.val_score=groups"])
+
+
+def test_group_score_floors_an_error_free_group_at_half_a_pixel():
+    """A group with no wrong pixel counts as half a wrong pixel (the count's resolution), not as a
+    rate of 1e-9: that floor made 0 / 3 % / 3 % (1,000 pixels each) score 0.0097 %, 50x better than
+    0.5 % in every group; with the floor it scores 0.77 %."""
+    from unwrap.learned.metrics import ErrorCount
+    from unwrap.learned.train import group_score
+
+    zero = group_score([ErrorCount(0, 1000), ErrorCount(30, 1000), ErrorCount(30, 1000)])
+    even = group_score([ErrorCount(5, 1000), ErrorCount(5, 1000), ErrorCount(5, 1000)])
+    assert zero == pytest.approx((0.0005 * 0.03 * 0.03) ** (1 / 3), rel=1e-12)
+    assert even == pytest.approx(0.005, rel=1e-12) and even < zero
+    assert group_score([ErrorCount(2, 100), ErrorCount(0, 0)]) == pytest.approx(0.02, rel=1e-12)  # empty: left out
+    assert math.isnan(group_score([ErrorCount(0, 0)]))
