@@ -209,6 +209,10 @@ def test_calib_unwrap_checks_the_frames_only_when_asked(tmp_path, capsys):
     assert main([*base, "-o", str(tmp_path / "checked"), "--check-frames"]) == 0
     out = capsys.readouterr().out
     assert "note: frames fluctuate" in out and "f = 48" in out
+    # a batch has no per-capture diagnosis: the flag is refused there (exit 2), not silently skipped
+    assert main(["unwrap", str(tmp_path / "jitter"), str(tmp_path / "jitter"), "--pose", "pose_00", "--no-previews",
+                 "-q", "-o", str(tmp_path / "batch"), "--check-frames"]) == 2
+    assert "--check-frames" in capsys.readouterr().err and not (tmp_path / "batch").exists()
 
 
 def test_thin_lens_render_applies_the_jitter_once_after_the_aperture_average():
