@@ -120,8 +120,9 @@ def test_effect_config_is_validated_and_export_draws_it_last_and_records_it():
     from synth.export.scenes import draw_scene
     from tests.synth_helpers import small_system
 
-    with pytest.raises(SynthError, match="frame_jitter"):
-        effects_from_table({"frame_jitter": {"offset": 2.0}})
+    for bad in ({"offset": 2.0}, {"offset": -0.01}, {"gain": -0.5}, {"gain": float("nan")}):
+        with pytest.raises(SynthError, match="frame_jitter"):
+            effects_from_table({"frame_jitter": bad})
     with pytest.raises(SynthError, match="frame_jitter"):
         effects_from_table({"frame_jitter": {"ofset": 0.1}})
     with pytest.raises(ExportConfigError, match="frame_jitter"):

@@ -289,7 +289,7 @@ def effects_from_table(d: dict | None) -> Effects:
             kw[k] = _interreflection(v)
         elif k == "frame_jitter":
             kw[k] = _sub(v, FrameJitter, k)
-            if kw[k] is not None and (kw[k].offset > 1 or kw[k].gain > 1):
+            if kw[k] is not None and not (0 <= kw[k].offset <= 1 and 0 <= kw[k].gain <= 1):   # NaN too
                 raise SynthError(f"effects.frame_jitter: offset and gain are fractions in [0, 1], got {v!r}")
         elif k == "bits":
             if v not in (8, 10, 12, 16):
