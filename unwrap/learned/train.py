@@ -99,8 +99,8 @@ def validate(model, val, cfg, weights, device) -> dict:
     ``groups``: {group: (traditional, model) ErrorCount} over the parts of ``val`` that carry a
     ``group`` (``data.build_by_capture``: one per validation file); ``score``: what picks the best
     step, the pooled model error rate, or with ``run.val_score = "groups"`` the geometric mean of
-    the groups' model error rates (each kind of validation scene counts alike, whatever its
-    pixel count or error level)."""
+    the groups' model error rates (:func:`group_score`: each kind of validation scene counts alike,
+    whatever its pixel count or error level)."""
     model.eval()
     kind, K = cfg.model.kind, cfg.model.max_correction
     parts = getattr(val, "datasets", [val])
