@@ -97,3 +97,37 @@ def test_group_score_floors_an_error_free_group_at_half_a_pixel():
     assert even == pytest.approx(0.005, rel=1e-12) and even < zero
     assert group_score([ErrorCount(2, 100), ErrorCount(0, 0)]) == pytest.approx(0.02, rel=1e-12)  # empty: left out
     assert math.isnan(group_score([ErrorCount(0, 0)]))
+
+
+def test_a_killed_run_resumes_its_group_rows_and_best_score(captures, tmp_path):
+    """Killed after step 3's validation (last checkpoint: step 2), resumed to step 4: val_groups.csv
+    holds each (step, group) once, and the best score is the least over all four steps."""
+    from unwrap.learned.checkpoint import read_checkpoint
+    from unwrap.learned.train import train
+
+    ov = BASE + [f"data.split_files={json.dumps(captures[:2])}", f"data.train={json.dumps([captures[2]])}",
+                 f"data.val_files={json.dumps([captures[3]])}", "data.val_fraction=0.5", "data.val_samples=1",
+                 "model.width=4", "model.max_width=8", "optim.batch_size=2", "optim.steps=4", "run.val_every=1",
+                 "run.checkpoint_every=2", "run.threads=1", "run.val_score=groups"]
+
+    def kill(step, loss):
+        if step == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train(None, ov, tmp_path / "run", progress=False, on_step=kill)
+    with open(tmp_path / "run" / "val_groups.csv", newline="") as fh:
+        assert max(int(r["step"]) for r in csv.DictReader(fh)) == 3          # logged after the last checkpoint
+    assert read_checkpoint(tmp_path / "run" / "last.pt")["step"] == 2
+    res = train(resume=tmp_path / "run", progress=False)
+    assert res.step == 4
+    with open(tmp_path / "run" / "val_groups.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert sorted((int(r["step"]), r["group"]) for r in rows) == sorted(
+        (s, g) for s in (1, 2, 3, 4) for g in ("split", "cap3.h5"))
+    scores = []
+    for step in ("1", "2", "3", "4"):
+        g = [r for r in rows if r["step"] == step]
+        floors = [0.5 / int(r["pixels"]) for r in g]
+        scores.append(math.exp(np.mean(np.log(np.maximum([float(r["error_model"]) for r in g], floors)))))
+    assert res.best_error == pytest.approx(min(scores), rel=1e-9)
