@@ -71,7 +71,8 @@ def test_best_step_by_the_groups_geometric_mean(captures, tmp_path):
     for step in ("1", "2"):
         g = [r for r in rows if r["step"] == step]
         rates = [float(r["error_model"]) for r in g]
-        scores[step] = math.exp(np.mean(np.log(np.maximum(rates, 1e-9))))
+        floors = [0.5 / int(r["pixels"]) for r in g]                                  # half a pixel per group
+        scores[step] = math.exp(np.mean(np.log(np.maximum(rates, floors))))
         wrong = sum(round(float(r["error_model"]) * int(r["pixels"])) for r in g)     # the pooled rate is their sum
         p = next(r for r in pooled if r["step"] == step)
         assert int(p["pixels"]) == sum(int(r["pixels"]) for r in g)
@@ -79,3 +80,54 @@ def test_best_step_by_the_groups_geometric_mean(captures, tmp_path):
     assert res.best_error == pytest.approx(min(scores.values()), rel=1e-9)
     with pytest.raises(ConfigError, match="val_score"):
         resolve_config(None, ["run.val_score=mean"])
+    with pytest.raises(ConfigError, match="val_files"):                               # one group: nothing to weigh
+        resolve_config(None, BASE + [f"data.train={json.dumps(captures[:2])}", "run.val_score=groups"])
+
+
+def test_group_score_floors_an_error_free_group_at_half_a_pixel():
+    """A group with no wrong pixel counts as half a wrong pixel (the count's resolution), not as a
+    rate of 1e-9: that floor made 0 / 3 % / 3 % (1,000 pixels each) score 0.0097 %, 50x better than
+    0.5 % in every group; with the floor it scores 0.77 %."""
+    from unwrap.learned.metrics import ErrorCount
+    from unwrap.learned.train import group_score
+
+    zero = group_score([ErrorCount(0, 1000), ErrorCount(30, 1000), ErrorCount(30, 1000)])
+    even = group_score([ErrorCount(5, 1000), ErrorCount(5, 1000), ErrorCount(5, 1000)])
+    assert zero == pytest.approx((0.0005 * 0.03 * 0.03) ** (1 / 3), rel=1e-12)
+    assert even == pytest.approx(0.005, rel=1e-12) and even < zero
+    assert group_score([ErrorCount(2, 100), ErrorCount(0, 0)]) == pytest.approx(0.02, rel=1e-12)  # empty: left out
+    assert math.isnan(group_score([ErrorCount(0, 0)]))
+
+
+def test_a_killed_run_resumes_its_group_rows_and_best_score(captures, tmp_path):
+    """Killed after step 3's validation (last checkpoint: step 2), resumed to step 4: val_groups.csv
+    holds each (step, group) once, and the best score is the least over all four steps."""
+    from unwrap.learned.checkpoint import read_checkpoint
+    from unwrap.learned.train import train
+
+    ov = BASE + [f"data.split_files={json.dumps(captures[:2])}", f"data.train={json.dumps([captures[2]])}",
+                 f"data.val_files={json.dumps([captures[3]])}", "data.val_fraction=0.5", "data.val_samples=1",
+                 "model.width=4", "model.max_width=8", "optim.batch_size=2", "optim.steps=4", "run.val_every=1",
+                 "run.checkpoint_every=2", "run.threads=1", "run.val_score=groups"]
+
+    def kill(step, loss):
+        if step == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train(None, ov, tmp_path / "run", progress=False, on_step=kill)
+    with open(tmp_path / "run" / "val_groups.csv", newline="") as fh:
+        assert max(int(r["step"]) for r in csv.DictReader(fh)) == 3          # logged after the last checkpoint
+    assert read_checkpoint(tmp_path / "run" / "last.pt")["step"] == 2
+    res = train(resume=tmp_path / "run", progress=False)
+    assert res.step == 4
+    with open(tmp_path / "run" / "val_groups.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert sorted((int(r["step"]), r["group"]) for r in rows) == sorted(
+        (s, g) for s in (1, 2, 3, 4) for g in ("split", "cap3.h5"))
+    scores = []
+    for step in ("1", "2", "3", "4"):
+        g = [r for r in rows if r["step"] == step]
+        floors = [0.5 / int(r["pixels"]) for r in g]
+        scores.append(math.exp(np.mean(np.log(np.maximum([float(r["error_model"]) for r in g], floors)))))
+    assert res.best_error == pytest.approx(min(scores), rel=1e-9)

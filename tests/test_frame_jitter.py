@@ -120,8 +120,9 @@ def test_effect_config_is_validated_and_export_draws_it_last_and_records_it():
     from synth.export.scenes import draw_scene
     from tests.synth_helpers import small_system
 
-    with pytest.raises(SynthError, match="frame_jitter"):
-        effects_from_table({"frame_jitter": {"offset": 2.0}})
+    for bad in ({"offset": 2.0}, {"offset": -0.01}, {"gain": -0.5}, {"gain": float("nan")}):
+        with pytest.raises(SynthError, match="frame_jitter"):
+            effects_from_table({"frame_jitter": bad})
     with pytest.raises(SynthError, match="frame_jitter"):
         effects_from_table({"frame_jitter": {"ofset": 0.1}})
     with pytest.raises(ExportConfigError, match="frame_jitter"):
@@ -209,3 +210,25 @@ def test_calib_unwrap_checks_the_frames_only_when_asked(tmp_path, capsys):
     assert main([*base, "-o", str(tmp_path / "checked"), "--check-frames"]) == 0
     out = capsys.readouterr().out
     assert "note: frames fluctuate" in out and "f = 48" in out
+    # a batch has no per-capture diagnosis: the flag is refused there (exit 2), not silently skipped
+    assert main(["unwrap", str(tmp_path / "jitter"), str(tmp_path / "jitter"), "--pose", "pose_00", "--no-previews",
+                 "-q", "-o", str(tmp_path / "batch"), "--check-frames"]) == 2
+    assert "--check-frames" in capsys.readouterr().err and not (tmp_path / "batch").exists()
+
+
+def test_thin_lens_render_applies_the_jitter_once_after_the_aperture_average():
+    """The thin lens averages pinhole renders, then runs the camera stages once: the jitter must be
+    applied to the average only (not also inside every aperture sample: twice in all)."""
+    from dataclasses import replace
+
+    from synth.effects.frame_jitter import apply_frame_jitter
+    from synth.effects.spec import Defocus, Effects, FrameJitter
+
+    base = Effects(camera_defocus=Defocus(8.0, 300.0, samples=3))
+    plain = _render(base, keep_linear=True)
+    assert any(line.startswith("camera defocus: thin lens") for line in plain.plan)
+    fj = FrameJitter(0.04, 0.03, 7)
+    on = _render(replace(base, frame_jitter=fj), keep_linear=True)
+    want = apply_frame_jitter(plain.linear, fj)
+    assert torch.allclose(on.linear, want, rtol=1e-6, atol=1e-7)
+    assert [line for line in on.plan if line.startswith("frame jitter")] == ["frame jitter: run"]

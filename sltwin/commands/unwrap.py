@@ -238,6 +238,8 @@ def run(args) -> int:
             folders = capture_folders(args.capture_dir)
         except UnwrapError as exc:
             raise CommandError(str(exc)) from None
+        if args.check_frames:        # not silently skipped: the batch has no per-capture diagnosis
+            raise CommandError("--check-frames checks one capture; give it one capture folder at a time")
         return run_batch(args, folders, decode)
     results = decode(one)
     # previews drawn beside the write, except with --model: there their temporaries beside the write's

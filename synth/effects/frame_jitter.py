@@ -9,8 +9,9 @@ Frame k of the linear stack (K, H, W) (camera values before noise, 1.0 = full sc
 
 drawn per frame from ``numpy.random.default_rng(seed)`` (:func:`frame_factors`); ``ref`` is the
 stack's background: the median over lit pixels (stack mean above 5 % of its maximum) of the
-per-pixel mean of the stack. Applied after the light is mixed (defocus, PSF tail, global light)
-and before the sensor's noise, gain and response curve. With ``offset = gain = 0`` or the effect
+per-pixel mean of the stack. Applied after the light is mixed (global light, interreflection,
+defocus; with the thin lens once, on the aperture average) and before the camera PSF's tail, the
+sensor's noise, gain and response curve. With ``offset = gain = 0`` or the effect
 absent the render is untouched (bit-identical). The offsets' first harmonic over a fringe set's
 shifts biases its phase by about ``Im(z_o e^{-i phi}) / B`` rad (unwrap.frame_jitter).
 """

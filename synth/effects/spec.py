@@ -9,8 +9,8 @@ between the surface normal and the direction to the projector (Lambertian; 1 whe
 "none"), ``d_p`` the distance to the projector centre (the inverse-square term is 1 when
 ``falloff`` is false), ``d_ref`` the reference distance (default: projector centre to world
 origin). Then: global illumination (optional, synth.effects.global_illumination), camera defocus
-(a blur, or the thin lens of synth.effects.thin_lens with ``samples``), the PSF's tail,
-per-frame fluctuation (optional, synth.effects.frame_jitter),
+(a blur, or the thin lens of synth.effects.thin_lens with ``samples``),
+per-frame fluctuation (optional, synth.effects.frame_jitter), the PSF's tail,
 Poisson-Gaussian noise (electrons), gain, saturation at full scale, the camera's response curve
 (synth.effects.response), quantisation to ``bits``. Interreflection (optional, synth.effects.interreflection) adds
 light that reaches a point from other surfaces, before the camera stages.
@@ -289,7 +289,7 @@ def effects_from_table(d: dict | None) -> Effects:
             kw[k] = _interreflection(v)
         elif k == "frame_jitter":
             kw[k] = _sub(v, FrameJitter, k)
-            if kw[k] is not None and (kw[k].offset > 1 or kw[k].gain > 1):
+            if kw[k] is not None and not (0 <= kw[k].offset <= 1 and 0 <= kw[k].gain <= 1):   # NaN too
                 raise SynthError(f"effects.frame_jitter: offset and gain are fractions in [0, 1], got {v!r}")
         elif k == "bits":
             if v not in (8, 10, 12, 16):

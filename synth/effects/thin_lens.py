@@ -44,7 +44,7 @@ GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
 
 #: plan lines of an aperture point's render that the average replaces (render() adds the sensor's)
 SAMPLE_PLAN_REPLACED = ("camera defocus: skipped", "projector defocus: skipped", "sensor noise", "camera PSF tail",
-                        "camera response", "gain + quantisation", "interreflection: shared")
+                        "camera response", "gain + quantisation", "interreflection: shared", "frame jitter")
 
 
 def aperture_points(n: int) -> np.ndarray:
@@ -155,7 +155,7 @@ def aperture_average(scene, render_fn, log=None):
     sample_eff = replace(plain.effects, camera_defocus=None if cam_on else plain.effects.camera_defocus,
                          projector_defocus=None if prj_on else plain.effects.projector_defocus,
                          noise=None, gain=1.0, saturation=1.0, camera_gamma=1.0, camera_psf_tail=None,
-                         reference_distance_mm=d_ref)
+                         frame_jitter=None, reference_distance_mm=d_ref)   # camera stages: once, on the average
     shared = _shared_indirect(plain, centre, timings)
     acc = None
     for i in range(n):

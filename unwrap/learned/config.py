@@ -159,6 +159,9 @@ def _check(cfg: TrainConfig):
     both = sorted(set(map(str, d.val_files)) & set(map(str, d.train)))
     if both:
         raise ConfigError(f"data.val_files and data.train share {both}: a capture is either trained on or held out")
+    if cfg.run.val_score == "groups" and not d.val_files:
+        raise ConfigError('run.val_score = "groups" scores per validation file: give data.val_files '
+                          '(a scene split has one group only)')
     if d.split_files and not d.val_files:
         raise ConfigError("data.split_files mixes a scene split into a fine-tuning split: give data.val_files as well")
     both = sorted(set(map(str, d.split_files)) & (set(map(str, d.val_files)) | set(map(str, d.train))))

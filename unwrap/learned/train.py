@@ -99,8 +99,8 @@ def validate(model, val, cfg, weights, device) -> dict:
     ``groups``: {group: (traditional, model) ErrorCount} over the parts of ``val`` that carry a
     ``group`` (``data.build_by_capture``: one per validation file); ``score``: what picks the best
     step, the pooled model error rate, or with ``run.val_score = "groups"`` the geometric mean of
-    the groups' model error rates (each kind of validation scene counts alike, whatever its
-    pixel count or error level)."""
+    the groups' model error rates (:func:`group_score`: each kind of validation scene counts alike,
+    whatever its pixel count or error level)."""
     model.eval()
     kind, K = cfg.model.kind, cfg.model.max_correction
     parts = getattr(val, "datasets", [val])
@@ -122,12 +122,19 @@ def validate(model, val, cfg, weights, device) -> dict:
                 gt, gn = groups.get(g, (ErrorCount(), ErrorCount()))
                 groups[g] = (gt + t, gn + n)
     model.train()
-    score = net.rate
-    if cfg.run.val_score == "groups" and groups:
-        rates = [gn.rate for _, gn in groups.values()]
-        score = float(np.exp(np.mean(np.log(np.maximum(rates, 1e-9)))))
+    score = group_score([gn for _, gn in groups.values()]) if cfg.run.val_score == "groups" and groups else net.rate
     return {"loss": float(np.mean(losses)) if losses else float("nan"), "error_traditional": trad.rate,
             "error_model": net.rate, "pixels": net.counted, "score": score, "groups": groups}
+
+
+def group_score(counts) -> float:
+    """Geometric mean of the error rates of ``counts`` (ErrorCount per validation group), each rate
+    floored at half a pixel of its group (``0.5 / counted``: the count's resolution), so that a group
+    with no wrong pixel weighs as one just under a pixel rather than pulling the mean to 0 (a floor
+    of 1e-9 made any step with one error-free group the best, whatever the others). Groups with no
+    counted pixel are left out; NaN when none is left."""
+    rates = [max(c.rate, 0.5 / c.counted) for c in counts if c.counted]
+    return float(np.exp(np.mean(np.log(rates)))) if rates else float("nan")
 
 
 def _make_optimiser(model, cfg: TrainConfig, device):
