@@ -232,3 +232,40 @@ def test_thin_lens_render_applies_the_jitter_once_after_the_aperture_average():
     want = apply_frame_jitter(plain.linear, fj)
     assert torch.allclose(on.linear, want, rtol=1e-6, atol=1e-7)
     assert [line for line in on.plan if line.startswith("frame jitter")] == ["frame jitter: run"]
+
+
+def test_a_zero_centred_background_is_refused_not_read_as_steady():
+    """Dark-subtracted or zero-centred frames: a fluctuation relative to the background is undefined,
+    so the set is refused by name (it read as steady: sigma / background with background <= 0)."""
+    I, *_ = _set(12.0)
+    A = I.mean(axis=0)
+    with pytest.raises(FrameJitterError, match="background"):
+        estimate_frame_jitter(I - A[None], D, min_modulation=10)
+
+
+def test_the_frame_check_says_steady_fluctuating_or_not_measured(tmp_path):
+    """``calib unwrap --check-frames``'s line never calls frames steady that it did not measure: a
+    3-step capture reads "not measured", with the reason."""
+    import cv2
+
+    from tests.conftest import DESIGN_CAPTURE_TOML
+    from unwrap.frame_jitter import frame_check
+    from unwrap.patterns import absolute_phase, fringe_intensity
+
+    y, x = np.mgrid[0:48, 0:64].astype(np.float64)
+    c = 5.0 + 14.1 * x + 0.3 * y
+    rng = np.random.default_rng(6)
+    for name, steps, o_std in (("steady", 12, 0.0), ("jitter", 12, 0.05), ("three", 3, 0.05)):
+        pose = tmp_path / name / "pose_00"
+        pose.mkdir(parents=True)
+        (tmp_path / name / "capture.toml").write_text(DESIGN_CAPTURE_TOML.replace("steps = [12, 12, 12]", f"steps = {steps}"))
+        for f in (1, 8, 48):
+            for n in range(steps):
+                I = fringe_intensity(absolute_phase(c, f, 912), n, steps, A=30000, B=25000)
+                I += (rng.normal(0, o_std) * 30000 if f == 48 else 0) + rng.normal(0, 30, I.shape)
+                for o in ("v", "h"):
+                    cv2.imwrite(str(pose / f"{o}_f{f:03d}_n{n:02d}.png"), np.round(I).astype(np.uint16))
+    assert frame_check(tmp_path / "steady", pose="pose_00").startswith("frames steady: ")
+    assert frame_check(tmp_path / "jitter", pose="pose_00").startswith("frames fluctuate")
+    line = frame_check(tmp_path / "three", pose="pose_00")
+    assert line.startswith("frames not measured") and ">= 4 steps" in line and "steady" not in line

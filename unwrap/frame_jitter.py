@@ -370,11 +370,16 @@ def estimate_frame_jitter(frames, shifts, *, valid=None, min_modulation: float =
         how = (f"not significant: |z_o| = {abs(z):.3g} +- {z_std:.3g} grey by the {how} (< {SIGNIFICANT:g} standard "
                "errors across tiles)")
         z = None
+    background = float(np.median(coef[0][mask]))
+    if not background > 0:
+        raise FrameJitterError(f"the median background of the {n_px} well-modulated pixels is {background:.3g} grey "
+                               "(<= 0: dark-subtracted or zero-centred frames?): a fluctuation relative to the "
+                               "background is undefined")
     offsets = o + (M[:, 1:] @ np.array([z.real, z.imag]) if z is not None else 0.0)
     o_std = np.abs(g) * std[:N]
     harm = {k: complex(sol[2 * N + i], sol[2 * N + len(ks) + i]) for i, k in enumerate(ks)}
     return FrameJitter(d, offsets, o_std, g, std[N:2 * N], z, z_std, how,
-                       float(np.linalg.norm(o) / math.sqrt(N - 3)), float(np.median(coef[0][mask])), n_px, uniform,
+                       float(np.linalg.norm(o) / math.sqrt(N - 3)), background, n_px, uniform,
                        harm)
 
 
@@ -434,27 +439,30 @@ def jitter_line(jitters: dict, top_frequency: float | None = None, threshold: fl
     return line
 
 
-def capture_jitter_line(folder, preset=None, pose=None, threshold: float = WARN_FRACTION) -> str | None:
-    """``calib unwrap``'s diagnosis: the size of the per-frame fluctuation of the highest-frequency
-    set with N >= 4 of every orientation of a capture (on a grid of ~150000 pixels, 8000 of them
-    sampled, one pass, 2 harmonics, no first harmonic), as :func:`jitter_line`; None when below
-    ``threshold`` or when no set qualifies."""
+def capture_jitters(folder, preset=None, pose=None) -> tuple:
+    """The per-frame fluctuation of the highest-frequency set with N >= 4 of every orientation of a
+    capture (on a grid of ~150000 pixels, 8000 of them sampled, one pass, 2 harmonics, no first
+    harmonic): ``(jitters, top, unmeasured)``: {"v, f = 48": FrameJitter}, the capture's top
+    frequency (None when no set qualifies) and ["v: why", ...] for each orientation (or the
+    capture) that could not be measured. Never raises for the capture's content."""
     from .capture import load_capture, read_stack
 
-    try:                                      # a diagnosis never fails a decode that succeeded
+    try:
         cap = load_capture(folder, preset, pose)
-    except (UnwrapError, OSError):
-        return None
-    jitters, top = {}, None
+    except (UnwrapError, OSError) as exc:
+        return {}, None, [f"capture: {exc}"]
+    jitters, top, unmeasured = {}, None, []
     for o, oc in cap.orientations.items():
         sets = [s for s in oc.sets if len(s.files) >= 4]
         if not sets:
+            unmeasured.append(f"{o}: no fringe set of >= 4 steps (with 3 every pixel's fit is exact)")
             continue
         s = max(sets, key=lambda s: s.frequency)
         top = max(top or 0.0, max(x.frequency for x in oc.sets))
         try:
             I = read_stack(s.files)
-        except (UnwrapError, OSError):
+        except (UnwrapError, OSError) as exc:
+            unmeasured.append(f"{o}, f = {s.frequency:g}: {exc}")
             continue
         step = max(1, int(math.sqrt(I.shape[1] * I.shape[2] / 150_000)))   # a sparse grid: the offsets are global
         I = I[:, ::step, ::step]
@@ -462,6 +470,29 @@ def capture_jitter_line(folder, preset=None, pose=None, threshold: float = WARN_
         try:
             jitters[f"{o}, f = {s.frequency:g}"] = estimate_frame_jitter(
                 I, s.shifts, saturation=sat, harmonics=2, max_pixels=8000, iterations=1, first_harmonic=False)
-        except FrameJitterError:
-            continue
+        except FrameJitterError as exc:
+            unmeasured.append(f"{o}, f = {s.frequency:g}: {exc}")
+    return jitters, top, unmeasured
+
+
+def capture_jitter_line(folder, preset=None, pose=None, threshold: float = WARN_FRACTION) -> str | None:
+    """``calib unwrap``'s diagnosis line (:func:`jitter_line` of :func:`capture_jitters`): None when
+    the fluctuation is below ``threshold`` or when no set could be measured."""
+    jitters, top, _ = capture_jitters(folder, preset, pose)
     return jitter_line(jitters, top, threshold)
+
+
+def frame_check(folder, preset=None, pose=None, threshold: float = WARN_FRACTION) -> str:
+    """``calib unwrap --check-frames``'s line, which always says one of three things: the frames
+    fluctuate (:func:`jitter_line`), they are steady (the largest fluctuation measured, below
+    ``threshold``), or they could not be measured (why) - never "steady" for what was not measured."""
+    jitters, top, unmeasured = capture_jitters(folder, preset, pose)
+    line = jitter_line(jitters, top, threshold)
+    if line is None and jitters:
+        label, j = max(jitters.items(), key=lambda kv: kv[1].sigma_rel)
+        line = (f"frames steady: per-frame offsets of {100 * j.sigma_rel:.2f} % of the background RMS ({label}; "
+                f"<= {100 * threshold:.0f} %)")
+    if unmeasured:
+        why = "; ".join(unmeasured)
+        line = f"{line}; not measured: {why}" if line else f"frames not measured: {why}"
+    return line

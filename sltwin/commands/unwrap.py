@@ -248,9 +248,7 @@ def run(args) -> int:
                          attrs={"capture": str(args.capture_dir[0])}, previews_beside=args.model is None)
     report(results, path)
     if args.check_frames:
-        from unwrap.frame_jitter import capture_jitter_line   # per-frame fluctuation (docs/unwrap.md)
+        from unwrap.frame_jitter import frame_check   # per-frame fluctuation (docs/unwrap.md)
 
-        line = capture_jitter_line(one, args.preset, args.pose)
-        print(f"note: {line}" if line else "frames: steady (per-frame fluctuation <= 1 % of the background, "
-              "or no set of >= 4 steps to measure it)")
+        print(f"note: {frame_check(one, args.preset, args.pose)}")
     return 0
