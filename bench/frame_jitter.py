@@ -25,6 +25,7 @@ without it. ``--quick``: the pyramid's vertical orientation and the twin only.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 from pathlib import Path
@@ -63,24 +64,21 @@ HEADER = ("| capture | f | N | pixels | first harmonic | offsets o_n (% of A) | 
 
 
 def _pyramid(orientations, correction, log):
-    import cv2
-
+    from bench.spatial_unwrap import PYRAMID, PYRAMID_ORIENTATIONS, PYRAMID_SHIFTS, pyramid_stacks
     from unwrap.frame_jitter import FrameJitterError, correct_frames, estimate_frame_jitter
     from unwrap.ladder_reference import ladder_reference
     from unwrap.phase_shift import wrapped_phase
     from unwrap.temporal import mf_unwrap
 
-    root = SHARED / "thomriiii-pyramid-mf-1-4-16" / "structured"
-    if not root.is_dir():
+    if not PYRAMID.is_dir():
         return [], []
     rows, mf = [], []
     global MEASURED
-    shifts = -2 * np.pi * np.arange(8) / 8          # their I_k = A + B cos(phi + 2 pi k / 8)
-    for o, name, width in (("v", "vertical", 1024.0), ("h", "horizontal", 768.0)):
+    shifts = PYRAMID_SHIFTS
+    for o, name, width in PYRAMID_ORIENTATIONS:
         if o not in orientations:
             continue
-        st = {f: np.stack([cv2.imread(str(root / name / f"f_{f:03d}" / f"step_{k:03d}.png"), cv2.IMREAD_GRAYSCALE)
-                           for k in range(8)]).astype(np.float64) for f in (1, 4, 16)}
+        st = {f: a.astype(np.float64) for f, a in pyramid_stacks(name).items()}
         ws = {f: wrapped_phase(st[f], shifts, min_modulation=0.02 * 255, saturation=250) for f in st}
         ref = ladder_reference([ws[f].phase for f in (1, 4, 16)], (1, 4, 16), [ws[f].B / 255 for f in (1, 4, 16)],
                                width=width)
@@ -121,7 +119,7 @@ def _pyramid(orientations, correction, log):
             ph1 = wrapped_phase(correct_frames(st[1], est[1][k]), shifts, saturation=None).phase
             corr += wrong(ph1, ph16, pix & half)
             # gains only (the first harmonic left in)
-            g_only = [e.__class__(**{**e.__dict__, "offsets": e.offsets * 0}) for e in (est[1][k], est[16])]
+            g_only = [dataclasses.replace(e, offsets=e.offsets * 0) for e in (est[1][k], est[16])]
             ph1g = wrapped_phase(correct_frames(st[1], g_only[0]), shifts, saturation=None).phase
             ph16g = wrapped_phase(correct_frames(st[16], g_only[1]), shifts, saturation=None).phase
             corr_g += wrong(ph1g, ph16g, pix & half)

@@ -113,7 +113,7 @@ def main(argv=None) -> int:
     if args.quick:
         print("\n(--quick: one interreflection scene, a smoke run; no odds chosen)")
     else:
-            print(f"\ncalibrated step odds (least noise-dominated validation error): {best['odds']:g} "
+        print(f"\ncalibrated step odds (least noise-dominated validation error): {best['odds']:g} "
               f"(smoothness {best['smoothness']:g})")
     if args.json:
         from unwrap.safe_output import write_text

@@ -47,28 +47,38 @@ DROPS = (0.02, 0.10)
 
 
 # ---------------------------------------------------------------- sources
-def _pyramid_items(orientations=("v", "h")):
-    """The pyramid capture: (1, 16) pair with the reference of the 1/4/16 ladder."""
+#: the pyramid capture (its README): frames ``structured/{vertical,horizontal}/f_FFF/step_00K.png``
+PYRAMID = SHARED / "thomriiii-pyramid-mf-1-4-16" / "structured"
+#: its orientations: (ours, its folder, the pattern's width in projector px)
+PYRAMID_ORIENTATIONS = (("v", "vertical", 1024.0), ("h", "horizontal", 768.0))
+#: its shifts in our convention: their I_k = A + B cos(phi + 2 pi k / 8)
+PYRAMID_SHIFTS = -2 * np.pi * np.arange(8) / 8
+
+
+def pyramid_stacks(folder: str) -> dict:
+    """{f: (8, H, W) uint8 frames} of the pyramid's frequencies 1, 4, 16 in its ``folder``
+    ("vertical" or "horizontal"), read in place."""
     import cv2
 
+    return {f: np.stack([cv2.imread(str(PYRAMID / folder / f"f_{f:03d}" / f"step_{k:03d}.png"), cv2.IMREAD_GRAYSCALE)
+                         for k in range(8)]) for f in (1, 4, 16)}
+
+
+def _pyramid_items(orientations=("v", "h")):
+    """The pyramid capture: (1, 16) pair with the reference of the 1/4/16 ladder."""
     from unwrap.phase_shift import wrapped_phase
     from unwrap.reliability import fit_noise_sigma
     from unwrap.temporal import mf_unwrap
 
-    root = SHARED / "thomriiii-pyramid-mf-1-4-16" / "structured"
-    if not root.is_dir():
+    if not PYRAMID.is_dir():
         return []
     items = []
-    for o, name, width in (("v", "vertical", 1024.0), ("h", "horizontal", 768.0)):
+    for o, name, width in PYRAMID_ORIENTATIONS:
         if o not in orientations:
             continue
-        ws, stacks = {}, {}
-        shifts = -2 * np.pi * np.arange(8) / 8          # their I_k = A + B cos(phi + 2 pi k / 8)
-        for f in (1, 4, 16):
-            st = np.stack([cv2.imread(str(root / name / f"f_{f:03d}" / f"step_{k:03d}.png"), cv2.IMREAD_GRAYSCALE)
-                           for k in range(8)])
-            stacks[f] = st
-            ws[f] = wrapped_phase(st, shifts, min_modulation=0.02 * 255)
+        shifts = PYRAMID_SHIFTS
+        stacks = pyramid_stacks(name)
+        ws = {f: wrapped_phase(st, shifts, min_modulation=0.02 * 255) for f, st in stacks.items()}
         a_lo, a_hi = ws[1].A / 255.0, ws[16].A / 255.0   # offsets (unwrap.global_light)
         valid = ws[1].valid & ws[4].valid & ws[16].valid
         ref = mf_unwrap([np.nan_to_num(ws[f].phase) for f in (1, 4, 16)], (1, 4, 16), width=width, valid=valid)

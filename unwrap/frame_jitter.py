@@ -203,7 +203,7 @@ def _normal_equations_1(J, d, Q, ks, tile, n_tiles, harm, chunk):
     return XtX, Xty
 
 
-def _solve(XtX, Xty, N):
+def _solve(XtX, Xty):
     """Minimum-norm solution (of the column-scaled system); the gauge directions (o in span{1,
     cos, sin}, the mean gain) are exact null directions, fixed again by the caller."""
     # columns scaled to unit diagonal first: offsets (grey) and gains (x F^2) differ by ~F^2, 1e9
@@ -214,13 +214,13 @@ def _solve(XtX, Xty, N):
     return D * (np.linalg.pinv(A, rcond=1e-9, hermitian=True) @ (D * Xty))
 
 
-def _jackknife(XtX_t, Xty_t, N, keep):
+def _jackknife(XtX_t, Xty_t, keep):
     tot_A, tot_b = XtX_t[keep].sum(0), Xty_t[keep].sum(0)
-    full = _solve(tot_A, tot_b, N)
+    full = _solve(tot_A, tot_b)
     idx = np.flatnonzero(keep)
     if idx.size < 3:
         return full, np.full_like(full, np.nan)
-    loo = np.stack([_solve(tot_A - XtX_t[t], tot_b - Xty_t[t], N) for t in idx])
+    loo = np.stack([_solve(tot_A - XtX_t[t], tot_b - Xty_t[t]) for t in idx])
     T = idx.size
     return full, np.sqrt((T - 1) / T * ((loo - loo.mean(0)) ** 2).sum(0))
 
@@ -299,9 +299,9 @@ def _solve_tiles(XtX, Xty, N, gains):
     columns are left out (0 +- 0)."""
     keep = np.array([np.trace(a) > 0 for a in XtX])
     if gains:
-        return _jackknife(XtX, Xty, N, keep)
+        return _jackknife(XtX, Xty, keep)
     cols = np.r_[0:N, 2 * N:XtX.shape[1]]
-    s_, sd_ = _jackknife(XtX[:, cols][:, :, cols], Xty[:, cols], N, keep)
+    s_, sd_ = _jackknife(XtX[:, cols][:, :, cols], Xty[:, cols], keep)
     sol, std = np.zeros(XtX.shape[1]), np.zeros(XtX.shape[1])
     sol[cols], std[cols] = s_, sd_
     return sol, std

@@ -61,6 +61,15 @@ def _check_odds(odds: float) -> float:
     return odds
 
 
+def prior_likelihood(z, sigma, outlier: float):
+    """The temporal prior's likelihood (per fringe) of a residual of ``z`` standard deviations
+    ``sigma`` (fringes), any equal shapes: ``(1 - outlier) N(z sigma; 0, sigma) + outlier``, a
+    Gaussian of the prior's noise mixed with a uniform part of weight ``outlier`` (a biased coarse
+    phase). The model of the graph cut's data term (:func:`unwrap.spatial_orders.prior_data_cost`) and of the depth-edge weight
+    (:mod:`unwrap.spatial_edges`)."""
+    return (1.0 - outlier) * (np.exp(-0.5 * z * z) / (math.sqrt(2 * math.pi) * sigma)) + outlier
+
+
 def same_surface_probability(prior_step, phase_step, sigma_p, sigma_q, *, odds: float, outlier: float) -> np.ndarray:
     """Posterior probability (same shape as the inputs, float64 in [0, 1]) that two neighbours lie on
     one surface (no whole-fringe jump of the absolute phase between them), from the step of the
@@ -75,11 +84,11 @@ def same_surface_probability(prior_step, phase_step, sigma_p, sigma_q, *, odds: 
     if odds == 0:
         return np.ones(dr.shape)
     e = dr + np.rint(np.asarray(phase_step, dtype=np.float64) / TWO_PI)
-    s2 = np.maximum(np.asarray(sigma_p, dtype=np.float64) ** 2 + np.asarray(sigma_q, dtype=np.float64) ** 2, 1e-300)
+    s = np.sqrt(np.maximum(np.asarray(sigma_p, dtype=np.float64) ** 2 + np.asarray(sigma_q, dtype=np.float64) ** 2,
+                           1e-300))
     k = np.where(e >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(np.rint(e)))
-    norm = (1.0 - outlier) / np.sqrt(2.0 * math.pi * s2)
-    like_0 = norm * np.exp(-0.5 * e * e / s2) + outlier
-    like_k = norm * np.exp(-0.5 * (e - k) ** 2 / s2) + outlier
+    like_0 = prior_likelihood(e / s, s, outlier)
+    like_k = prior_likelihood((e - k) / s, s, outlier)
     return like_0 / (like_0 + odds * like_k)
 
 
@@ -121,4 +130,4 @@ def scale_weights(wx, wy, extra, prior, phase_high, sigma, *, odds: float, outli
     return wx, wy, extra
 
 
-__all__ = ["same_surface_probability", "scale_grid_weights", "scale_pair_weights", "scale_weights"]
+__all__ = ["prior_likelihood", "same_surface_probability", "scale_grid_weights", "scale_pair_weights", "scale_weights"]

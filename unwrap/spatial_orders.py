@@ -49,6 +49,7 @@ import numpy as np
 
 from ._xp import TWO_PI, wrap
 from .errors import UnwrapError
+from .spatial_edges import prior_likelihood, scale_weights
 
 #: Default label range: corrections -2 ... +2 (the learned network's classes).
 MAX_CORRECTION = 2
@@ -162,8 +163,7 @@ def prior_data_cost(prior, order, sigma, valid, *, frequency_high: float, max_co
     n = np.asarray(order, dtype=np.float64)
     r0, s0 = np.where(valid, r, 0.0), np.where(valid, s, 1.0)
     z = (r0 - np.where(valid, n, 0.0) - c) / s0
-    gauss = np.exp(-0.5 * z * z) / (math.sqrt(2 * math.pi) * s0)
-    cost = -np.log((1.0 - outlier) * gauss + outlier + 1e-300)
+    cost = -np.log(prior_likelihood(z, s0, outlier) + 1e-300)
     cost -= cost.min(axis=0, keepdims=True)
     k = n + c
     cost = np.where((k < 0) | (k > math.floor(frequency_high + 0.5)), OUT_OF_RANGE_COST, cost)
@@ -449,7 +449,6 @@ def graphcut_orders(method: str, phase_low, phase_high, frequencies, valid, sigm
                           max_prior_step=max_prior_step)
     extra = bridge_edges(phi_hi, ok, weight=smoothness, prior=prior, max_wrapped_step=max_wrapped_step,
                          max_prior_step=max_prior_step) if bridge else None
-    from .spatial_edges import scale_weights
     wx, wy, extra = scale_weights(wx, wy, extra, prior, phi_hi, sig, outlier=outlier, odds=(
         step_odds if step_odds is not None else DEFAULTS["step_odds"] if given_cost is None else 0.0))
     c, energy = solve_corrections(cost, phi_hi, n, ok, wx, wy, extra)

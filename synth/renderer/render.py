@@ -188,7 +188,7 @@ def _linear_images(geometry, lit, idx, C, rows, other, p_other, K, eff, cam_blur
     return images.reshape(K, H, W)
 
 
-def _frame_jitter(images, eff, plan, timings):
+def _frame_jitter(images, eff, timings):
     """synth.effects.frame_jitter on the linear stack (before the sensor; kept in ``linear``)."""
     fj = eff.frame_jitter
     if fj is None or not fj.active:
@@ -273,7 +273,7 @@ def _thin_lens(scene, keep_linear, quantised, plan) -> RenderResult:
         return render(without_sampling(scene), keep_linear=keep_linear, quantised=quantised, log=plan)
     images, geometry, timings = avg
     _sensor_plan(scene.effects, plan)
-    images = _frame_jitter(images, scene.effects, plan, timings)
+    images = _frame_jitter(images, scene.effects, timings)
     linear = images.clone() if keep_linear else None
     images = _sensor(images, scene.effects, quantised, timings)
     timings["total"] = time.perf_counter() - t0
@@ -338,7 +338,7 @@ def render(scene, *, keep_linear: bool = False, quantised: bool = True, geometry
                                 gi=eff.global_illumination if gi_on else None,
                                 f_px=max(scene.system.camera.fx, scene.system.camera.fy), plan=plan,
                                 scene=scene if ir_on else None)
-        images = _frame_jitter(images, eff, plan, timings)
+        images = _frame_jitter(images, eff, timings)
         linear = images.clone() if keep_linear else None
         images = _sensor(images, eff, quantised, timings)
     timings["total"] = time.perf_counter() - t0

@@ -50,12 +50,14 @@ class EpochDataset(ConcatDataset):
                 d.set_epoch(epoch)
 
 
-def _scene_count(cfg) -> int:
+def _scene_count(cfg, files=None) -> int:
+    """Scenes of ``files`` (default ``data.train``; none: ``data.synthetic_samples``)."""
     d = cfg.data
-    if d.train:
+    files = d.train if files is None else files
+    if files:
         from ..dataset import FringeOrderDataset   # the HDF5 reader (unwrap/dataset.py)
         m = d.methods[0]
-        ds = FringeOrderDataset(list(d.train), method=m, frequencies=d.frequencies(m),
+        ds = FringeOrderDataset(list(files), method=m, frequencies=d.frequencies(m),
                                 orientation=d.orientations[0], crop=None, seed=0)
         return len(ds)
     return int(d.synthetic_samples)
@@ -70,14 +72,17 @@ def split_scenes(n: int, val_fraction: float, val_max: int, seed: int):
     return np.sort(perm[n_val:]), np.sort(perm[:n_val])
 
 
-def _one(cfg, method: str, orientation: str, samples, train: bool):
+def _one(cfg, method: str, orientation: str, samples, train: bool, files=None):
+    """One (method, orientation) part of the scenes ``samples`` of ``files`` (default
+    ``data.train``; none: the synthetic scenes)."""
     d = cfg.data
     freqs = d.frequencies(method)
     seed = int(cfg.run.seed)
-    if d.train:
+    files = d.train if files is None else files
+    if files:
         from ..dataset import FringeOrderDataset
         crop = tuple(d.crop) if (train and d.crop) else None
-        ds = FringeOrderDataset(list(d.train), method=method, frequencies=freqs, orientation=orientation,
+        ds = FringeOrderDataset(list(files), method=method, frequencies=freqs, orientation=orientation,
                                 crop=crop, flip=bool(d.flip) and train, samples=samples, seed=seed)
     else:
         from .synthetic import SyntheticFringeDataset
@@ -121,20 +126,10 @@ def _split_parts(cfg, files):
     splits them (:func:`split_scenes` with ``val_fraction``, ``val_samples``, ``run.seed``), so a
     fine-tune on a mix keeps that run's validation scenes out of training. (train parts, val
     parts, held-out scene indices)."""
-    from ..dataset import FringeOrderDataset
-    d, seed = cfg.data, int(cfg.run.seed)
-    m0 = d.methods[0]
-    n = len(FringeOrderDataset(list(files), method=m0, frequencies=d.frequencies(m0),
-                               orientation=d.orientations[0], crop=None, seed=0))
-    tr, va = split_scenes(n, d.val_fraction, d.val_samples, seed)
-    parts = {True: [], False: []}
-    for train, idx in ((True, tr), (False, va)):
-        for m in d.methods:
-            for o in d.orientations:
-                ds = FringeOrderDataset(list(files), method=m, frequencies=d.frequencies(m), orientation=o,
-                                        crop=tuple(d.crop) if (train and d.crop) else None,
-                                        flip=bool(d.flip) and train, samples=idx, seed=seed)
-                parts[train].append(MethodTagged(ds, m))
+    d = cfg.data
+    tr, va = split_scenes(_scene_count(cfg, files), d.val_fraction, d.val_samples, cfg.run.seed)
+    parts = {train: [_one(cfg, m, o, idx, train, files) for m in d.methods for o in d.orientations]
+             for train, idx in ((True, tr), (False, va))}
     return parts[True], parts[False], va
 
 

@@ -4,6 +4,7 @@ log.txt, metrics.png, and the CPU seconds the run costs."""
 from __future__ import annotations
 
 import csv
+import io
 import logging
 import os
 import time
@@ -11,7 +12,7 @@ from pathlib import Path
 
 from .config import TrainConfig, resolve_config
 from .errors import ConfigError
-from ..safe_output import save_figure
+from ..safe_output import save_figure, write_text
 
 log = logging.getLogger("unwrap.learned")
 
@@ -36,10 +37,11 @@ class RunFiles:
             if resume_step is not None and path.exists():   # drop rows written after the checkpoint
                 with open(path, newline="") as fh:
                     rows = [r for r in csv.DictReader(fh) if int(r["step"]) <= resume_step]
-            with open(path, "w", newline="") as fh:
-                w = csv.DictWriter(fh, fieldnames=fields)
-                w.writeheader()
-                w.writerows(rows)
+            buf = io.StringIO(newline="")
+            w = csv.DictWriter(buf, fieldnames=fields)
+            w.writeheader()
+            w.writerows(rows)
+            write_text(path, buf.getvalue())     # atomic: a crash here leaves the old log, not half of it
 
     def append(self, name: str, fields, row: dict):
         new = not (self.dir / name).exists()
