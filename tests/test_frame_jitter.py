@@ -235,12 +235,16 @@ def test_thin_lens_render_applies_the_jitter_once_after_the_aperture_average():
 
 
 def test_a_zero_centred_background_is_refused_not_read_as_steady():
-    """Dark-subtracted or zero-centred frames: a fluctuation relative to the background is undefined,
-    so the set is refused by name (it read as steady: sigma / background with background <= 0)."""
+    """Zero-centred frames (background 0 up to rounding, whose sign BLAS decides): a fluctuation
+    relative to the background is undefined, so the set is refused by name (it read as steady:
+    sigma / background with background <= 0); real intensities, background >= modulation, pass."""
     I, *_ = _set(12.0)
     A = I.mean(axis=0)
     with pytest.raises(FrameJitterError, match="background"):
         estimate_frame_jitter(I - A[None], D, min_modulation=10)
+    with pytest.raises(FrameJitterError, match="background"):       # over-subtracted: A well below B
+        estimate_frame_jitter(I - 0.9 * A[None], D, min_modulation=10)
+    assert estimate_frame_jitter(I - 0.3 * A[None], D, min_modulation=10).background > 0   # contrast 0.86: kept
 
 
 def test_the_frame_check_says_steady_fluctuating_or_not_measured(tmp_path):

@@ -72,6 +72,9 @@ MIN_PIXELS = 2000
 UNIFORM_MIN_RATIO = 0.5
 #: a first harmonic is reported only when it exceeds this many jackknife standard errors
 SIGNIFICANT = 3.0
+#: a set whose median background A is below this fraction of its median modulation B is refused:
+#: intensities are >= 0, so A >= B (contrast <= 1) up to noise and the response curve
+MIN_BACKGROUND = 0.5
 #: calib unwrap's warning: RMS of the per-frame offsets (o_perp) above this fraction of the background
 WARN_FRACTION = 0.01
 
@@ -371,10 +374,14 @@ def estimate_frame_jitter(frames, shifts, *, valid=None, min_modulation: float =
                "errors across tiles)")
         z = None
     background = float(np.median(coef[0][mask]))
-    if not background > 0:
-        raise FrameJitterError(f"the median background of the {n_px} well-modulated pixels is {background:.3g} grey "
-                               "(<= 0: dark-subtracted or zero-centred frames?): a fluctuation relative to the "
-                               "background is undefined")
+    modulation = float(np.median(np.hypot(coef[1], coef[2])[mask]))
+    if not background >= MIN_BACKGROUND * modulation:
+        # intensities are >= 0, so A >= B at every pixel (up to noise); a background far below the
+        # modulation (0 up to rounding for zero-centred frames) is no intensity to scale by
+        raise FrameJitterError(f"the median background of the {n_px} well-modulated pixels is {background:.3g} grey, "
+                               f"below {MIN_BACKGROUND:g} x their median modulation {modulation:.3g}: not intensities "
+                               "(zero-centred or over-subtracted frames?); a fluctuation relative to the background is "
+                               "undefined")
     offsets = o + (M[:, 1:] @ np.array([z.real, z.imag]) if z is not None else 0.0)
     o_std = np.abs(g) * std[:N]
     harm = {k: complex(sol[2 * N + i], sol[2 * N + len(ks) + i]) for i, k in enumerate(ks)}
